@@ -1,0 +1,301 @@
+//! One device on a bus: discovers its channels from the work mode, then polls its counts.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use tokio::time::Instant;
+use tokio_modbus::ExceptionCode;
+
+use super::link::{Link, LinkError};
+use super::schedule::Backoff;
+use crate::config::{Bus, Device};
+use crate::counter::{Counter, CounterSpec, CounterState};
+use crate::decode::decode;
+use crate::plan::{Block, Wire, plan_reads};
+use crate::profile::{ChannelSpec, Profile, Register, ValueType};
+use crate::reading::{Reading, unix_ms};
+use crate::state::{channel_key, device_key};
+
+/// Why a poll produced no readings.
+#[derive(Debug, thiserror::Error)]
+pub enum PollError {
+    #[error("{0}")]
+    Link(#[from] LinkError),
+    #[error("refused a read of {len} registers at {start}: {exception:?}")]
+    Refused {
+        start: u16,
+        len: u16,
+        exception: ExceptionCode,
+    },
+    #[error("{0}")]
+    Profile(String),
+}
+
+impl PollError {
+    /// The device said something: it is there, even if it refused.
+    pub fn device_answered(&self) -> bool {
+        !matches!(self, PollError::Link(_))
+    }
+}
+
+/// A channel being polled.
+struct ChannelRt {
+    spec: ChannelSpec,
+    name: Arc<str>,
+    counter: Counter,
+    ppr: Option<f64>,
+}
+
+/// Registers read in one poll, by block.
+struct Snapshot {
+    blocks: Vec<(Block, Vec<u16>, SystemTime)>,
+}
+
+impl Snapshot {
+    fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
+        self.blocks.iter().find(|(b, ..)| b.covers(r)).map(|(b, words, at)| {
+            let off = usize::from(r.address - b.start);
+            (&words[off..off + usize::from(r.len())], *at)
+        })
+    }
+}
+
+/// The state of one device on its bus.
+pub struct DeviceRt {
+    pub name: Arc<str>,
+    pub unit: u8,
+    pub config: Device,
+    profile: Arc<Profile>,
+    /// Answer timeout before line time is added.
+    answer_timeout: Duration,
+    wire: Wire,
+    modes: Option<Vec<u16>>,
+    channels: Vec<ChannelRt>,
+    fast: Vec<Register>,
+    /// Register ranges the device refused (exception 02): never bridged again.
+    pub holes: Vec<Range<u16>>,
+    saved: BTreeMap<String, CounterState>,
+    last_slow: Option<Instant>,
+    slow_every: Duration,
+    pub failures: u32,
+    pub online: Option<bool>,
+    pub backoff: Backoff,
+    pub last_error: Option<String>,
+    /// Poll latencies (seconds), most recent last, for p50/p99.
+    pub latencies: Vec<f64>,
+}
+
+impl DeviceRt {
+    pub fn new(bus: &Bus, config: &Device, wire: Wire, saved: &BTreeMap<String, CounterState>, holes: Vec<Range<u16>>) -> DeviceRt {
+        let prefix = format!("{}/{}/", config.unit, config.model);
+        DeviceRt {
+            name: Arc::from(config.name.as_str()),
+            unit: config.unit,
+            profile: config.profile.clone(),
+            answer_timeout: config.answer_timeout(bus),
+            wire,
+            modes: None,
+            channels: Vec::new(),
+            fast: Vec::new(),
+            holes,
+            saved: saved
+                .iter()
+                .filter(|(k, _)| k.starts_with(&prefix))
+                .map(|(k, v)| (k.clone(), v.clone()))
+                .collect(),
+            last_slow: None,
+            slow_every: bus.slow_poll,
+            failures: 0,
+            online: None,
+            backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
+            last_error: None,
+            latencies: Vec::new(),
+            config: config.clone(),
+        }
+    }
+
+    /// The key under which this device's holes are saved.
+    pub fn holes_key(&self) -> String {
+        device_key(self.unit, &self.config.model)
+    }
+
+    /// Counter state of every channel, keyed for the state file (channels not discovered yet
+    /// keep what was loaded).
+    pub fn counter_states(&self) -> BTreeMap<String, CounterState> {
+        let mut out = self.saved.clone();
+        for ch in &self.channels {
+            out.insert(channel_key(self.unit, &self.config.model, &ch.name), ch.counter.state.clone());
+        }
+        out
+    }
+
+    /// The device was away: every channel's next delta covers the gap.
+    pub fn mark_gap(&mut self) {
+        for ch in &mut self.channels {
+            ch.counter.mark_gap();
+        }
+    }
+
+    /// One poll: discovery and slow registers when due, then counts and frequencies.
+    pub async fn poll(&mut self, link: &mut Link) -> Result<Vec<Reading>, PollError> {
+        let slow_due = self.last_slow.is_none_or(|t| t.elapsed() >= self.slow_every);
+        if self.modes.is_none() || slow_due {
+            self.read_slow(link).await?;
+        }
+        let snapshot = self.read_registers(link, &self.fast.clone()).await?;
+        let order = self.profile.word_order;
+        let mut readings = Vec::with_capacity(self.channels.len());
+        for ch in &mut self.channels {
+            let Some((words, at)) = snapshot.get(&ch.spec.count) else {
+                continue;
+            };
+            let count = decode(words, ch.spec.count.ty, order).as_i64();
+            let freq_hz = ch
+                .spec
+                .freq
+                .and_then(|r| snapshot.get(&r))
+                .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
+                .filter(|f| f.is_finite());
+            let rpm = match (freq_hz, ch.ppr) {
+                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
+                _ => None,
+            };
+            let update = ch.counter.update(count, unix_ms(at));
+            readings.push(Reading {
+                device: self.name.clone(),
+                channel: ch.name.clone(),
+                ts: at,
+                count,
+                freq_hz,
+                rpm,
+                update,
+            });
+        }
+        Ok(readings)
+    }
+
+    /// Reads work modes (and with them the channel set) and pulses per revolution.
+    async fn read_slow(&mut self, link: &mut Link) -> Result<(), PollError> {
+        let mode_regs = self.profile.mode_registers();
+        let regs: Vec<Register> = mode_regs
+            .iter()
+            .map(|m| Register {
+                address: m.address,
+                ty: ValueType::U16,
+            })
+            .collect();
+        let snap = self.read_registers(link, &regs).await?;
+        let modes: Vec<u16> = regs.iter().filter_map(|r| snap.get(r).map(|(w, _)| w[0])).collect();
+        let specs = self.profile.channels(&modes).map_err(|e| PollError::Profile(e.to_string()))?;
+        if self.modes.as_ref() != Some(&modes) {
+            if self.modes.is_some() {
+                tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
+            }
+            self.build_channels(specs);
+            self.modes = Some(modes);
+        }
+        let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
+        if !ppr_regs.is_empty() {
+            let snap = self.read_registers(link, &ppr_regs).await?;
+            let order = self.profile.word_order;
+            for ch in &mut self.channels {
+                let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
+                let read = ch.spec.ppr.and_then(|r| snap.get(&r)).map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
+                ch.ppr = configured.or(read.filter(|p| *p > 0.0));
+            }
+        }
+        self.last_slow = Some(Instant::now());
+        Ok(())
+    }
+
+    fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
+        let old: BTreeMap<String, Counter> = self
+            .channels
+            .drain(..)
+            .map(|c| (c.name.to_string(), c.counter))
+            .collect();
+        for spec in specs {
+            let overrides = self.config.channels.get(&spec.name).cloned().unwrap_or_default();
+            let counter_spec = CounterSpec {
+                modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
+                signed: matches!(spec.count.ty, ValueType::I32 | ValueType::I16),
+                max_rate_hz: overrides.max_rate_hz.unwrap_or(spec.max_rate_hz),
+            };
+            let key = channel_key(self.unit, &self.config.model, &spec.name);
+            let counter = match (old.get(&spec.name), self.saved.remove(&key)) {
+                (Some(c), _) => Counter { spec: counter_spec, state: c.state.clone() },
+                (None, Some(saved)) => Counter::resume(counter_spec, saved),
+                (None, None) => Counter::new(counter_spec),
+            };
+            self.channels.push(ChannelRt {
+                name: Arc::from(spec.name.as_str()),
+                ppr: overrides.ppr,
+                spec,
+                counter,
+            });
+        }
+        self.fast = self
+            .channels
+            .iter()
+            .flat_map(|c| std::iter::once(c.spec.count).chain(c.spec.freq))
+            .collect();
+    }
+
+    /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
+    /// and is split at once.
+    async fn read_registers(&mut self, link: &mut Link, regs: &[Register]) -> Result<Snapshot, PollError> {
+        let mut blocks = plan_reads(regs, &self.holes, &self.wire);
+        let mut out = Vec::with_capacity(blocks.len());
+        let mut i = 0;
+        while i < blocks.len() {
+            let b = blocks[i];
+            let timeout = self.timeout_for(link, b.len);
+            let started = Instant::now();
+            match link.read(self.unit, b.start, b.len, timeout).await? {
+                Ok(words) => {
+                    self.record_latency(started.elapsed());
+                    out.push((b, words, SystemTime::now()));
+                    i += 1;
+                }
+                Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
+                    let gaps = b.gaps(regs);
+                    tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
+                    self.holes.extend(gaps);
+                    let rest: Vec<Register> = regs
+                        .iter()
+                        .filter(|r| !out.iter().any(|(done, ..): &(Block, _, _)| done.covers(r)))
+                        .copied()
+                        .collect();
+                    blocks.truncate(i);
+                    blocks.extend(plan_reads(&rest, &self.holes, &self.wire));
+                }
+                Err(exception) => {
+                    return Err(PollError::Refused {
+                        start: b.start,
+                        len: b.len,
+                        exception,
+                    });
+                }
+            }
+        }
+        Ok(Snapshot { blocks: out })
+    }
+
+    /// The answer timeout plus the time the request and answer take on the line.
+    fn timeout_for(&self, link: &Link, len: u16) -> Duration {
+        let line = link
+            .timing()
+            .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
+            .unwrap_or_default();
+        self.answer_timeout + line
+    }
+
+    fn record_latency(&mut self, d: Duration) {
+        if self.latencies.len() >= 256 {
+            self.latencies.remove(0);
+        }
+        self.latencies.push(d.as_secs_f64());
+    }
+}

@@ -1,0 +1,325 @@
+//! The wire of one bus: a Modbus RTU serial port or a Modbus TCP connection, one transaction at
+//! a time, each with a timeout.
+//!
+//! tokio-modbus has no per-call timeout and may bind a late answer to the next request (its
+//! issues 324 and 60). So every call here runs under a timeout; the serial input is flushed in
+//! the kernel before each request (tokio-modbus clears only its own buffer); each answer is
+//! checked to be exactly the shape asked for; and after a timeout or protocol error the client
+//! is rebuilt so no half-read frame survives into the next transaction.
+
+use std::borrow::Cow;
+use std::io;
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::sync::{Arc, Mutex};
+use std::task::{Context as TaskContext, Poll};
+use std::time::Duration;
+
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::time::Instant;
+use tokio_modbus::client::{Client, Context};
+use tokio_modbus::prelude::SlaveContext;
+use tokio_modbus::{ExceptionCode, Request, Response, Slave};
+use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
+
+use crate::config::{Link as LinkConfig, Parity};
+use crate::plan::LineTiming;
+
+/// Why a transaction got no usable answer. The device answering with an exception is not one of
+/// these: that is `Ok(Err(ExceptionCode))`, as in tokio-modbus.
+#[derive(Debug, thiserror::Error)]
+pub enum LinkError {
+    #[error("no answer within {0:?}")]
+    Timeout(Duration),
+    #[error("cannot open {what}: {message}")]
+    Open { what: String, message: String },
+    #[error("i/o error: {0}")]
+    Io(#[from] io::Error),
+    #[error("answer does not match the request: {0}")]
+    Mismatch(String),
+}
+
+impl LinkError {
+    /// Whether the fault lies with the line or adapter rather than one device.
+    pub fn is_line_fault(&self) -> bool {
+        matches!(self, LinkError::Open { .. } | LinkError::Io(_))
+    }
+}
+
+/// A transaction's outcome: the link failed, or the device answered (possibly an exception).
+pub type Answer<T> = Result<Result<T, ExceptionCode>, LinkError>;
+
+/// Counters of what happened on the wire (for health stats).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WireCounters {
+    pub transactions: u64,
+    pub timeouts: u64,
+    pub mismatches: u64,
+    pub io_errors: u64,
+    pub exceptions: u64,
+    pub reconnects: u64,
+}
+
+/// One bus's wire.
+pub struct Link {
+    config: LinkConfig,
+    timing: Option<LineTiming>,
+    port: Option<SharedPort>,
+    ctx: Option<Context>,
+    last_io: Option<Instant>,
+    pub counters: WireCounters,
+    /// Time the line was busy with our transactions (for utilisation).
+    pub busy: Duration,
+}
+
+impl Link {
+    /// A link for `config`; nothing is opened until the first transaction.
+    pub fn new(config: LinkConfig, guard: Duration) -> Link {
+        let timing = match &config {
+            LinkConfig::Rtu {
+                baud,
+                parity,
+                stop_bits,
+                ..
+            } => Some(LineTiming {
+                baud: *baud,
+                bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
+                guard,
+            }),
+            LinkConfig::Tcp { .. } => None,
+        };
+        Link {
+            config,
+            timing,
+            port: None,
+            ctx: None,
+            last_io: None,
+            counters: WireCounters::default(),
+            busy: Duration::ZERO,
+        }
+    }
+
+    /// Character timing of an RTU line.
+    pub fn timing(&self) -> Option<LineTiming> {
+        self.timing
+    }
+
+    /// Drops the client and the port: the next transaction reopens both.
+    pub fn close(&mut self) {
+        self.ctx = None;
+        self.port = None;
+    }
+
+    /// Reads `len` holding registers from `start`.
+    pub async fn read(&mut self, unit: u8, start: u16, len: u16, timeout: Duration) -> Answer<Vec<u16>> {
+        let answer = self
+            .call(unit, Request::ReadHoldingRegisters(start, len), timeout)
+            .await?;
+        Ok(match answer {
+            Ok(Response::ReadHoldingRegisters(words)) if words.len() == usize::from(len) => Ok(words),
+            Ok(other) => return Err(self.mismatch(format!("asked {len} registers at {start}, got {other:?}"))),
+            Err(e) => Err(e),
+        })
+    }
+
+    /// Writes one register (FC06); the echo must match.
+    pub async fn write_register(&mut self, unit: u8, address: u16, value: u16, timeout: Duration) -> Answer<()> {
+        let answer = self
+            .call(unit, Request::WriteSingleRegister(address, value), timeout)
+            .await?;
+        Ok(match answer {
+            Ok(Response::WriteSingleRegister(a, v)) if a == address && v == value => Ok(()),
+            Ok(other) => return Err(self.mismatch(format!("wrote {value} at {address}, echo {other:?}"))),
+            Err(e) => Err(e),
+        })
+    }
+
+    /// Writes consecutive registers (FC16); the answer must confirm the range.
+    pub async fn write_registers(&mut self, unit: u8, address: u16, values: &[u16], timeout: Duration) -> Answer<()> {
+        let req = Request::WriteMultipleRegisters(address, Cow::Owned(values.to_vec()));
+        let answer = self.call(unit, req, timeout).await?;
+        Ok(match answer {
+            Ok(Response::WriteMultipleRegisters(a, n)) if a == address && usize::from(n) == values.len() => Ok(()),
+            Ok(other) => return Err(self.mismatch(format!("wrote {} at {address}, answer {other:?}", values.len()))),
+            Err(e) => Err(e),
+        })
+    }
+
+    fn mismatch(&mut self, message: String) -> LinkError {
+        self.counters.mismatches += 1;
+        self.ctx = None;
+        LinkError::Mismatch(message)
+    }
+
+    async fn call(&mut self, unit: u8, req: Request<'static>, timeout: Duration) -> Answer<Response> {
+        self.ensure_open(timeout).await?;
+        if let (Some(timing), Some(last)) = (self.timing, self.last_io) {
+            // RTU frames must be separated by the silent interval.
+            tokio::time::sleep_until(last + timing.silent_interval()).await;
+        }
+        let ctx = self.ctx.as_mut().expect("opened above");
+        ctx.set_slave(Slave(unit));
+        self.counters.transactions += 1;
+        let started = Instant::now();
+        let result = tokio::time::timeout(timeout, ctx.call(req)).await;
+        let now = Instant::now();
+        self.busy += now - started;
+        self.last_io = Some(now);
+        match result {
+            Err(_elapsed) => {
+                self.counters.timeouts += 1;
+                // A late answer may still arrive: rebuild so it cannot be read as the next one.
+                self.ctx = None;
+                Err(LinkError::Timeout(timeout))
+            }
+            Ok(Err(tokio_modbus::Error::Transport(e))) => {
+                self.counters.io_errors += 1;
+                self.close();
+                Err(LinkError::Io(e))
+            }
+            Ok(Err(tokio_modbus::Error::Protocol(e))) => Err(self.mismatch(e.to_string())),
+            Ok(Ok(Err(exception))) => {
+                self.counters.exceptions += 1;
+                Ok(Err(exception))
+            }
+            Ok(Ok(Ok(response))) => Ok(Ok(response)),
+        }
+    }
+
+    async fn ensure_open(&mut self, timeout: Duration) -> Result<(), LinkError> {
+        if self.ctx.is_some() {
+            return Ok(());
+        }
+        self.counters.reconnects += 1;
+        match &self.config {
+            LinkConfig::Rtu { .. } => {
+                let port = match &self.port {
+                    Some(p) => p.clone(),
+                    None => {
+                        let p = SharedPort::new(self.open_serial()?);
+                        self.port = Some(p.clone());
+                        p
+                    }
+                };
+                self.ctx = Some(tokio_modbus::client::rtu::attach(FlushingPort::new(port)));
+            }
+            LinkConfig::Tcp { host, port } => {
+                let what = format!("{host}:{port}");
+                let open_err = |message: String| LinkError::Open {
+                    what: what.clone(),
+                    message,
+                };
+                let connect = tokio::net::TcpStream::connect((host.as_str(), *port));
+                let stream = tokio::time::timeout(timeout.max(Duration::from_secs(1)), connect)
+                    .await
+                    .map_err(|_| open_err("connect timed out".into()))?
+                    .map_err(|e| open_err(e.to_string()))?;
+                let _ = stream.set_nodelay(true);
+                self.ctx = Some(tokio_modbus::client::tcp::attach(stream));
+            }
+        }
+        Ok(())
+    }
+
+    fn open_serial(&self) -> Result<SerialStream, LinkError> {
+        let LinkConfig::Rtu {
+            port,
+            baud,
+            parity,
+            stop_bits,
+        } = &self.config
+        else {
+            unreachable!("serial open on a TCP link");
+        };
+        let open_err = |e: tokio_serial::Error| LinkError::Open {
+            what: port.display().to_string(),
+            message: e.to_string(),
+        };
+        let mut stream = tokio_serial::new(port_name(port), *baud)
+            .data_bits(tokio_serial::DataBits::Eight)
+            .parity(match parity {
+                Parity::None => tokio_serial::Parity::None,
+                Parity::Even => tokio_serial::Parity::Even,
+                Parity::Odd => tokio_serial::Parity::Odd,
+            })
+            .stop_bits(if *stop_bits == 2 {
+                tokio_serial::StopBits::Two
+            } else {
+                tokio_serial::StopBits::One
+            })
+            .flow_control(tokio_serial::FlowControl::None)
+            .open_native_async()
+            .map_err(open_err)?;
+        // Another process on the same adapter would garble every frame.
+        let _ = stream.set_exclusive(true);
+        Ok(stream)
+    }
+}
+
+fn port_name(p: &std::path::Path) -> String {
+    // Follow udev-style symlinks so errors and locks name the real device.
+    std::fs::canonicalize(p)
+        .unwrap_or_else(|_| PathBuf::from(p))
+        .display()
+        .to_string()
+}
+
+/// The serial port, shared so the client can be rebuilt without reopening the device.
+#[derive(Clone)]
+struct SharedPort(Arc<Mutex<SerialStream>>);
+
+impl SharedPort {
+    fn new(s: SerialStream) -> SharedPort {
+        SharedPort(Arc::new(Mutex::new(s)))
+    }
+
+    fn with<R>(&self, f: impl FnOnce(&mut SerialStream) -> R) -> R {
+        // A poisoned lock only means another poll panicked mid-I/O; the port itself is fine.
+        let mut guard = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        f(&mut guard)
+    }
+}
+
+/// The port as tokio-modbus sees it: before the first byte of each request, whatever the kernel
+/// holds in the input buffer (a late answer, line noise) is discarded.
+struct FlushingPort {
+    port: SharedPort,
+    at_request_start: bool,
+}
+
+impl FlushingPort {
+    fn new(port: SharedPort) -> FlushingPort {
+        FlushingPort {
+            port,
+            at_request_start: true,
+        }
+    }
+}
+
+impl AsyncRead for FlushingPort {
+    fn poll_read(self: Pin<&mut Self>, cx: &mut TaskContext<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        this.at_request_start = true;
+        this.port.with(|s| Pin::new(s).poll_read(cx, buf))
+    }
+}
+
+impl AsyncWrite for FlushingPort {
+    fn poll_write(self: Pin<&mut Self>, cx: &mut TaskContext<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        if std::mem::take(&mut this.at_request_start) {
+            this.port
+                .with(|s| s.clear(tokio_serial::ClearBuffer::Input))
+                .map_err(io::Error::other)?;
+        }
+        this.port.with(|s| Pin::new(s).poll_write(cx, data))
+    }
+
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<io::Result<()>> {
+        self.get_mut().port.with(|s| Pin::new(s).poll_flush(cx))
+    }
+
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<io::Result<()>> {
+        self.get_mut().port.with(|s| Pin::new(s).poll_shutdown(cx))
+    }
+}

@@ -1,0 +1,237 @@
+//! One task per bus: one transaction at a time, devices polled earliest deadline first, offline
+//! devices probed with backoff so a silent one costs the others at most one timeout per probe.
+
+mod device;
+pub mod link;
+pub mod schedule;
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::sync::mpsc::UnboundedSender;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+use crate::config::{Bus, Gateway};
+use crate::plan::Wire;
+use crate::reading::Output;
+use crate::state::{BusState, bus_path};
+use device::DeviceRt;
+pub use device::PollError;
+use link::Link;
+use schedule::{Slot, earliest};
+
+/// A running bus: its config and what it needs from the gateway.
+pub struct BusTask {
+    bus: Bus,
+    state_path: PathBuf,
+    state_flush: Duration,
+    stats_interval: Duration,
+    out: UnboundedSender<Output>,
+}
+
+impl BusTask {
+    pub fn new(bus: Bus, gateway: &Gateway, out: UnboundedSender<Output>) -> BusTask {
+        BusTask {
+            state_path: bus_path(&gateway.state_dir, &bus.name),
+            state_flush: gateway.state_flush,
+            stats_interval: gateway.stats_interval,
+            bus,
+            out,
+        }
+    }
+
+    /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
+    pub async fn run(self, shutdown: CancellationToken) {
+        let bus = &self.bus;
+        let name: Arc<str> = Arc::from(bus.name.as_str());
+        let saved = match BusState::load(&self.state_path) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!(bus = %name, "{e}");
+                BusState::default()
+            }
+        };
+        let mut link = Link::new(bus.link.clone(), bus.guard);
+        let wire = match link.timing() {
+            Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
+            None => Wire::tcp(),
+        };
+        let mut devices: Vec<DeviceRt> = bus
+            .devices
+            .iter()
+            .map(|d| DeviceRt::new(bus, d, wire, &saved.channels, saved.holes_of(&crate::state::device_key(d.unit, &d.model))))
+            .collect();
+        log_dropped_state(&name, &saved, &devices);
+
+        let start = Instant::now();
+        let mut slots: Vec<Slot> = devices.iter().map(|d| Slot::new(start, d.config.poll)).collect();
+        let mut flush_at = start + self.state_flush;
+        let mut stats_at = start + self.stats_interval;
+        let mut stats_since = start;
+        let mut busy_at_stats = Duration::ZERO;
+        let mut line_down = false;
+        tracing::info!(bus = %name, devices = devices.len(), "bus started");
+
+        loop {
+            let Some(i) = earliest(&slots) else { break };
+            let wake = slots[i].due.min(flush_at).min(stats_at);
+            tokio::select! {
+                biased;
+                () = shutdown.cancelled() => break,
+                () = tokio::time::sleep_until(wake) => {}
+            }
+            let now = Instant::now();
+            if now >= flush_at {
+                let state = snapshot(&devices);
+                let path = self.state_path.clone();
+                let bus_name = name.clone();
+                tokio::task::spawn_blocking(move || {
+                    if let Err(e) = state.save(&path) {
+                        tracing::error!(bus = %bus_name, "{e}");
+                    }
+                });
+                flush_at = now + self.state_flush;
+            }
+            if now >= stats_at {
+                let wall = now - stats_since;
+                let stats = stats_json(&link, &devices, &slots, wall, link.busy - busy_at_stats);
+                tracing::info!(bus = %name, %stats, "bus stats");
+                let _ = self.out.send(Output::BusStats { bus: name.clone(), stats });
+                stats_since = now;
+                busy_at_stats = link.busy;
+                stats_at = now + self.stats_interval;
+            }
+            if slots[i].due > now {
+                continue;
+            }
+            let d = &mut devices[i];
+            let result = d.poll(&mut link).await;
+            let now = Instant::now();
+            match result {
+                Ok(readings) => {
+                    if line_down {
+                        tracing::info!(bus = %name, "line is answering again");
+                        line_down = false;
+                    }
+                    d.failures = 0;
+                    d.backoff.reset();
+                    if d.last_error.take().is_some() && d.online == Some(true) {
+                        tracing::info!(bus = %name, device = %d.name, "device answering again");
+                    }
+                    if d.online != Some(true) {
+                        if d.online == Some(false) {
+                            tracing::info!(bus = %name, device = %d.name, "device back online");
+                        }
+                        d.online = Some(true);
+                        let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: true });
+                    }
+                    for r in readings {
+                        let _ = self.out.send(Output::Reading(r));
+                    }
+                    slots[i].advance(now);
+                }
+                Err(e) => {
+                    let message = e.to_string();
+                    if let PollError::Link(l) = &e
+                        && l.is_line_fault()
+                        && !line_down
+                    {
+                        tracing::error!(bus = %name, "line fault: {message}");
+                        line_down = true;
+                    }
+                    if d.last_error.as_deref() != Some(message.as_str()) {
+                        tracing::warn!(bus = %name, device = %d.name, unit = d.unit, "{message}");
+                        d.last_error = Some(message);
+                    }
+                    d.failures += 1;
+                    if d.failures >= bus.offline_after && !e.device_answered() {
+                        if d.online != Some(false) {
+                            tracing::warn!(bus = %name, device = %d.name, failures = d.failures, "device offline");
+                            d.online = Some(false);
+                            d.mark_gap();
+                            let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: false });
+                        }
+                        let wait = d.backoff.next_wait();
+                        slots[i].defer_to(now + wait);
+                    } else {
+                        slots[i].advance(now);
+                    }
+                }
+            }
+        }
+        let state = snapshot(&devices);
+        let path = self.state_path.clone();
+        match tokio::task::spawn_blocking(move || state.save(&path)).await {
+            Ok(Err(e)) => tracing::error!(bus = %name, "{e}"),
+            Err(e) => tracing::error!(bus = %name, "state save task failed: {e}"),
+            Ok(Ok(())) => tracing::info!(bus = %name, "state saved"),
+        }
+        for d in &devices {
+            if d.online == Some(true) {
+                let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: false });
+            }
+        }
+        link.close();
+    }
+}
+
+fn snapshot(devices: &[DeviceRt]) -> BusState {
+    let mut s = BusState::default();
+    for d in devices {
+        s.channels.extend(d.counter_states());
+        if !d.holes.is_empty() {
+            s.holes.insert(d.holes_key(), d.holes.iter().map(|h| (h.start, h.end)).collect());
+        }
+    }
+    s
+}
+
+/// Saved channels that no configured device can have are not attached to anything: say so.
+fn log_dropped_state(bus: &str, saved: &BusState, devices: &[DeviceRt]) {
+    let kept: std::collections::BTreeSet<String> = devices.iter().flat_map(|d| d.counter_states().into_keys()).collect();
+    for (key, state) in &saved.channels {
+        if !kept.contains(key) {
+            tracing::warn!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; dropped");
+        }
+    }
+}
+
+fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let idx = ((sorted.len() - 1) as f64 * p).round() as usize;
+    Some(sorted[idx])
+}
+
+fn stats_json(link: &Link, devices: &[DeviceRt], slots: &[Slot], wall: Duration, busy: Duration) -> serde_json::Value {
+    let c = link.counters;
+    let mut per_device = BTreeMap::new();
+    for (d, s) in devices.iter().zip(slots) {
+        let mut lat = d.latencies.clone();
+        lat.sort_by(f64::total_cmp);
+        per_device.insert(
+            d.name.to_string(),
+            serde_json::json!({
+                "online": d.online,
+                "missed": s.missed,
+                "latency_p50_ms": percentile(&lat, 0.5).map(|v| v * 1000.0),
+                "latency_p99_ms": percentile(&lat, 0.99).map(|v| v * 1000.0),
+                "last_error": d.last_error,
+            }),
+        );
+    }
+    serde_json::json!({
+        "utilisation": busy.as_secs_f64() / wall.as_secs_f64().max(1e-9),
+        "transactions": c.transactions,
+        "timeouts": c.timeouts,
+        "stale_dropped": c.mismatches,
+        "io_errors": c.io_errors,
+        "exceptions": c.exceptions,
+        "reconnects": c.reconnects,
+        "devices": per_device,
+    })
+}

@@ -1,0 +1,248 @@
+//! Configuration: one TOML file plus `PULSEGATE__…` environment overrides, checked into typed
+//! [`Config`] in one place that reports every error at once.
+//!
+//! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
+//! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
+
+mod check;
+mod walk;
+
+use std::collections::{BTreeMap, HashMap};
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use crate::profile::Profile;
+
+pub use check::from_tree;
+
+/// Default configuration file.
+pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
+
+/// One problem in the configuration, with where it is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigError {
+    /// Key path, e.g. `buses.line1.devices.press1.poll`.
+    pub path: String,
+    /// The file the value came from, or "the environment".
+    pub origin: String,
+    pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}: {}", self.origin, self.path, self.message)
+    }
+}
+
+/// Every problem found in a configuration.
+#[derive(Debug, Clone, thiserror::Error)]
+pub struct ConfigErrors(pub Vec<ConfigError>);
+
+impl fmt::Display for ConfigErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let n = self.0.len();
+        writeln!(f, "{n} error{} in the configuration:", if n == 1 { "" } else { "s" })?;
+        for e in &self.0 {
+            writeln!(f, "  {e}")?;
+        }
+        Ok(())
+    }
+}
+
+/// A checked configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The file it was read from.
+    pub source: PathBuf,
+    pub gateway: Gateway,
+    pub mqtt: Mqtt,
+    /// Buses sorted by name.
+    pub buses: Vec<Bus>,
+}
+
+/// `[gateway]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gateway {
+    pub id: String,
+    pub state_dir: PathBuf,
+    /// How often counter state is written to disk (it is also written at shutdown).
+    pub state_flush: Duration,
+    /// How often bus statistics are logged and published.
+    pub stats_interval: Duration,
+    /// Where user profiles (`*.toml`) are looked up.
+    pub profile_dir: PathBuf,
+}
+
+/// `[mqtt]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mqtt {
+    pub host: String,
+    pub port: u16,
+    pub client_id: String,
+    pub username: Option<String>,
+    pub password: Option<String>,
+    pub keep_alive: Duration,
+    pub qos: u8,
+    pub retain: bool,
+    pub topic_root: String,
+}
+
+/// `[buses.<name>]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bus {
+    pub name: String,
+    pub link: Link,
+    /// Answer timeout for the bus's devices (each may override; default: its profile's).
+    pub timeout: Option<Duration>,
+    /// Extra quiet time added to the Modbus silent interval between frames.
+    pub guard: Duration,
+    /// Consecutive failures after which a device is offline.
+    pub offline_after: u32,
+    /// Backoff between probes of an offline device: first and longest.
+    pub backoff_min: Duration,
+    pub backoff_max: Duration,
+    /// How often slow registers (mode, pulses per revolution) are re-read.
+    pub slow_poll: Duration,
+    pub devices: Vec<Device>,
+}
+
+/// How a bus reaches its devices.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Link {
+    /// Modbus RTU on a serial port.
+    Rtu {
+        port: PathBuf,
+        baud: u32,
+        parity: Parity,
+        stop_bits: u8,
+    },
+    /// Modbus TCP.
+    Tcp { host: String, port: u16 },
+}
+
+/// Serial parity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Parity {
+    None,
+    Even,
+    Odd,
+}
+
+/// `[buses.<bus>.devices.<name>]`
+#[derive(Debug, Clone)]
+pub struct Device {
+    pub name: String,
+    pub unit: u8,
+    pub model: String,
+    pub profile: Arc<Profile>,
+    pub poll: Duration,
+    pub timeout: Option<Duration>,
+    /// Whether clear/preset commands are accepted for this device.
+    pub commands: bool,
+    /// Per-channel settings keyed by channel name.
+    pub channels: BTreeMap<String, ChannelConfig>,
+}
+
+impl PartialEq for Device {
+    fn eq(&self, other: &Self) -> bool {
+        self.name == other.name
+            && self.unit == other.unit
+            && self.model == other.model
+            && self.poll == other.poll
+            && self.timeout == other.timeout
+            && self.commands == other.commands
+            && self.channels == other.channels
+    }
+}
+
+/// `[buses.<bus>.devices.<device>.channels.<name>]`
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ChannelConfig {
+    /// Pulses per revolution where the module has no register for it.
+    pub ppr: Option<f64>,
+    /// Highest plausible input rate; overrides the profile's.
+    pub max_rate_hz: Option<f64>,
+}
+
+impl Device {
+    /// Answer timeout of this device on `bus`.
+    pub fn answer_timeout(&self, bus: &Bus) -> Duration {
+        self.timeout
+            .or(bus.timeout)
+            .unwrap_or(self.profile.answer_timeout)
+    }
+}
+
+impl Config {
+    /// Reads and checks `path`, with `PULSEGATE__…` overrides from the process environment.
+    pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
+        Self::load_with_env(path, None)
+    }
+
+    /// Like [`Config::load`], with the environment given (for tests).
+    pub fn load_with_env(
+        path: &Path,
+        env: Option<HashMap<String, String>>,
+    ) -> Result<Config, ConfigErrors> {
+        let origin = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            ConfigErrors(vec![ConfigError {
+                path: String::new(),
+                origin: origin.clone(),
+                message: format!("cannot read: {e}"),
+            }])
+        })?;
+        Self::from_toml(&text, path, env)
+    }
+
+    /// Checks TOML text as if it had been read from `path`.
+    pub fn from_toml(
+        text: &str,
+        path: &Path,
+        env: Option<HashMap<String, String>>,
+    ) -> Result<Config, ConfigErrors> {
+        let origin = path.display().to_string();
+        let mut env_source = config::Environment::with_prefix("PULSEGATE")
+            .prefix_separator("__")
+            .separator("__")
+            .try_parsing(true);
+        if let Some(env) = env {
+            env_source = env_source.source(Some(env.into_iter().collect()));
+        }
+        let tree = config::Config::builder()
+            .add_source(config::File::from_str(text, config::FileFormat::Toml))
+            .add_source(env_source)
+            .build()
+            .map_err(|e| {
+                ConfigErrors(vec![ConfigError {
+                    path: String::new(),
+                    origin: origin.clone(),
+                    message: e.to_string(),
+                }])
+            })?;
+        from_tree(&tree.cache, path)
+    }
+
+    /// Every device with its bus, in bus and name order.
+    pub fn devices(&self) -> impl Iterator<Item = (&Bus, &Device)> {
+        self.buses
+            .iter()
+            .flat_map(|b| b.devices.iter().map(move |d| (b, d)))
+    }
+}
+
+/// A name that can stand as one level of an MQTT topic and as a key in the environment:
+/// letters, digits, `-` and `_`, not empty, no wildcards or separators.
+pub fn is_topic_safe(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,26 @@
+//! pulsegate: Modbus pulse counters and encoders → MQTT.
+//!
+//! The pipeline, top to bottom:
+//! 1. [`config`] reads one TOML file (plus environment) into a checked [`config::Config`];
+//! 2. [`profile`] says, per module model, where each channel's registers are;
+//! 3. [`plan`] turns the registers a poll needs into as few Modbus reads as the wire favours;
+//! 4. [`bus`] runs one task per bus, one transaction at a time, earliest deadline first;
+//! 5. [`decode`] turns the words into counts and frequencies;
+//! 6. [`counter`] turns counts into deltas and totals that survive wrap, resets and restarts;
+//! 7. [`publish`] sends readings and availability to MQTT, and [`command`] takes clear/preset.
+//!
+//! [`sim`] is a simulated plant of every supported model, served over real Modbus.
+
+pub mod app;
+pub mod bus;
+pub mod command;
+pub mod config;
+pub mod counter;
+pub mod decode;
+pub mod demo;
+pub mod plan;
+pub mod profile;
+pub mod publish;
+pub mod reading;
+pub mod sim;
+pub mod state;

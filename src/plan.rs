@@ -1,0 +1,269 @@
+//! The poll planner: the registers a device poll needs → as few reads as the wire favours.
+//!
+//! Pure. A read costs its frame overhead (request, answer header and CRC, two silent intervals,
+//! the device's turnaround), and bridging a gap of `g` unused registers costs `2g` characters of
+//! answer. Boundaries are chosen by dynamic programming over the sorted values, never inside a
+//! 32-bit value, never across a hole the device refused (exception 02), at most 125 registers.
+
+use std::ops::Range;
+use std::time::Duration;
+
+use crate::profile::Register;
+
+/// The most registers one FC03 read may return (Modbus spec).
+pub const MAX_READ: u16 = 125;
+
+/// One holding-register read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Block {
+    pub start: u16,
+    pub len: u16,
+}
+
+impl Block {
+    pub fn end(&self) -> u16 {
+        self.start + self.len
+    }
+
+    /// Whether the block covers `r` whole.
+    pub fn covers(&self, r: &Register) -> bool {
+        r.address >= self.start && r.end() <= self.end()
+    }
+
+    /// The unused registers inside this block, given the values it carries.
+    pub fn gaps(&self, values: &[Register]) -> Vec<Range<u16>> {
+        let mut spans: Vec<Range<u16>> = values
+            .iter()
+            .filter(|r| self.covers(r))
+            .map(|r| r.address..r.end())
+            .collect();
+        spans.sort_by_key(|s| s.start);
+        let mut out = Vec::new();
+        let mut at = self.start;
+        for s in spans {
+            if s.start > at {
+                out.push(at..s.start);
+            }
+            at = at.max(s.end);
+        }
+        out
+    }
+}
+
+/// How the wire prices a read, in characters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Wire {
+    /// Characters a separate read costs beyond its data: frames, silences, turnaround.
+    pub request_overhead: f64,
+}
+
+impl Wire {
+    /// RTU at `timing`, with the device's turnaround.
+    pub fn rtu(timing: &LineTiming, turnaround: Duration) -> Wire {
+        // Request: addr fc start(2) qty(2) crc(2) = 8; answer: addr fc count crc(2) = 5.
+        let silences = 2.0 * timing.silent_interval().as_secs_f64() / timing.char_time().as_secs_f64();
+        let turnaround = turnaround.as_secs_f64() / timing.char_time().as_secs_f64();
+        Wire {
+            request_overhead: 8.0 + 5.0 + silences + turnaround,
+        }
+    }
+
+    /// Modbus TCP: a round trip is cheap in bytes but not in time; price it as ~40 bytes.
+    pub fn tcp() -> Wire {
+        Wire {
+            request_overhead: 12.0 + 9.0 + 20.0,
+        }
+    }
+}
+
+/// Character timing of a serial line.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LineTiming {
+    pub baud: u32,
+    /// Bits per character: start + 8 data + parity + stop.
+    pub bits_per_char: u32,
+    /// Extra quiet time after the Modbus silent interval.
+    pub guard: Duration,
+}
+
+impl LineTiming {
+    /// Time on the wire of one character.
+    pub fn char_time(&self) -> Duration {
+        Duration::from_secs_f64(f64::from(self.bits_per_char) / f64::from(self.baud))
+    }
+
+    /// The RTU inter-frame silence: 3.5 characters, fixed at 1.75 ms above 19200 baud
+    /// (Modbus over serial line, 2.5.1.1), plus the configured guard.
+    pub fn silent_interval(&self) -> Duration {
+        let t35 = if self.baud > 19200 {
+            Duration::from_micros(1750)
+        } else {
+            self.char_time().mul_f64(3.5)
+        };
+        t35 + self.guard
+    }
+
+    /// Time on the wire of `chars` characters.
+    pub fn chars(&self, chars: f64) -> Duration {
+        self.char_time().mul_f64(chars)
+    }
+}
+
+/// Splits the values of one device poll into reads. `holes` are ranges the device refused.
+pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec<Block> {
+    let mut spans: Vec<Range<u16>> = values.iter().map(|r| r.address..r.end()).collect();
+    spans.sort_by_key(|s| (s.start, s.end));
+    // Merge overlapping values (the same register asked twice) so no value is split.
+    let mut merged: Vec<Range<u16>> = Vec::new();
+    for s in spans {
+        match merged.last_mut() {
+            Some(last) if s.start < last.end => last.end = last.end.max(s.end),
+            _ => merged.push(s),
+        }
+    }
+    let n = merged.len();
+    if n == 0 {
+        return Vec::new();
+    }
+    let crosses_hole = |gap: Range<u16>| holes.iter().any(|h| h.start < gap.end && gap.start < h.end);
+    // best[j]: (cost, reads, previous split) for the first j spans.
+    let mut best: Vec<(f64, usize, usize)> = vec![(f64::INFINITY, usize::MAX, 0); n + 1];
+    best[0] = (0.0, 0, 0);
+    for j in 1..=n {
+        for i in (1..=j).rev() {
+            let start = merged[i - 1].start;
+            let end = merged[j - 1].end;
+            if end - start > MAX_READ {
+                break;
+            }
+            if i < j && crosses_hole(merged[i - 1].end..merged[i].start) {
+                // The gap between span i-1 and i would be inside the block: widening further
+                // left only keeps it inside.
+                break;
+            }
+            let (prev_cost, prev_reads, _) = best[i - 1];
+            let cost = prev_cost + wire.request_overhead + 2.0 * f64::from(end - start);
+            let reads = prev_reads + 1;
+            if cost < best[j].0 - 1e-9 || ((cost - best[j].0).abs() <= 1e-9 && reads < best[j].1) {
+                best[j] = (cost, reads, i - 1);
+            }
+        }
+    }
+    let mut blocks = Vec::new();
+    let mut j = n;
+    while j > 0 {
+        let i = best[j].2;
+        let start = merged[i].start;
+        blocks.push(Block {
+            start,
+            len: merged[j - 1].end - start,
+        });
+        j = i;
+    }
+    blocks.reverse();
+    blocks
+}
+
+/// Estimated time on an RTU line of one poll made of `blocks`, with the device's turnaround.
+pub fn line_time(blocks: &[Block], timing: &LineTiming, turnaround: Duration) -> Duration {
+    blocks
+        .iter()
+        .map(|b| {
+            let chars = 8.0 + 5.0 + 2.0 * f64::from(b.len);
+            timing.chars(chars) + timing.silent_interval() * 2 + turnaround
+        })
+        .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::ValueType;
+
+    fn u32_at(address: u16) -> Register {
+        Register {
+            address,
+            ty: ValueType::U32,
+        }
+    }
+
+    fn wire(overhead: f64) -> Wire {
+        Wire {
+            request_overhead: overhead,
+        }
+    }
+
+    #[test]
+    fn adjacent_values_are_read_in_one_request() {
+        let v = [u32_at(16), u32_at(18), u32_at(20), u32_at(22)];
+        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 8 }]);
+    }
+
+    #[test]
+    fn a_gap_is_bridged_only_when_cheaper_than_a_new_request() {
+        // Gap of 4 registers costs 8 characters: cheaper than a 20-character request.
+        let v = [u32_at(16), u32_at(22)];
+        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 8 }]);
+        // Gap of 104 registers costs 208 characters: two requests.
+        let v = [u32_at(16), u32_at(128)];
+        assert_eq!(
+            plan_reads(&v, &[], &wire(20.0)),
+            vec![Block { start: 16, len: 2 }, Block { start: 128, len: 2 }]
+        );
+        // The same 4-register gap with a very cheap request is not bridged.
+        let v = [u32_at(16), u32_at(22)];
+        assert_eq!(plan_reads(&v, &[], &wire(4.0)).len(), 2);
+    }
+
+    #[test]
+    fn a_known_hole_is_never_bridged() {
+        let v = [u32_at(16), u32_at(22)];
+        let holes = [19..21];
+        assert_eq!(
+            plan_reads(&v, &holes, &wire(1000.0)),
+            vec![Block { start: 16, len: 2 }, Block { start: 22, len: 2 }]
+        );
+    }
+
+    #[test]
+    fn no_read_is_longer_than_125_registers() {
+        let v: Vec<Register> = (0..100).map(|i| u32_at(i * 2)).collect();
+        let blocks = plan_reads(&v, &[], &wire(1000.0));
+        assert!(blocks.iter().all(|b| b.len <= MAX_READ));
+        assert_eq!(blocks.iter().map(|b| b.len).sum::<u16>(), 200);
+    }
+
+    #[test]
+    fn a_32_bit_value_is_never_split_across_reads() {
+        // 62 u32 values fill 124 registers; the 63rd would make 126, so it goes whole.
+        let v: Vec<Register> = (0..63).map(|i| u32_at(i * 2)).collect();
+        let blocks = plan_reads(&v, &[], &wire(1000.0));
+        for r in &v {
+            assert!(blocks.iter().any(|b| b.covers(r)), "{r:?} is split");
+        }
+    }
+
+    #[test]
+    fn the_same_register_asked_twice_is_read_once() {
+        let v = [u32_at(16), u32_at(16)];
+        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 2 }]);
+    }
+
+    #[test]
+    fn gaps_lists_the_bridged_registers() {
+        let v = [u32_at(16), u32_at(22)];
+        assert_eq!(Block { start: 16, len: 8 }.gaps(&v), vec![18..22]);
+    }
+
+    #[test]
+    fn the_silent_interval_is_fixed_above_19200_baud() {
+        let t = |baud| LineTiming {
+            baud,
+            bits_per_char: 10,
+            guard: Duration::ZERO,
+        };
+        assert_eq!(t(115200).silent_interval(), Duration::from_micros(1750));
+        let at_9600 = t(9600).silent_interval().as_secs_f64();
+        assert!((at_9600 - 3.5 * 10.0 / 9600.0).abs() < 1e-9);
+    }
+}

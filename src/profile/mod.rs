@@ -1,0 +1,379 @@
+//! Device profiles: what a module model looks like on the wire, as data.
+//!
+//! A profile says which registers hold the work mode of each group of inputs, and for each work
+//! mode which channels exist and where their count, frequency, rpm and pulses-per-revolution
+//! live. The gateway reads the work modes at start and asks the profile for the channels
+//! ([`Profile::channels`]); no register address of a module appears in code outside its profile.
+
+mod builtin;
+mod raw;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::time::Duration;
+
+pub use builtin::builtin_profiles;
+pub use raw::{ChannelKind, ValueType, WordOrder};
+
+/// A profile could not be loaded or is inconsistent.
+#[derive(Debug, thiserror::Error)]
+pub enum ProfileError {
+    #[error("profile {origin}: {source}")]
+    Parse {
+        origin: String,
+        source: Box<toml::de::Error>,
+    },
+    #[error("profile {origin}: {message}")]
+    Invalid { origin: String, message: String },
+    #[error("profile directory {dir}: {source}")]
+    Dir {
+        dir: String,
+        source: std::io::Error,
+    },
+}
+
+/// The work mode a module reported is not described by its profile.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{group} {instance}: work mode {value} is not described by profile {model}")]
+pub struct UnknownMode {
+    pub model: String,
+    pub group: String,
+    pub instance: u16,
+    pub value: u16,
+}
+
+/// One register (or register pair) with its type, resolved to an address.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Register {
+    pub address: u16,
+    pub ty: ValueType,
+}
+
+impl Register {
+    /// Number of 16-bit registers the value spans.
+    pub fn len(&self) -> u16 {
+        self.ty.words()
+    }
+
+    /// One past the last register of the value.
+    pub fn end(&self) -> u16 {
+        self.address + self.len()
+    }
+}
+
+/// How to clear one channel: write `code` to `register`; where `restart` is set, the register
+/// also starts and stops the counter (ZH-YX1600), so the gateway reads it first and writes back
+/// the running direction after the clear.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClearSpec {
+    pub register: u16,
+    pub code: u16,
+    pub restart: Vec<u16>,
+}
+
+/// A single register write of a fixed code (clear-all).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct CodeWrite {
+    pub register: u16,
+    pub code: u16,
+}
+
+/// A channel of a module in its current work mode, with every address resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChannelSpec {
+    pub name: String,
+    pub kind: ChannelKind,
+    pub count: Register,
+    pub freq: Option<Register>,
+    pub rpm: Option<Register>,
+    pub ppr: Option<Register>,
+    pub clear: ClearSpec,
+    /// The module keeps this count across power loss (unless autosave is off).
+    pub retains_count: bool,
+    /// Highest input rate the module can count on this channel: a larger jump is a reset.
+    pub max_rate_hz: f64,
+    /// The clear-all write that covers this channel, where the mode has one.
+    pub clear_all: Option<CodeWrite>,
+}
+
+impl ChannelSpec {
+    /// Whether a preset value fits the channel's count register.
+    pub fn accepts_preset(&self, value: i64) -> bool {
+        match self.count.ty {
+            ValueType::I32 => i32::try_from(value).is_ok(),
+            ValueType::U32 => u32::try_from(value).is_ok(),
+            ValueType::I16 => i16::try_from(value).is_ok(),
+            ValueType::U16 => u16::try_from(value).is_ok(),
+            ValueType::F32 => false,
+        }
+    }
+}
+
+/// The mode register of one instance of a group.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ModeRegister {
+    pub group: usize,
+    pub instance: u16,
+    pub address: u16,
+    pub mask: u16,
+}
+
+/// A checked module profile.
+#[derive(Debug, Clone)]
+pub struct Profile {
+    pub model: String,
+    pub aliases: Vec<String>,
+    pub title: String,
+    pub word_order: WordOrder,
+    pub answer_timeout: Duration,
+    pub bauds: Vec<u32>,
+    pub identify: Option<(u16, Vec<u16>)>,
+    pub autosave: Option<u16>,
+    groups: Vec<raw::Group>,
+}
+
+impl Profile {
+    /// Parses and checks a profile from TOML text; `origin` names it in errors.
+    pub fn from_toml(text: &str, origin: &str) -> Result<Profile, ProfileError> {
+        let raw: raw::Profile = toml::from_str(text).map_err(|e| ProfileError::Parse {
+            origin: origin.to_string(),
+            source: Box::new(e),
+        })?;
+        let profile = Profile {
+            model: raw.model,
+            aliases: raw.aliases,
+            title: raw.title,
+            word_order: raw.word_order,
+            answer_timeout: raw.answer_timeout,
+            bauds: raw.bauds,
+            identify: raw.identify.map(|i| (i.address, i.words)),
+            autosave: raw.autosave.map(|a| a.address),
+            groups: raw.groups,
+        };
+        profile.check().map_err(|message| ProfileError::Invalid {
+            origin: origin.to_string(),
+            message,
+        })?;
+        Ok(profile)
+    }
+
+    /// Every mode register the gateway reads at start, in group and instance order.
+    pub fn mode_registers(&self) -> Vec<ModeRegister> {
+        let mut out = Vec::new();
+        for (g, group) in self.groups.iter().enumerate() {
+            for i in 0..group.instances {
+                out.push(ModeRegister {
+                    group: g,
+                    instance: i,
+                    address: group.mode.address + i * group.mode.stride,
+                    mask: group.mode.mask,
+                });
+            }
+        }
+        out
+    }
+
+    /// The channels of a module whose mode registers (in [`Profile::mode_registers`] order)
+    /// read `modes`, raw: the profile applies each register's mask.
+    pub fn channels(&self, modes: &[u16]) -> Result<Vec<ChannelSpec>, UnknownMode> {
+        let mut out = Vec::new();
+        for (reg, &raw_value) in self.mode_registers().iter().zip(modes) {
+            let group = &self.groups[reg.group];
+            let value = raw_value & reg.mask;
+            let mode = group
+                .modes
+                .iter()
+                .find(|m| m.value == value)
+                .ok_or_else(|| UnknownMode {
+                    model: self.model.clone(),
+                    group: group.name.clone(),
+                    instance: reg.instance,
+                    value,
+                })?;
+            for ch in &mode.channels {
+                out.push(resolve(ch, reg.instance, mode.clear_all));
+            }
+        }
+        Ok(out)
+    }
+
+    /// Every channel the module can have in any mode, for checking user config and for the
+    /// simulator; a name may appear more than once (one per mode).
+    pub fn all_channels(&self) -> Vec<ChannelSpec> {
+        let mut out = Vec::new();
+        for group in &self.groups {
+            for i in 0..group.instances {
+                for mode in &group.modes {
+                    for ch in &mode.channels {
+                        out.push(resolve(ch, i, mode.clear_all));
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// The mode value of each group that selects the given channel kind, for the simulator.
+    pub fn mode_value_for(&self, group: usize, kind: ChannelKind) -> Option<u16> {
+        self.groups.get(group).and_then(|g| {
+            g.modes
+                .iter()
+                .find(|m| m.channels.iter().any(|c| c.kind == kind))
+                .map(|m| m.value)
+        })
+    }
+
+    /// Number of 16-bit registers read in one request at most (Modbus limit).
+    pub fn max_read(&self) -> u16 {
+        125
+    }
+
+    fn check(&self) -> Result<(), String> {
+        if self.model.is_empty() {
+            return Err("model name is empty".into());
+        }
+        if self.groups.is_empty() {
+            return Err("no groups of channels".into());
+        }
+        for g in &self.groups {
+            if g.modes.is_empty() {
+                return Err(format!("group {} has no modes", g.name));
+            }
+        }
+        // Within any one mode combination channel names must be unique; checking every mode of
+        // every instance together is stricter but catches template slips.
+        let modes: Vec<u16> = self
+            .mode_registers()
+            .iter()
+            .map(|r| self.groups[r.group].modes[0].value)
+            .collect();
+        for combo in 0..self.groups.iter().map(|g| g.modes.len()).max().unwrap_or(1) {
+            let modes: Vec<u16> = self
+                .mode_registers()
+                .iter()
+                .zip(&modes)
+                .map(|(r, &first)| {
+                    self.groups[r.group]
+                        .modes
+                        .get(combo)
+                        .map_or(first, |m| m.value)
+                })
+                .collect();
+            let channels = self.channels(&modes).map_err(|e| e.to_string())?;
+            let mut seen = BTreeMap::new();
+            for ch in &channels {
+                if seen.insert(ch.name.clone(), ()).is_some() {
+                    return Err(format!("channel name {} appears twice", ch.name));
+                }
+                if !crate::config::is_topic_safe(&ch.name) {
+                    return Err(format!("channel name {:?} is not safe in a topic", ch.name));
+                }
+                if ch.count.end() as u32 > 0xFFFF {
+                    return Err(format!("channel {} count register out of range", ch.name));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplate>) -> ChannelSpec {
+    let at = |t: &raw::RegisterTemplate| Register {
+        address: t.address + i * t.stride,
+        ty: t.ty,
+    };
+    let number = ch.number.base + i * ch.number.stride;
+    ChannelSpec {
+        name: ch.name.replace("{}", &number.to_string()),
+        kind: ch.kind,
+        count: at(&ch.count),
+        freq: ch.freq.as_ref().map(at),
+        rpm: ch.rpm.as_ref().map(at),
+        ppr: ch.ppr.as_ref().map(at),
+        clear: ClearSpec {
+            register: ch.clear.address + i * ch.clear.stride,
+            code: ch.clear.code + i * ch.clear.code_stride,
+            restart: ch.clear.restart.clone(),
+        },
+        retains_count: ch.retains_count,
+        max_rate_hz: ch.max_rate_hz,
+        clear_all: clear_all.map(|c| CodeWrite {
+            register: c.address,
+            code: c.code,
+        }),
+    }
+}
+
+/// All known profiles by model name and alias: the built-in ones plus `*.toml` files in `dir`.
+#[derive(Debug, Clone, Default)]
+pub struct Profiles {
+    by_name: BTreeMap<String, std::sync::Arc<Profile>>,
+}
+
+impl Profiles {
+    /// The built-in profiles only.
+    pub fn builtin() -> Profiles {
+        let mut p = Profiles::default();
+        for profile in builtin_profiles() {
+            p.insert(profile);
+        }
+        p
+    }
+
+    /// Built-in profiles plus every `*.toml` in `dir` (a user profile may replace a built-in).
+    pub fn with_dir(dir: &Path) -> Result<Profiles, Vec<ProfileError>> {
+        let mut p = Profiles::builtin();
+        let mut errors = Vec::new();
+        let entries = match std::fs::read_dir(dir) {
+            Ok(e) => e,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(p),
+            Err(source) => {
+                return Err(vec![ProfileError::Dir {
+                    dir: dir.display().to_string(),
+                    source,
+                }]);
+            }
+        };
+        let mut paths: Vec<_> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+            .collect();
+        paths.sort();
+        for path in paths {
+            let origin = path.display().to_string();
+            match std::fs::read_to_string(&path) {
+                Ok(text) => match Profile::from_toml(&text, &origin) {
+                    Ok(profile) => p.insert(profile),
+                    Err(e) => errors.push(e),
+                },
+                Err(source) => errors.push(ProfileError::Dir {
+                    dir: origin,
+                    source,
+                }),
+            }
+        }
+        if errors.is_empty() { Ok(p) } else { Err(errors) }
+    }
+
+    fn insert(&mut self, profile: Profile) {
+        let profile = std::sync::Arc::new(profile);
+        self.by_name
+            .insert(profile.model.clone(), profile.clone());
+        for alias in &profile.aliases {
+            self.by_name.insert(alias.clone(), profile.clone());
+        }
+    }
+
+    /// The profile for a model name or alias.
+    pub fn get(&self, model: &str) -> Option<std::sync::Arc<Profile>> {
+        self.by_name.get(model).cloned()
+    }
+
+    /// Known model names and aliases, for error messages.
+    pub fn names(&self) -> Vec<&str> {
+        self.by_name.keys().map(String::as_str).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,46 @@
+//! What flows from the buses to MQTT.
+
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use crate::counter::Update;
+
+/// One channel's reading from one poll.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Reading {
+    pub device: Arc<str>,
+    pub channel: Arc<str>,
+    /// When the answer arrived.
+    pub ts: SystemTime,
+    /// The module's count (signed for encoders, unsigned for inputs counting on their own).
+    pub count: i64,
+    pub freq_hz: Option<f64>,
+    pub rpm: Option<f64>,
+    pub update: Update,
+}
+
+/// Everything a bus task reports.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    Reading(Reading),
+    /// A device became available (first good read) or stopped answering.
+    DeviceStatus {
+        device: Arc<str>,
+        online: bool,
+    },
+    /// Health of a bus, as JSON.
+    BusStats { bus: Arc<str>, stats: serde_json::Value },
+    /// The answer to a command, as JSON, and the topics it goes to.
+    CommandResult {
+        topics: Vec<String>,
+        correlation: Option<bytes::Bytes>,
+        payload: serde_json::Value,
+    },
+}
+
+/// Milliseconds since the Unix epoch.
+pub fn unix_ms(t: SystemTime) -> u64 {
+    t.duration_since(SystemTime::UNIX_EPOCH)
+        .map(|d| d.as_millis() as u64)
+        .unwrap_or(0)
+}
