@@ -1,1 +1,234 @@
+//! `pulsegate demo`: a simulated plant of every supported model, the gateway polling it, an
+//! MQTT broker (embedded, or one given), and a live table of what reaches the broker.
 
+use std::collections::BTreeMap;
+use std::io::{IsTerminal, Write};
+use std::path::Path;
+use std::time::Duration;
+
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::mqttbytes::v5::Packet;
+use rumqttc::v5::{AsyncClient, Event, MqttOptions};
+use tokio_util::sync::CancellationToken;
+
+use crate::config::Config;
+use crate::sim::{Endpoint, Plant, SimConfig};
+
+/// The demo could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error("{0}")]
+    Sim(#[from] crate::sim::SimError),
+    #[error("demo config: {0}")]
+    Config(#[from] crate::config::ConfigErrors),
+    #[error("--mqtt must be HOST:PORT, got {0:?}")]
+    BadBroker(String),
+    #[error("embedded broker: {0}")]
+    Broker(String),
+}
+
+/// The simulated plant: two RTU lines on pseudo-terminals and one Modbus TCP hall, all four
+/// models (IBF67 shares the YL67 profile).
+fn plant_config() -> SimConfig {
+    let mut c = SimConfig::from_toml(
+        r#"
+[buses.line1.devices.press1]
+unit = 1
+model = "yl67"
+modes = [0, 0, 1, 1]
+channels.enc0 = { count = -13680, rate = 250.0 }
+channels.enc1 = { rate = -120.0 }
+channels.a2 = { count = 4294966000, rate = 400.0 }
+channels.b2 = { rate = 35.0 }
+[buses.line1.devices.spindle]
+unit = 2
+model = "wj157"
+modes = [0]
+channels.enc0 = { rate = 1000.0, ppr = 1000 }
+[buses.line2.devices.conveyor]
+unit = 1
+model = "ibf67"
+channels.enc0 = { rate = 500.0 }
+channels.enc3 = { count = 2147483000, rate = 300.0 }
+[buses.line2.devices.bottles]
+unit = 2
+model = "wj157"
+modes = [1]
+channels.a0 = { rate = 12.0 }
+channels.b0 = { rate = 3.0 }
+[buses.hall]
+listen = "127.0.0.1:0"
+[buses.hall.devices.doors]
+unit = 1
+model = "zh-yx1600"
+modes = [2, 0, 0, 0, 0, 0, 0, 0]
+channels.di1 = { rate = 50.0 }
+channels.di3 = { count = 100000, rate = 7.0 }
+channels.di4 = { rate = 1.0 }
+"#,
+    )
+    .expect("demo plant config is valid");
+    c.buses.retain(|_, b| !b.devices.is_empty());
+    c
+}
+
+/// The gateway config for a running plant.
+fn gateway_config(plant: &Plant, host: &str, port: u16, state_dir: &Path) -> Result<Config, DemoError> {
+    let mut text = format!(
+        "[gateway]\nid = \"demo\"\nstate_dir = {state_dir:?}\nstats_interval = \"30s\"\n\
+         [mqtt]\nhost = {host:?}\nport = {port}\n"
+    );
+    for bus in &plant.buses {
+        match &bus.endpoint {
+            Endpoint::Serial(path) => text += &format!("[buses.{}]\nport = {:?}\nbaud = 9600\n", bus.name, path),
+            Endpoint::Tcp(addr) => text += &format!("[buses.{}]\nhost = \"{}\"\nport = {}\n", bus.name, addr.ip(), addr.port()),
+        }
+        let sim = plant_config();
+        for (name, d) in &sim.buses[&bus.name].devices {
+            text += &format!(
+                "[buses.{}.devices.{name}]\nunit = {}\nmodel = {:?}\npoll = \"500ms\"\n",
+                bus.name, d.unit, d.model
+            );
+        }
+    }
+    Ok(Config::from_toml(&text, &state_dir.join("demo.toml"), Some(Default::default()))?)
+}
+
+/// Runs the demo until `shutdown` or `duration`.
+pub async fn run(broker: Option<&str>, duration: Option<Duration>, shutdown: CancellationToken) -> Result<(), DemoError> {
+    let (host, port) = match broker {
+        Some(b) => {
+            let (h, p) = b.rsplit_once(':').ok_or_else(|| DemoError::BadBroker(b.into()))?;
+            (h.to_string(), p.parse().map_err(|_| DemoError::BadBroker(b.into()))?)
+        }
+        None => {
+            start_embedded_broker("127.0.0.1:1883")?;
+            ("127.0.0.1".to_string(), 1883)
+        }
+    };
+    let plant = Plant::start(&plant_config()).await?;
+    let state_dir = std::env::temp_dir().join(format!("pulsegate-demo-{}", std::process::id()));
+    let config = gateway_config(&plant, &host, port, &state_dir)?;
+    let root = config.mqtt.topic_root.clone();
+    print!("{}", crate::report::poll_plan(&config));
+
+    let gateway = tokio::spawn(crate::app::run(config, shutdown.clone()));
+    let table = tokio::spawn(live_table(host, port, root, shutdown.clone()));
+    if let Some(d) = duration {
+        tokio::select! {
+            () = tokio::time::sleep(d) => shutdown.cancel(),
+            () = shutdown.cancelled() => {}
+        }
+    } else {
+        shutdown.cancelled().await;
+    }
+    let _ = gateway.await;
+    let _ = table.await;
+    plant.stop();
+    let _ = std::fs::remove_dir_all(&state_dir);
+    Ok(())
+}
+
+#[cfg(feature = "embedded-broker")]
+fn start_embedded_broker(listen: &str) -> Result<(), DemoError> {
+    let text = format!(
+        r#"
+id = 0
+[router]
+id = 0
+max_connections = 100
+max_outgoing_packet_count = 200
+max_segment_size = 10485760
+max_segment_count = 10
+[v5.1]
+name = "v5-1"
+listen = "{listen}"
+next_connection_delay_ms = 1
+[v5.1.connections]
+connection_timeout_ms = 60000
+max_payload_size = 20480
+max_inflight_count = 100
+"#
+    );
+    let config: rumqttd::Config = toml::from_str(&text).map_err(|e| DemoError::Broker(e.to_string()))?;
+    if std::net::TcpListener::bind(listen).is_err() {
+        return Err(DemoError::Broker(format!(
+            "{listen} is in use; stop that broker or pass --mqtt {listen} to use it"
+        )));
+    }
+    std::thread::spawn(move || {
+        let mut broker = rumqttd::Broker::new(config);
+        if let Err(e) = broker.start() {
+            tracing::error!("embedded broker stopped: {e}");
+        }
+    });
+    std::thread::sleep(Duration::from_millis(200));
+    Ok(())
+}
+
+#[cfg(not(feature = "embedded-broker"))]
+fn start_embedded_broker(_listen: &str) -> Result<(), DemoError> {
+    Err(DemoError::Broker(
+        "built without the embedded-broker feature; pass --mqtt HOST:PORT".into(),
+    ))
+}
+
+/// Subscribes to the gateway's topics and redraws a table of the latest value per channel.
+async fn live_table(host: String, port: u16, root: String, shutdown: CancellationToken) {
+    let mut options = MqttOptions::new(format!("pulsegate-demo-view-{}", std::process::id()), host, port);
+    options.set_keep_alive(Duration::from_secs(30));
+    let (client, mut eventloop) = AsyncClient::new(options, 64);
+    let mut latest: BTreeMap<String, String> = BTreeMap::new();
+    let mut tick = tokio::time::interval(Duration::from_secs(1));
+    let tty = std::io::stdout().is_terminal();
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => break,
+            _ = tick.tick() => draw(&latest, &root, tty),
+            e = eventloop.poll() => match e {
+                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                    let _ = client.try_subscribe(format!("{root}/#"), QoS::AtMostOnce);
+                }
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let topic = String::from_utf8_lossy(&p.topic).to_string();
+                    let body = String::from_utf8_lossy(&p.payload).to_string();
+                    if let Some(rest) = topic.strip_prefix(&format!("{root}/")) {
+                        latest.insert(rest.to_string(), body);
+                    }
+                }
+                Ok(_) => {}
+                Err(_) => tokio::time::sleep(Duration::from_millis(500)).await,
+            },
+        }
+    }
+}
+
+fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
+    let mut out = String::new();
+    if tty {
+        out += "\x1b[2J\x1b[H";
+    }
+    out += &format!("pulsegate demo: readings under {root}/ (Ctrl-C to stop)\n\n");
+    out += &format!("{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n", "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event");
+    for (topic, body) in latest {
+        if topic.ends_with("/status") || topic.starts_with("bus/") || topic == "status" {
+            continue;
+        }
+        let v: serde_json::Value = serde_json::from_str(body).unwrap_or_default();
+        let f = |k: &str| v.get(k).map(|x| x.to_string()).unwrap_or_default();
+        out += &format!(
+            "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
+            topic, f("count"), f("delta"), f("total"), f("freq_hz"), f("rpm"), f("seq"),
+            v.get("event").and_then(|e| e.as_str()).unwrap_or("")
+        );
+    }
+    let statuses: Vec<String> = latest
+        .iter()
+        .filter(|(t, _)| t.ends_with("/status") || *t == "status")
+        .map(|(t, b)| format!("{t}={b}"))
+        .collect();
+    out += &format!("\n{}\n", statuses.join("  "));
+    let mut stdout = std::io::stdout();
+    let _ = stdout.write_all(out.as_bytes());
+    let _ = stdout.flush();
+}

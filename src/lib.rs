@@ -22,5 +22,6 @@ pub mod plan;
 pub mod profile;
 pub mod publish;
 pub mod reading;
+pub mod report;
 pub mod sim;
 pub mod state;

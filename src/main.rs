@@ -1,1 +1,148 @@
-fn main() {}
+//! The `pulsegate` command: a thin shell over the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context as _;
+use clap::{Parser, Subcommand, ValueEnum};
+use tokio_util::sync::CancellationToken;
+
+use pulsegate::config::{Config, DEFAULT_PATH};
+
+#[derive(Parser)]
+#[command(version, about = "Modbus pulse counters and encoders → MQTT")]
+struct Cli {
+    /// Log format.
+    #[arg(long, global = true, value_enum, default_value_t = LogFormat::Human)]
+    log_format: LogFormat,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum LogFormat {
+    Human,
+    Json,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the gateway.
+    Run {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+    },
+    /// Validate a config and print its poll plan; exit 0 when valid.
+    Check {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+    },
+    /// Print the compiled poll plan per bus with line time per cycle.
+    Plan {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+    },
+    /// Serve simulated modules on pseudo-terminals and TCP ports.
+    Simulate {
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// A simulated plant of every supported module and the gateway, with a live table.
+    Demo {
+        /// Use this broker instead of the embedded one.
+        #[arg(long, value_name = "HOST:PORT")]
+        mqtt: Option<String>,
+        /// Stop after this long (default: until Ctrl-C).
+        #[arg(long)]
+        duration: Option<humantime::Duration>,
+    },
+}
+
+fn init_logging(format: LogFormat) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tokio_modbus=warn,rumqttc=warn,rumqttd=off"));
+    let builder = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
+    match format {
+        LogFormat::Human => builder.init(),
+        LogFormat::Json => builder.json().init(),
+    }
+}
+
+/// Cancels `token` at SIGTERM or SIGINT; a second signal exits at once.
+fn on_signals(token: CancellationToken) -> anyhow::Result<()> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut term = signal(SignalKind::terminate())?;
+    let mut int = signal(SignalKind::interrupt())?;
+    tokio::spawn(async move {
+        tokio::select! { _ = term.recv() => {}, _ = int.recv() => {} }
+        tracing::info!("shutting down");
+        token.cancel();
+        tokio::select! { _ = term.recv() => {}, _ = int.recv() => {} }
+        std::process::exit(130);
+    });
+    Ok(())
+}
+
+fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
+    Config::load(path).map_err(|e| {
+        eprint!("{e}");
+        ExitCode::from(2)
+    })
+}
+
+#[tokio::main]
+async fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(cli.log_format);
+    match run(cli.command).await {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+async fn run(command: Command) -> anyhow::Result<ExitCode> {
+    match command {
+        Command::Check { config } | Command::Plan { config } => {
+            let config = match load(&config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            print!("{}", pulsegate::report::poll_plan(&config));
+            println!("config {} is valid", config.source.display());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Run { config } => {
+            let config = match load(&config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            let shutdown = CancellationToken::new();
+            on_signals(shutdown.clone())?;
+            tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
+            pulsegate::app::run(config, shutdown).await;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Simulate { config } => {
+            let text = std::fs::read_to_string(&config).with_context(|| format!("reading {}", config.display()))?;
+            let sim = pulsegate::sim::SimConfig::from_toml(&text)?;
+            let plant = pulsegate::sim::Plant::start(&sim).await?;
+            for bus in &plant.buses {
+                println!("bus {}: {:?}", bus.name, bus.endpoint);
+            }
+            let shutdown = CancellationToken::new();
+            on_signals(shutdown.clone())?;
+            shutdown.cancelled().await;
+            plant.stop();
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Demo { mqtt, duration } => {
+            let shutdown = CancellationToken::new();
+            on_signals(shutdown.clone())?;
+            pulsegate::demo::run(mqtt.as_deref(), duration.map(Into::into), shutdown).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}

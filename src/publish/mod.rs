@@ -1,0 +1,5 @@
+//! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
+
+pub mod mqtt;
+pub mod payload;
+pub mod topics;

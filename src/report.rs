@@ -1,0 +1,67 @@
+//! The compiled poll plan in words, for `pulsegate check` and `pulsegate plan`. Pure.
+
+use std::fmt::Write;
+use std::time::Duration;
+
+use crate::config::{Config, Link, Parity};
+use crate::plan::{LineTiming, Wire, line_time, plan_reads};
+use crate::profile::Register;
+
+/// Assumed device turnaround when estimating line time (the planner measures it at run time).
+const TURNAROUND: Duration = Duration::from_millis(2);
+
+/// One line per device with its reads, registers and line time per poll, and per bus the share
+/// of the line its intervals need (a warning when above 100%). Work modes are not known before
+/// the modules answer, so each group is taken in its first mode.
+pub fn poll_plan(config: &Config) -> String {
+    let mut out = String::new();
+    for bus in &config.buses {
+        let timing = match &bus.link {
+            Link::Rtu { baud, parity, stop_bits, .. } => Some(LineTiming {
+                baud: *baud,
+                bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
+                guard: bus.guard,
+            }),
+            Link::Tcp { .. } => None,
+        };
+        let link = match &bus.link {
+            Link::Rtu { port, baud, .. } => format!("RTU {} at {baud} baud", port.display()),
+            Link::Tcp { host, port } => format!("TCP {host}:{port}"),
+        };
+        let _ = writeln!(out, "bus {} ({link}):", bus.name);
+        let wire = timing.map_or_else(Wire::tcp, |t| Wire::rtu(&t, TURNAROUND));
+        let mut load = 0.0;
+        for d in &bus.devices {
+            let modes: Vec<u16> = vec![0; d.profile.mode_registers().len()];
+            let channels = d.profile.channels(&modes).unwrap_or_default();
+            let values: Vec<Register> = channels.iter().flat_map(|c| std::iter::once(c.count).chain(c.freq)).collect();
+            let blocks = plan_reads(&values, &[], &wire);
+            let regs: u16 = blocks.iter().map(|b| b.len).sum();
+            let reads: Vec<String> = blocks.iter().map(|b| format!("{}+{}", b.start, b.len)).collect();
+            let time = timing.map(|t| line_time(&blocks, &t, TURNAROUND));
+            if let Some(t) = time {
+                load += t.as_secs_f64() / d.poll.as_secs_f64();
+            }
+            let _ = writeln!(
+                out,
+                "  {:<16} unit {:>3} {:<10} every {:<8} {} request(s) [{}], {} registers, {} channels{}",
+                d.name,
+                d.unit,
+                d.profile.model,
+                humantime::format_duration(d.poll).to_string(),
+                blocks.len(),
+                reads.join(", "),
+                regs,
+                channels.len(),
+                time.map(|t| format!(", {:.1} ms on the line", t.as_secs_f64() * 1000.0)).unwrap_or_default(),
+            );
+        }
+        if timing.is_some() {
+            let _ = writeln!(out, "  line use at these intervals: {:.0}%", load * 100.0);
+            if load > 1.0 {
+                let _ = writeln!(out, "  WARNING: bus {} cannot meet its poll intervals at this baud rate", bus.name);
+            }
+        }
+    }
+    out
+}

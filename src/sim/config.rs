@@ -1,0 +1,60 @@
+//! `sim.toml`: the simulated plant.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use serde::Deserialize;
+
+/// The whole plant.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimConfig {
+    pub buses: BTreeMap<String, SimBusConfig>,
+}
+
+/// One bus: a pseudo-terminal (optionally linked at `link`) or a TCP listener.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimBusConfig {
+    /// Symlink to create to the pseudo-terminal (serial bus).
+    pub link: Option<PathBuf>,
+    /// Address to serve Modbus TCP on, e.g. "127.0.0.1:20108".
+    pub listen: Option<SocketAddr>,
+    pub devices: BTreeMap<String, SimDeviceConfig>,
+}
+
+/// One simulated module.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimDeviceConfig {
+    pub unit: u8,
+    pub model: String,
+    /// Raw values of the mode registers (profile order); default: each group's first mode.
+    #[serde(default)]
+    pub modes: Vec<u16>,
+    /// Start silent (never answering).
+    #[serde(default)]
+    pub silent: bool,
+    #[serde(default)]
+    pub channels: BTreeMap<String, SimChannelConfig>,
+}
+
+/// A channel's starting count and pulse rate.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimChannelConfig {
+    #[serde(default)]
+    pub count: i64,
+    /// Pulses per second; negative turns an encoder backwards.
+    #[serde(default)]
+    pub rate: f64,
+    pub ppr: Option<u16>,
+}
+
+impl SimConfig {
+    /// Parses a simulator config.
+    pub fn from_toml(text: &str) -> Result<SimConfig, super::SimError> {
+        toml::from_str(text).map_err(|e| super::SimError::Config(e.to_string()))
+    }
+}

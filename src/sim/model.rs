@@ -1,0 +1,400 @@
+//! A simulated counter module, driven by its profile: counts advance with time at each channel's
+//! pulse rate; frequency, rpm, clear, preset and command registers behave as the datasheets say;
+//! reads of registers the profile does not describe answer exception 02. Pure: time comes in as
+//! seconds since the plant started.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use tokio_modbus::ExceptionCode;
+
+use crate::decode::{decode, encode_int};
+use crate::profile::{ChannelKind, ChannelSpec, Profile, ValueType};
+
+/// Command codes of a counter that starts and stops by register (ZH-YX1600): the profile's
+/// `restart` list; the second one, where present, counts down.
+fn counts_down(spec: &ChannelSpec, code: u16) -> bool {
+    spec.clear.restart.get(1) == Some(&code)
+}
+
+/// One simulated channel.
+#[derive(Debug, Clone)]
+pub struct SimChannel {
+    pub spec: ChannelSpec,
+    /// Pulses per second (negative: an encoder turning backwards).
+    rate: f64,
+    /// Count at `since`, unwrapped.
+    base: i64,
+    since: f64,
+    /// Pulses that reached the input since the plant started (the meter on the wall).
+    generated_base: i64,
+    /// Counting (false after a stop/clear command until restarted).
+    running: bool,
+    /// Command register value, where the channel has one.
+    command: u16,
+    pub ppr: u16,
+}
+
+impl SimChannel {
+    fn pulses(&self, now: f64) -> i64 {
+        (self.rate * (now - self.since)).floor() as i64
+    }
+
+    /// The count register's value (unwrapped; the register keeps the low 32 bits).
+    pub fn count(&self, now: f64) -> i64 {
+        let p = if self.running { self.pulses(now) } else { 0 };
+        let down = counts_down(&self.spec, self.command);
+        self.base + if down { -p } else { p }
+    }
+
+    /// Pulses generated at the input since the plant started.
+    pub fn generated(&self, now: f64) -> i64 {
+        self.generated_base + self.pulses(now)
+    }
+
+    /// Freezes the current count as the base, so rate or run state can change from `now`.
+    fn rebase(&mut self, now: f64) {
+        self.generated_base = self.generated(now);
+        self.base = self.count(now);
+        self.since = now;
+    }
+
+    fn set_count(&mut self, now: f64, value: i64) {
+        self.rebase(now);
+        self.base = value;
+    }
+
+    fn freq(&self) -> f64 {
+        if self.running { self.rate.abs() } else { 0.0 }
+    }
+}
+
+/// A simulated module.
+#[derive(Debug, Clone)]
+pub struct SimModule {
+    pub profile: Arc<Profile>,
+    modes: Vec<u16>,
+    pub channels: Vec<SimChannel>,
+    /// Registers with no behaviour of their own (mode words, identification, autosave).
+    plain: BTreeMap<u16, u16>,
+    /// Silent modules do not answer at all.
+    pub silent: bool,
+}
+
+/// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
+fn words_of(value: i64, ty: ValueType, order: crate::profile::WordOrder) -> Vec<u16> {
+    let wrapped = match ty {
+        ValueType::I32 => i64::from(value as i32),
+        ValueType::U32 => i64::from(value as u32),
+        ValueType::I16 => i64::from(value as i16),
+        ValueType::U16 => i64::from(value as u16),
+        ValueType::F32 => return f32_words(value as f32, order),
+    };
+    encode_int(wrapped, ty, order).expect("wrapped into range")
+}
+
+fn f32_words(v: f32, order: crate::profile::WordOrder) -> Vec<u16> {
+    let bits = v.to_bits();
+    let (hi, lo) = ((bits >> 16) as u16, bits as u16);
+    match order {
+        crate::profile::WordOrder::HighFirst => vec![hi, lo],
+        crate::profile::WordOrder::LowFirst => vec![lo, hi],
+    }
+}
+
+impl SimModule {
+    /// A module of `profile` whose mode registers read `modes` (raw values, in
+    /// [`Profile::mode_registers`] order; missing entries take each group's first mode).
+    pub fn new(profile: Arc<Profile>, modes: &[u16]) -> Result<SimModule, String> {
+        let regs = profile.mode_registers();
+        let mut plain = BTreeMap::new();
+        let mut full = Vec::new();
+        for (i, r) in regs.iter().enumerate() {
+            let v = modes.get(i).copied().unwrap_or(0);
+            plain.insert(r.address, v);
+            full.push(v);
+        }
+        // A quadrature pair's even counter carries the same mode word (ZH-YX1600).
+        for r in &regs {
+            if r.mask != 0xFFFF {
+                let v = plain[&r.address];
+                plain.entry(r.address + 1).or_insert(v);
+            }
+        }
+        if let Some((address, words)) = &profile.identify {
+            for (i, w) in words.iter().enumerate() {
+                plain.insert(address + i as u16, *w);
+            }
+        }
+        if let Some(a) = profile.autosave {
+            plain.insert(a, 1);
+        }
+        let specs = profile.channels(&full).map_err(|e| e.to_string())?;
+        let channels = specs
+            .into_iter()
+            .map(|spec| SimChannel {
+                command: spec.clear.restart.first().copied().unwrap_or(0),
+                spec,
+                rate: 0.0,
+                base: 0,
+                since: 0.0,
+                generated_base: 0,
+                running: true,
+                ppr: 1000,
+            })
+            .collect();
+        Ok(SimModule {
+            profile,
+            modes: full,
+            channels,
+            plain,
+            silent: false,
+        })
+    }
+
+    /// The raw mode values the module was built with.
+    pub fn modes(&self) -> &[u16] {
+        &self.modes
+    }
+
+    pub fn channel(&self, name: &str) -> Option<&SimChannel> {
+        self.channels.iter().find(|c| c.spec.name == name)
+    }
+
+    fn channel_mut(&mut self, name: &str) -> Option<&mut SimChannel> {
+        self.channels.iter_mut().find(|c| c.spec.name == name)
+    }
+
+    /// Sets a channel's pulse rate from `now` on.
+    pub fn set_rate(&mut self, now: f64, name: &str, rate: f64) -> bool {
+        self.channel_mut(name)
+            .map(|c| {
+                c.rebase(now);
+                c.rate = rate;
+            })
+            .is_some()
+    }
+
+    /// Sets a channel's count (as if preset) without generating pulses.
+    pub fn set_count(&mut self, now: f64, name: &str, value: i64) -> bool {
+        self.channel_mut(name).map(|c| c.set_count(now, value)).is_some()
+    }
+
+    pub fn set_ppr(&mut self, name: &str, ppr: u16) -> bool {
+        self.channel_mut(name).map(|c| c.ppr = ppr).is_some()
+    }
+
+    /// Power loss and return: counts the module does not keep go back to 0.
+    pub fn power_cycle(&mut self, now: f64) {
+        let autosave = self.profile.autosave.is_none_or(|a| self.plain.get(&a) == Some(&1));
+        for c in &mut self.channels {
+            if !(c.spec.retains_count && autosave) {
+                c.set_count(now, 0);
+            }
+        }
+    }
+
+    /// The value of one register at `now`, or `None` where the module has none.
+    pub fn register(&self, now: f64, address: u16) -> Option<u16> {
+        if let Some(v) = self.plain.get(&address) {
+            return Some(*v);
+        }
+        let order = self.profile.word_order;
+        for c in &self.channels {
+            let s = &c.spec;
+            let pick = |r: crate::profile::Register, value: Value| -> Option<u16> {
+                if address < r.address || address >= r.end() {
+                    return None;
+                }
+                let words = match value {
+                    Value::Int(v) => words_of(v, r.ty, order),
+                    Value::Float(f) => match r.ty {
+                        ValueType::F32 => f32_words(f as f32, order),
+                        ty => words_of(f.round() as i64, ty, order),
+                    },
+                };
+                Some(words[usize::from(address - r.address)])
+            };
+            let freq = c.freq();
+            let rpm = if c.ppr > 0 { freq * 60.0 / f64::from(c.ppr) } else { 0.0 };
+            let signed_rpm = if s.kind == ChannelKind::Encoder && c.rate < 0.0 { -rpm } else { rpm };
+            let found = pick(s.count, Value::Int(c.count(now)))
+                .or_else(|| s.freq.and_then(|r| pick(r, Value::Float(freq))))
+                .or_else(|| s.rpm.and_then(|r| pick(r, Value::Float(signed_rpm))))
+                .or_else(|| s.ppr.and_then(|r| pick(r, Value::Int(i64::from(c.ppr)))));
+            if found.is_some() {
+                return found;
+            }
+            if address == s.clear.register {
+                return Some(if s.clear.restart.is_empty() { 0 } else { c.command });
+            }
+        }
+        None
+    }
+
+    /// FC03: reads `len` registers from `start`; any undescribed register refuses the read.
+    pub fn read(&self, now: f64, start: u16, len: u16) -> Result<Vec<u16>, ExceptionCode> {
+        if len == 0 || len > 125 || u32::from(start) + u32::from(len) > 0x1_0000 {
+            return Err(ExceptionCode::IllegalDataValue);
+        }
+        (start..start + len)
+            .map(|a| self.register(now, a).ok_or(ExceptionCode::IllegalDataAddress))
+            .collect()
+    }
+
+    /// FC06.
+    pub fn write_one(&mut self, now: f64, address: u16, value: u16) -> Result<(), ExceptionCode> {
+        // Clear codes and counter commands.
+        let mut handled = false;
+        let all: Vec<usize> = (0..self.channels.len()).collect();
+        for i in all {
+            let c = &mut self.channels[i];
+            let s = c.spec.clone();
+            if s.clear.register != address {
+                continue;
+            }
+            if !s.clear.restart.is_empty() {
+                // A command register (ZH-YX1600): stop-and-clear, pause, run up, run down.
+                c.rebase(now);
+                match value {
+                    v if v == s.clear.code => {
+                        c.base = 0;
+                        c.running = false;
+                    }
+                    1 => c.running = false,
+                    v if s.clear.restart.contains(&v) => c.running = true,
+                    _ => return Err(ExceptionCode::IllegalDataValue),
+                }
+                c.command = value;
+                handled = true;
+            } else if value == s.clear.code || s.clear_all.is_some_and(|a| a.register == address && a.code == value) {
+                c.set_count(now, 0);
+                handled = true;
+            }
+        }
+        if handled {
+            return Ok(());
+        }
+        if self.channels.iter().any(|c| c.spec.clear.register == address) {
+            return Err(ExceptionCode::IllegalDataValue);
+        }
+        if self.plain.contains_key(&address) {
+            // Mode words, autosave: stored; modes take effect after a restart, as documented.
+            self.plain.insert(address, value);
+            return Ok(());
+        }
+        for c in &mut self.channels {
+            if c.spec.ppr.is_some_and(|r| r.address == address) {
+                c.ppr = value;
+                return Ok(());
+            }
+        }
+        Err(ExceptionCode::IllegalDataAddress)
+    }
+
+    /// FC16: presets a count (both words at once), or writes single registers in turn.
+    pub fn write_many(&mut self, now: f64, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        if values.is_empty() || values.len() > 123 {
+            return Err(ExceptionCode::IllegalDataValue);
+        }
+        let order = self.profile.word_order;
+        if let Some(c) = self
+            .channels
+            .iter_mut()
+            .find(|c| c.spec.count.address == address && usize::from(c.spec.count.len()) == values.len())
+        {
+            let v = decode(values, c.spec.count.ty, order).as_i64();
+            c.set_count(now, v);
+            return Ok(());
+        }
+        for (i, v) in values.iter().enumerate() {
+            self.write_one(now, address + i as u16, *v)?;
+        }
+        Ok(())
+    }
+}
+
+enum Value {
+    Int(i64),
+    Float(f64),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::profile::Profiles;
+
+    fn module(model: &str, modes: &[u16]) -> SimModule {
+        SimModule::new(Profiles::builtin().get(model).unwrap(), modes).unwrap()
+    }
+
+    #[test]
+    fn a_yl67_answers_the_datasheet_request_with_the_datasheet_words() {
+        let mut m = module("yl67", &[0, 0, 0, 0]);
+        m.set_count(0.0, "enc0", -13680);
+        // 01 03 00 10 00 02 → 01 03 04 CA 90 FF FF
+        assert_eq!(m.read(0.0, 0x10, 2), Ok(vec![0xCA90, 0xFFFF]));
+    }
+
+    #[test]
+    fn counts_advance_with_time_at_the_channel_rate() {
+        let mut m = module("wj157", &[1]);
+        m.set_rate(0.0, "a0", 1000.0);
+        assert_eq!(m.channel("a0").unwrap().count(2.5), 2500);
+        assert_eq!(m.channel("a0").unwrap().generated(2.5), 2500);
+    }
+
+    #[test]
+    fn undescribed_registers_answer_exception_02() {
+        let m = module("yl67", &[0, 0, 0, 0]);
+        assert_eq!(m.read(0.0, 24, 2), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(m.read(0.0, 16, 10), Err(ExceptionCode::IllegalDataAddress));
+    }
+
+    #[test]
+    fn the_yl67_clear_register_clears_one_encoder() {
+        let mut m = module("yl67", &[0, 0, 0, 0]);
+        m.set_count(0.0, "enc0", 500);
+        m.set_count(0.0, "enc1", 700);
+        m.write_one(0.0, 67, 10).unwrap();
+        assert_eq!(m.channel("enc0").unwrap().count(0.0), 0);
+        assert_eq!(m.channel("enc1").unwrap().count(0.0), 700);
+        assert_eq!(m.write_one(0.0, 67, 99), Err(ExceptionCode::IllegalDataValue));
+    }
+
+    #[test]
+    fn zh_yx1600_clear_is_stop_then_restart() {
+        let mut m = module("zh-yx1600", &[]);
+        m.set_rate(0.0, "di1", 100.0);
+        m.write_one(1.0, 0x1100, 0).unwrap();
+        assert_eq!(m.channel("di1").unwrap().count(2.0), 0, "stopped and cleared");
+        m.write_one(2.0, 0x1100, 0xA2).unwrap();
+        assert_eq!(m.channel("di1").unwrap().count(3.0), 100);
+        assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]));
+    }
+
+    #[test]
+    fn zh_yx1600_in_quadrature_has_no_even_channel() {
+        let m = module("zh-yx1600", &[2]);
+        assert!(m.channel("di1").is_some());
+        assert!(m.channel("di2").is_none());
+        assert!(m.channel("di3").is_some());
+    }
+
+    #[test]
+    fn a_preset_writes_both_words_at_once() {
+        let mut m = module("zh-yx1600", &[]);
+        m.write_many(0.0, 0x1160, &[0x0001, 0x86A0]).unwrap();
+        assert_eq!(m.channel("di1").unwrap().count(0.0), 100_000);
+    }
+
+    #[test]
+    fn power_loss_clears_di_counts_but_keeps_encoders() {
+        let mut m = module("yl67", &[0, 1, 0, 0]);
+        m.set_count(0.0, "enc0", 5);
+        m.set_count(0.0, "a1", 5);
+        m.power_cycle(1.0);
+        assert_eq!(m.channel("enc0").unwrap().count(1.0), 5);
+        assert_eq!(m.channel("a1").unwrap().count(1.0), 0);
+    }
+}

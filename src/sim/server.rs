@@ -1,0 +1,100 @@
+//! The Modbus server shell around the simulated modules.
+
+use std::future::{Ready, ready};
+use std::io;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use tokio_modbus::server::Service;
+use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+use tokio_serial::{SerialPort, SerialStream};
+use tokio_util::sync::CancellationToken;
+
+use super::Modules;
+
+/// Answers requests for the modules of one bus; absent or silent units stay silent.
+#[derive(Clone)]
+pub struct SimService {
+    modules: Modules,
+    start: Instant,
+}
+
+impl SimService {
+    pub fn new(modules: Modules, start: Instant) -> SimService {
+        SimService { modules, start }
+    }
+
+    fn answer(&self, req: SlaveRequest<'static>) -> Result<Option<Response>, ExceptionCode> {
+        let now = self.start.elapsed().as_secs_f64();
+        let mut modules = self.modules.lock().unwrap_or_else(|e| e.into_inner());
+        let Some(m) = modules.get_mut(&req.slave) else {
+            return Ok(None);
+        };
+        if m.silent {
+            return Ok(None);
+        }
+        let response = match req.request {
+            Request::ReadHoldingRegisters(start, len) => Response::ReadHoldingRegisters(m.read(now, start, len)?),
+            Request::WriteSingleRegister(a, v) => {
+                m.write_one(now, a, v)?;
+                Response::WriteSingleRegister(a, v)
+            }
+            Request::WriteMultipleRegisters(a, values) => {
+                m.write_many(now, a, &values)?;
+                Response::WriteMultipleRegisters(a, values.len() as u16)
+            }
+            _ => return Err(ExceptionCode::IllegalFunction),
+        };
+        Ok(Some(response))
+    }
+}
+
+impl Service for SimService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = Ready<Result<Option<Response>, ExceptionCode>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        ready(self.answer(req))
+    }
+}
+
+/// Serves on a new pseudo-terminal; returns the path of its serial end and that end (keep it
+/// open so the line survives the gateway closing and reopening it).
+pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(PathBuf, SerialStream)> {
+    let (master, slave) = SerialStream::pair().map_err(io::Error::other)?;
+    let path = slave
+        .name()
+        .map(PathBuf::from)
+        .ok_or_else(|| io::Error::other("pseudo-terminal has no name"))?;
+    let server = tokio_modbus::server::rtu::Server::new(master);
+    tokio::spawn(async move {
+        if let Err(e) = server.serve_until(service, async move { cancel.cancelled().await }).await {
+            tracing::warn!("simulated RTU bus stopped: {e}");
+        }
+    });
+    Ok((path, slave))
+}
+
+/// Serves Modbus TCP on `addr` (port 0 picks a free one); returns the bound address.
+pub async fn serve_tcp(addr: SocketAddr, service: SimService, cancel: CancellationToken) -> io::Result<SocketAddr> {
+    let listener = tokio::net::TcpListener::bind(addr).await?;
+    let bound = listener.local_addr()?;
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    tokio::spawn(async move {
+        let on_connected = |stream, _addr| {
+            let service = service.clone();
+            async move { Ok(Some((service, stream))) }
+        };
+        let on_error = |e| tracing::debug!("simulated TCP connection ended: {e}");
+        tokio::select! {
+            r = server.serve(&on_connected, on_error) => {
+                if let Err(e) = r { tracing::warn!("simulated TCP bus stopped: {e}"); }
+            }
+            () = cancel.cancelled() => {}
+        }
+    });
+    Ok(bound)
+}
