@@ -1,0 +1,1 @@
+//! Counter truth end to end: wrap, resets, glitches, restarts, frequency.

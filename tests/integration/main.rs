@@ -1,0 +1,7 @@
+//! One integration binary: the gateway against the simulator over real pseudo-terminals and a
+//! real Mosquitto broker.
+
+mod config_cases;
+mod counters;
+mod pipeline;
+mod support;

@@ -1,0 +1,263 @@
+//! Real parts for the tests: a Mosquitto broker on a free loopback port, an MQTT subscriber,
+//! the simulated plant on real pseudo-terminals, and the gateway binary as a child process.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use pulsegate::sim::{Endpoint, Plant, SimConfig};
+use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::mqttbytes::v5::Packet;
+use rumqttc::v5::{AsyncClient, Event, MqttOptions};
+
+/// A free TCP port on 127.0.0.1.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// A fresh directory under the system temp dir.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pulsegate-test-{name}-{}-{}", std::process::id(), free_port()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// A Mosquitto broker on a free loopback port, stopped on drop.
+pub struct Broker {
+    pub port: u16,
+    child: Child,
+    conf: PathBuf,
+}
+
+impl Broker {
+    pub fn start() -> Broker {
+        let port = free_port();
+        Self::start_on(port)
+    }
+
+    pub fn start_on(port: u16) -> Broker {
+        let conf = std::env::temp_dir().join(format!("pulsegate-mosquitto-{port}.conf"));
+        std::fs::write(&conf, format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")).unwrap();
+        let mosquitto = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
+            .into_iter()
+            .find(|p| Path::new(p).exists())
+            .expect("mosquitto is not installed: run the README's test command (scripts/test), which installs it");
+        let child = Command::new(mosquitto)
+            .arg("-c")
+            .arg(&conf)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start mosquitto");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+            assert!(Instant::now() < deadline, "mosquitto did not start on port {port}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Broker { port, child, conf }
+    }
+
+    pub fn stop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        self.stop();
+        let _ = std::fs::remove_file(&self.conf);
+    }
+}
+
+/// One received MQTT message.
+#[derive(Debug, Clone)]
+pub struct Message {
+    pub topic: String,
+    pub payload: String,
+    pub retain: bool,
+    pub at: Instant,
+}
+
+impl Message {
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.payload).unwrap_or(serde_json::Value::Null)
+    }
+}
+
+/// A subscriber that records everything under a topic filter.
+pub struct Subscriber {
+    pub client: AsyncClient,
+    messages: Arc<Mutex<Vec<Message>>>,
+}
+
+impl Subscriber {
+    pub async fn start(port: u16, filter: &str) -> Subscriber {
+        let mut options = MqttOptions::new(format!("test-sub-{}", free_port()), "127.0.0.1", port);
+        options.set_keep_alive(Duration::from_secs(30));
+        let (client, mut eventloop) = AsyncClient::new(options, 100);
+        let messages = Arc::new(Mutex::new(Vec::new()));
+        let sink = messages.clone();
+        let (ready_tx, ready_rx) = tokio::sync::oneshot::channel();
+        let mut ready_tx = Some(ready_tx);
+        let sub = client.clone();
+        let filter = filter.to_string();
+        tokio::spawn(async move {
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                        let _ = sub.try_subscribe(filter.clone(), QoS::AtLeastOnce);
+                    }
+                    Ok(Event::Incoming(Packet::SubAck(_))) => {
+                        if let Some(tx) = ready_tx.take() {
+                            let _ = tx.send(());
+                        }
+                    }
+                    Ok(Event::Incoming(Packet::Publish(p))) => sink.lock().unwrap().push(Message {
+                        topic: String::from_utf8_lossy(&p.topic).into(),
+                        payload: String::from_utf8_lossy(&p.payload).into(),
+                        retain: p.retain,
+                        at: Instant::now(),
+                    }),
+                    Ok(_) => {}
+                    Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+                }
+            }
+        });
+        tokio::time::timeout(Duration::from_secs(5), ready_rx).await.expect("subscribed").unwrap();
+        Subscriber { client, messages }
+    }
+
+    pub fn all(&self) -> Vec<Message> {
+        self.messages.lock().unwrap().clone()
+    }
+
+    pub fn on(&self, topic: &str) -> Vec<Message> {
+        self.all().into_iter().filter(|m| m.topic == topic).collect()
+    }
+
+    /// Waits until a message on `topic` satisfies `pred`; returns it.
+    pub async fn wait_for(&self, topic: &str, timeout: Duration, pred: impl Fn(&Message) -> bool) -> Option<Message> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(m) = self.on(topic).into_iter().find(|m| pred(m)) {
+                return Some(m);
+            }
+            if Instant::now() >= deadline {
+                return None;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
+    pub fn clear(&self) {
+        self.messages.lock().unwrap().clear();
+    }
+}
+
+/// The gateway binary, killed on drop.
+pub struct Gateway {
+    child: Child,
+    pub config: PathBuf,
+    pub log: PathBuf,
+}
+
+pub fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_pulsegate")
+}
+
+impl Gateway {
+    pub fn start(config: &Path) -> Gateway {
+        let log = config.with_extension("log");
+        let child = Command::new(bin())
+            .args(["run", "--config"])
+            .arg(config)
+            .env("RUST_LOG", "info,pulsegate=debug")
+            .env_remove("PULSEGATE__MQTT__PORT")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .expect("start gateway");
+        Gateway {
+            child,
+            config: config.to_path_buf(),
+            log,
+        }
+    }
+
+    pub fn pid(&self) -> i32 {
+        self.child.id() as i32
+    }
+
+    pub fn signal(&self, sig: &str) {
+        let _ = Command::new("kill").args([&format!("-{sig}"), &self.pid().to_string()]).status();
+    }
+
+    /// SIGKILL: no chance to save anything.
+    pub fn kill(mut self) {
+        self.signal("KILL");
+        let _ = self.child.wait();
+    }
+
+    /// SIGTERM and wait; returns the exit status and how long it took.
+    pub fn terminate(mut self) -> (std::process::ExitStatus, Duration) {
+        let t = Instant::now();
+        self.signal("TERM");
+        let status = self.child.wait().unwrap();
+        (status, t.elapsed())
+    }
+
+    pub fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Gateway config text for a running plant: one bus per plant bus, with the devices given as
+/// (bus, device, unit, model, poll) and extra TOML appended.
+pub fn gateway_toml(plant: &Plant, broker_port: u16, state_dir: &Path, devices: &[(&str, &str, u8, &str, &str)], extra: &str) -> String {
+    let mut t = format!(
+        "[gateway]\nid = \"test\"\nstate_dir = {state_dir:?}\nstate_flush = \"500ms\"\n\n[mqtt]\nhost = \"127.0.0.1\"\nport = {broker_port}\n\n"
+    );
+    let mut by_bus: BTreeMap<&str, Vec<_>> = BTreeMap::new();
+    for d in devices {
+        by_bus.entry(d.0).or_default().push(d);
+    }
+    for (bus, devs) in by_bus {
+        match &plant.bus(bus).expect("bus in plant").endpoint {
+            Endpoint::Serial(p) => t += &format!("[buses.{bus}]\nport = {p:?}\nbaud = 115200\ntimeout = \"100ms\"\nbackoff_min = \"500ms\"\nbackoff_max = \"2s\"\n"),
+            Endpoint::Tcp(a) => t += &format!("[buses.{bus}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n", a.ip(), a.port()),
+        }
+        for (_, name, unit, model, poll) in devs {
+            t += &format!("[buses.{bus}.devices.{name}]\nunit = {unit}\nmodel = {model:?}\npoll = {poll:?}\n");
+        }
+        t += "\n";
+    }
+    t + extra
+}
+
+/// Starts a plant from TOML.
+pub async fn plant(toml: &str) -> Plant {
+    Plant::start(&SimConfig::from_toml(toml).unwrap()).await.unwrap()
+}
+
+/// Writes `text` to `dir/pulsegate.toml`.
+pub fn write_config(dir: &Path, text: &str) -> PathBuf {
+    let p = dir.join("pulsegate.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Readings of one channel in arrival order, as JSON.
+pub fn readings(sub: &Subscriber, topic: &str) -> Vec<serde_json::Value> {
+    sub.on(topic).iter().map(Message::json).collect()
+}
