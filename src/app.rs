@@ -9,7 +9,11 @@ use crate::config::Config;
 /// flight and saves its state, and MQTT says the gateway is offline.
 pub async fn run(config: Config, shutdown: CancellationToken) {
     let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
-    let mqtt = tokio::spawn(crate::publish::mqtt::run(config.mqtt.clone(), rx, shutdown.clone()));
+    let mqtt = tokio::spawn(crate::publish::mqtt::run(
+        config.mqtt.clone(),
+        rx,
+        shutdown.clone(),
+    ));
     let mut buses = Vec::new();
     for bus in config.buses.iter().cloned() {
         let task = BusTask::new(bus, &config.gateway, tx.clone());

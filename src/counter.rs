@@ -161,7 +161,14 @@ impl Counter {
         self.outcome(0, Some(event), None)
     }
 
-    fn book(&mut self, count: i64, at_ms: u64, delta: i64, event: Option<Event>, rate: Option<f64>) -> Update {
+    fn book(
+        &mut self,
+        count: i64,
+        at_ms: u64,
+        delta: i64,
+        event: Option<Event>,
+        rate: Option<f64>,
+    ) -> Update {
         let s = &mut self.state;
         s.count = Some(count);
         s.at_ms = at_ms;
@@ -277,7 +284,10 @@ mod tests {
     fn a_module_reset_is_booked_once_as_pulses_since_the_reset() {
         let mut c = di(1000.0);
         // 1_000_000 before; the module restarts and has counted 100, then 600.
-        let u = feed(&mut c, &[(1_000_000, 0), (1_000_400, 400), (100, 900), (600, 1400)]);
+        let u = feed(
+            &mut c,
+            &[(1_000_000, 0), (1_000_400, 400), (100, 900), (600, 1400)],
+        );
         assert_eq!(u[1].delta, 400);
         assert_eq!(u[2].delta, 0, "the first read after the jump is held");
         assert_eq!(u[3].delta, 600);

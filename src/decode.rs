@@ -109,7 +109,11 @@ mod tests {
         for &b in &YL67_ANSWER[..7] {
             crc ^= u16::from(b);
             for _ in 0..8 {
-                crc = if crc & 1 != 0 { (crc >> 1) ^ 0xA001 } else { crc >> 1 };
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xA001
+                } else {
+                    crc >> 1
+                };
             }
         }
         assert_eq!(crc.to_le_bytes(), [YL67_ANSWER[7], YL67_ANSWER[8]]);
@@ -171,12 +175,21 @@ mod tests {
     #[test]
     fn encode_refuses_values_outside_the_type() {
         assert_eq!(encode_int(-1, ValueType::U32, WordOrder::LowFirst), None);
-        assert_eq!(encode_int(1 << 31, ValueType::I32, WordOrder::LowFirst), None);
-        assert_eq!(encode_int(1 << 32, ValueType::U32, WordOrder::LowFirst), None);
+        assert_eq!(
+            encode_int(1 << 31, ValueType::I32, WordOrder::LowFirst),
+            None
+        );
+        assert_eq!(
+            encode_int(1 << 32, ValueType::U32, WordOrder::LowFirst),
+            None
+        );
     }
 
     #[test]
     fn short_input_is_refused_not_a_panic() {
-        assert_eq!(decode_checked(&[1], ValueType::U32, WordOrder::LowFirst), None);
+        assert_eq!(
+            decode_checked(&[1], ValueType::U32, WordOrder::LowFirst),
+            None
+        );
     }
 }

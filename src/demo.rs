@@ -73,15 +73,29 @@ channels.di4 = { rate = 1.0 }
 }
 
 /// The gateway config for a running plant.
-fn gateway_config(plant: &Plant, host: &str, port: u16, state_dir: &Path) -> Result<Config, DemoError> {
+fn gateway_config(
+    plant: &Plant,
+    host: &str,
+    port: u16,
+    state_dir: &Path,
+) -> Result<Config, DemoError> {
     let mut text = format!(
         "[gateway]\nid = \"demo\"\nstate_dir = {state_dir:?}\nstats_interval = \"30s\"\n\
          [mqtt]\nhost = {host:?}\nport = {port}\n"
     );
     for bus in &plant.buses {
         match &bus.endpoint {
-            Endpoint::Serial(path) => text += &format!("[buses.{}]\nport = {:?}\nbaud = 9600\n", bus.name, path),
-            Endpoint::Tcp(addr) => text += &format!("[buses.{}]\nhost = \"{}\"\nport = {}\n", bus.name, addr.ip(), addr.port()),
+            Endpoint::Serial(path) => {
+                text += &format!("[buses.{}]\nport = {:?}\nbaud = 9600\n", bus.name, path)
+            }
+            Endpoint::Tcp(addr) => {
+                text += &format!(
+                    "[buses.{}]\nhost = \"{}\"\nport = {}\n",
+                    bus.name,
+                    addr.ip(),
+                    addr.port()
+                )
+            }
         }
         let sim = plant_config();
         for (name, d) in &sim.buses[&bus.name].devices {
@@ -91,15 +105,28 @@ fn gateway_config(plant: &Plant, host: &str, port: u16, state_dir: &Path) -> Res
             );
         }
     }
-    Ok(Config::from_toml(&text, &state_dir.join("demo.toml"), Some(Default::default()))?)
+    Ok(Config::from_toml(
+        &text,
+        &state_dir.join("demo.toml"),
+        Some(Default::default()),
+    )?)
 }
 
 /// Runs the demo until `shutdown` or `duration`.
-pub async fn run(broker: Option<&str>, duration: Option<Duration>, shutdown: CancellationToken) -> Result<(), DemoError> {
+pub async fn run(
+    broker: Option<&str>,
+    duration: Option<Duration>,
+    shutdown: CancellationToken,
+) -> Result<(), DemoError> {
     let (host, port) = match broker {
         Some(b) => {
-            let (h, p) = b.rsplit_once(':').ok_or_else(|| DemoError::BadBroker(b.into()))?;
-            (h.to_string(), p.parse().map_err(|_| DemoError::BadBroker(b.into()))?)
+            let (h, p) = b
+                .rsplit_once(':')
+                .ok_or_else(|| DemoError::BadBroker(b.into()))?;
+            (
+                h.to_string(),
+                p.parse().map_err(|_| DemoError::BadBroker(b.into()))?,
+            )
         }
         None => {
             start_embedded_broker("127.0.0.1:1883")?;
@@ -150,7 +177,8 @@ max_payload_size = 20480
 max_inflight_count = 100
 "#
     );
-    let config: rumqttd::Config = toml::from_str(&text).map_err(|e| DemoError::Broker(e.to_string()))?;
+    let config: rumqttd::Config =
+        toml::from_str(&text).map_err(|e| DemoError::Broker(e.to_string()))?;
     if std::net::TcpListener::bind(listen).is_err() {
         return Err(DemoError::Broker(format!(
             "{listen} is in use; stop that broker or pass --mqtt {listen} to use it"
@@ -175,7 +203,11 @@ fn start_embedded_broker(_listen: &str) -> Result<(), DemoError> {
 
 /// Subscribes to the gateway's topics and redraws a table of the latest value per channel.
 async fn live_table(host: String, port: u16, root: String, shutdown: CancellationToken) {
-    let mut options = MqttOptions::new(format!("pulsegate-demo-view-{}", std::process::id()), host, port);
+    let mut options = MqttOptions::new(
+        format!("pulsegate-demo-view-{}", std::process::id()),
+        host,
+        port,
+    );
     options.set_keep_alive(Duration::from_secs(30));
     let (client, mut eventloop) = AsyncClient::new(options, 64);
     let mut latest: BTreeMap<String, String> = BTreeMap::new();
@@ -209,7 +241,10 @@ fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
         out += "\x1b[2J\x1b[H";
     }
     out += &format!("pulsegate demo: readings under {root}/ (Ctrl-C to stop)\n\n");
-    out += &format!("{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n", "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event");
+    out += &format!(
+        "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
+        "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event"
+    );
     for (topic, body) in latest {
         if topic.ends_with("/status") || topic.starts_with("bus/") || topic == "status" {
             continue;
@@ -218,7 +253,13 @@ fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
         let f = |k: &str| v.get(k).map(|x| x.to_string()).unwrap_or_default();
         out += &format!(
             "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
-            topic, f("count"), f("delta"), f("total"), f("freq_hz"), f("rpm"), f("seq"),
+            topic,
+            f("count"),
+            f("delta"),
+            f("total"),
+            f("freq_hz"),
+            f("rpm"),
+            f("seq"),
             v.get("event").and_then(|e| e.as_str()).unwrap_or("")
         );
     }

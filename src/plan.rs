@@ -61,7 +61,8 @@ impl Wire {
     /// RTU at `timing`, with the device's turnaround.
     pub fn rtu(timing: &LineTiming, turnaround: Duration) -> Wire {
         // Request: addr fc start(2) qty(2) crc(2) = 8; answer: addr fc count crc(2) = 5.
-        let silences = 2.0 * timing.silent_interval().as_secs_f64() / timing.char_time().as_secs_f64();
+        let silences =
+            2.0 * timing.silent_interval().as_secs_f64() / timing.char_time().as_secs_f64();
         let turnaround = turnaround.as_secs_f64() / timing.char_time().as_secs_f64();
         Wire {
             request_overhead: 8.0 + 5.0 + silences + turnaround,
@@ -125,7 +126,8 @@ pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec
     if n == 0 {
         return Vec::new();
     }
-    let crosses_hole = |gap: Range<u16>| holes.iter().any(|h| h.start < gap.end && gap.start < h.end);
+    let crosses_hole =
+        |gap: Range<u16>| holes.iter().any(|h| h.start < gap.end && gap.start < h.end);
     // best[j]: (cost, reads, previous split) for the first j spans.
     let mut best: Vec<(f64, usize, usize)> = vec![(f64::INFINITY, usize::MAX, 0); n + 1];
     best[0] = (0.0, 0, 0);
@@ -196,14 +198,20 @@ mod tests {
     #[test]
     fn adjacent_values_are_read_in_one_request() {
         let v = [u32_at(16), u32_at(18), u32_at(20), u32_at(22)];
-        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 8 }]);
+        assert_eq!(
+            plan_reads(&v, &[], &wire(20.0)),
+            vec![Block { start: 16, len: 8 }]
+        );
     }
 
     #[test]
     fn a_gap_is_bridged_only_when_cheaper_than_a_new_request() {
         // Gap of 4 registers costs 8 characters: cheaper than a 20-character request.
         let v = [u32_at(16), u32_at(22)];
-        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 8 }]);
+        assert_eq!(
+            plan_reads(&v, &[], &wire(20.0)),
+            vec![Block { start: 16, len: 8 }]
+        );
         // Gap of 104 registers costs 208 characters: two requests.
         let v = [u32_at(16), u32_at(128)];
         assert_eq!(
@@ -218,7 +226,8 @@ mod tests {
     #[test]
     fn a_known_hole_is_never_bridged() {
         let v = [u32_at(16), u32_at(22)];
-        let holes = [19..21];
+        #[allow(clippy::single_range_in_vec_init)] // one hole, as a list
+        let holes = vec![19..21];
         assert_eq!(
             plan_reads(&v, &holes, &wire(1000.0)),
             vec![Block { start: 16, len: 2 }, Block { start: 22, len: 2 }]
@@ -246,7 +255,10 @@ mod tests {
     #[test]
     fn the_same_register_asked_twice_is_read_once() {
         let v = [u32_at(16), u32_at(16)];
-        assert_eq!(plan_reads(&v, &[], &wire(20.0)), vec![Block { start: 16, len: 2 }]);
+        assert_eq!(
+            plan_reads(&v, &[], &wire(20.0)),
+            vec![Block { start: 16, len: 2 }]
+        );
     }
 
     #[test]

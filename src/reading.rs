@@ -29,7 +29,10 @@ pub enum Output {
         online: bool,
     },
     /// Health of a bus, as JSON.
-    BusStats { bus: Arc<str>, stats: serde_json::Value },
+    BusStats {
+        bus: Arc<str>,
+        stats: serde_json::Value,
+    },
     /// The answer to a command, as JSON, and the topics it goes to.
     CommandResult {
         topics: Vec<String>,

@@ -17,7 +17,12 @@ pub fn poll_plan(config: &Config) -> String {
     let mut out = String::new();
     for bus in &config.buses {
         let timing = match &bus.link {
-            Link::Rtu { baud, parity, stop_bits, .. } => Some(LineTiming {
+            Link::Rtu {
+                baud,
+                parity,
+                stop_bits,
+                ..
+            } => Some(LineTiming {
                 baud: *baud,
                 bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
                 guard: bus.guard,
@@ -34,10 +39,16 @@ pub fn poll_plan(config: &Config) -> String {
         for d in &bus.devices {
             let modes: Vec<u16> = vec![0; d.profile.mode_registers().len()];
             let channels = d.profile.channels(&modes).unwrap_or_default();
-            let values: Vec<Register> = channels.iter().flat_map(|c| std::iter::once(c.count).chain(c.freq)).collect();
+            let values: Vec<Register> = channels
+                .iter()
+                .flat_map(|c| std::iter::once(c.count).chain(c.freq))
+                .collect();
             let blocks = plan_reads(&values, &[], &wire);
             let regs: u16 = blocks.iter().map(|b| b.len).sum();
-            let reads: Vec<String> = blocks.iter().map(|b| format!("{}+{}", b.start, b.len)).collect();
+            let reads: Vec<String> = blocks
+                .iter()
+                .map(|b| format!("{}+{}", b.start, b.len))
+                .collect();
             let time = timing.map(|t| line_time(&blocks, &t, TURNAROUND));
             if let Some(t) = time {
                 load += t.as_secs_f64() / d.poll.as_secs_f64();
@@ -53,13 +64,18 @@ pub fn poll_plan(config: &Config) -> String {
                 reads.join(", "),
                 regs,
                 channels.len(),
-                time.map(|t| format!(", {:.1} ms on the line", t.as_secs_f64() * 1000.0)).unwrap_or_default(),
+                time.map(|t| format!(", {:.1} ms on the line", t.as_secs_f64() * 1000.0))
+                    .unwrap_or_default(),
             );
         }
         if timing.is_some() {
             let _ = writeln!(out, "  line use at these intervals: {:.0}%", load * 100.0);
             if load > 1.0 {
-                let _ = writeln!(out, "  WARNING: bus {} cannot meet its poll intervals at this baud rate", bus.name);
+                let _ = writeln!(
+                    out,
+                    "  WARNING: bus {} cannot meet its poll intervals at this baud rate",
+                    bus.name
+                );
             }
         }
     }

@@ -143,7 +143,8 @@ mod tests {
 
     #[test]
     fn a_corrupt_file_is_an_error_naming_the_file() {
-        let path = std::env::temp_dir().join(format!("pulsegate-corrupt-{}.json", std::process::id()));
+        let path =
+            std::env::temp_dir().join(format!("pulsegate-corrupt-{}.json", std::process::id()));
         std::fs::write(&path, b"{not json").unwrap();
         let err = BusState::load(&path).unwrap_err().to_string();
         assert!(err.contains(&path.display().to_string()), "{err}");

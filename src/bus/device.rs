@@ -55,10 +55,13 @@ struct Snapshot {
 
 impl Snapshot {
     fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
-        self.blocks.iter().find(|(b, ..)| b.covers(r)).map(|(b, words, at)| {
-            let off = usize::from(r.address - b.start);
-            (&words[off..off + usize::from(r.len())], *at)
-        })
+        self.blocks
+            .iter()
+            .find(|(b, ..)| b.covers(r))
+            .map(|(b, words, at)| {
+                let off = usize::from(r.address - b.start);
+                (&words[off..off + usize::from(r.len())], *at)
+            })
     }
 }
 
@@ -88,7 +91,13 @@ pub struct DeviceRt {
 }
 
 impl DeviceRt {
-    pub fn new(bus: &Bus, config: &Device, wire: Wire, saved: &BTreeMap<String, CounterState>, holes: Vec<Range<u16>>) -> DeviceRt {
+    pub fn new(
+        bus: &Bus,
+        config: &Device,
+        wire: Wire,
+        saved: &BTreeMap<String, CounterState>,
+        holes: Vec<Range<u16>>,
+    ) -> DeviceRt {
         let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
             name: Arc::from(config.name.as_str()),
@@ -126,7 +135,10 @@ impl DeviceRt {
     pub fn counter_states(&self) -> BTreeMap<String, CounterState> {
         let mut out = self.saved.clone();
         for ch in &self.channels {
-            out.insert(channel_key(self.unit, &self.config.model, &ch.name), ch.counter.state.clone());
+            out.insert(
+                channel_key(self.unit, &self.config.model, &ch.name),
+                ch.counter.state.clone(),
+            );
         }
         out
     }
@@ -140,7 +152,9 @@ impl DeviceRt {
 
     /// One poll: discovery and slow registers when due, then counts and frequencies.
     pub async fn poll(&mut self, link: &mut Link) -> Result<Vec<Reading>, PollError> {
-        let slow_due = self.last_slow.is_none_or(|t| t.elapsed() >= self.slow_every);
+        let slow_due = self
+            .last_slow
+            .is_none_or(|t| t.elapsed() >= self.slow_every);
         if self.modes.is_none() || slow_due {
             self.read_slow(link).await?;
         }
@@ -187,8 +201,14 @@ impl DeviceRt {
             })
             .collect();
         let snap = self.read_registers(link, &regs).await?;
-        let modes: Vec<u16> = regs.iter().filter_map(|r| snap.get(r).map(|(w, _)| w[0])).collect();
-        let specs = self.profile.channels(&modes).map_err(|e| PollError::Profile(e.to_string()))?;
+        let modes: Vec<u16> = regs
+            .iter()
+            .filter_map(|r| snap.get(r).map(|(w, _)| w[0]))
+            .collect();
+        let specs = self
+            .profile
+            .channels(&modes)
+            .map_err(|e| PollError::Profile(e.to_string()))?;
         if self.modes.as_ref() != Some(&modes) {
             if self.modes.is_some() {
                 tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
@@ -202,7 +222,11 @@ impl DeviceRt {
             let order = self.profile.word_order;
             for ch in &mut self.channels {
                 let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
-                let read = ch.spec.ppr.and_then(|r| snap.get(&r)).map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
+                let read = ch
+                    .spec
+                    .ppr
+                    .and_then(|r| snap.get(&r))
+                    .map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
                 ch.ppr = configured.or(read.filter(|p| *p > 0.0));
             }
         }
@@ -217,7 +241,12 @@ impl DeviceRt {
             .map(|c| (c.name.to_string(), c.counter))
             .collect();
         for spec in specs {
-            let overrides = self.config.channels.get(&spec.name).cloned().unwrap_or_default();
+            let overrides = self
+                .config
+                .channels
+                .get(&spec.name)
+                .cloned()
+                .unwrap_or_default();
             let counter_spec = CounterSpec {
                 modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
                 signed: matches!(spec.count.ty, ValueType::I32 | ValueType::I16),
@@ -225,7 +254,10 @@ impl DeviceRt {
             };
             let key = channel_key(self.unit, &self.config.model, &spec.name);
             let counter = match (old.get(&spec.name), self.saved.remove(&key)) {
-                (Some(c), _) => Counter { spec: counter_spec, state: c.state.clone() },
+                (Some(c), _) => Counter {
+                    spec: counter_spec,
+                    state: c.state.clone(),
+                },
                 (None, Some(saved)) => Counter::resume(counter_spec, saved),
                 (None, None) => Counter::new(counter_spec),
             };
@@ -245,7 +277,11 @@ impl DeviceRt {
 
     /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
     /// and is split at once.
-    async fn read_registers(&mut self, link: &mut Link, regs: &[Register]) -> Result<Snapshot, PollError> {
+    async fn read_registers(
+        &mut self,
+        link: &mut Link,
+        regs: &[Register],
+    ) -> Result<Snapshot, PollError> {
         let mut blocks = plan_reads(regs, &self.holes, &self.wire);
         let mut out = Vec::with_capacity(blocks.len());
         let mut i = 0;

@@ -111,36 +111,71 @@ impl Link {
     }
 
     /// Reads `len` holding registers from `start`.
-    pub async fn read(&mut self, unit: u8, start: u16, len: u16, timeout: Duration) -> Answer<Vec<u16>> {
+    pub async fn read(
+        &mut self,
+        unit: u8,
+        start: u16,
+        len: u16,
+        timeout: Duration,
+    ) -> Answer<Vec<u16>> {
         let answer = self
             .call(unit, Request::ReadHoldingRegisters(start, len), timeout)
             .await?;
         Ok(match answer {
-            Ok(Response::ReadHoldingRegisters(words)) if words.len() == usize::from(len) => Ok(words),
-            Ok(other) => return Err(self.mismatch(format!("asked {len} registers at {start}, got {other:?}"))),
+            Ok(Response::ReadHoldingRegisters(words)) if words.len() == usize::from(len) => {
+                Ok(words)
+            }
+            Ok(other) => {
+                return Err(
+                    self.mismatch(format!("asked {len} registers at {start}, got {other:?}"))
+                );
+            }
             Err(e) => Err(e),
         })
     }
 
     /// Writes one register (FC06); the echo must match.
-    pub async fn write_register(&mut self, unit: u8, address: u16, value: u16, timeout: Duration) -> Answer<()> {
+    pub async fn write_register(
+        &mut self,
+        unit: u8,
+        address: u16,
+        value: u16,
+        timeout: Duration,
+    ) -> Answer<()> {
         let answer = self
             .call(unit, Request::WriteSingleRegister(address, value), timeout)
             .await?;
         Ok(match answer {
             Ok(Response::WriteSingleRegister(a, v)) if a == address && v == value => Ok(()),
-            Ok(other) => return Err(self.mismatch(format!("wrote {value} at {address}, echo {other:?}"))),
+            Ok(other) => {
+                return Err(self.mismatch(format!("wrote {value} at {address}, echo {other:?}")));
+            }
             Err(e) => Err(e),
         })
     }
 
     /// Writes consecutive registers (FC16); the answer must confirm the range.
-    pub async fn write_registers(&mut self, unit: u8, address: u16, values: &[u16], timeout: Duration) -> Answer<()> {
+    pub async fn write_registers(
+        &mut self,
+        unit: u8,
+        address: u16,
+        values: &[u16],
+        timeout: Duration,
+    ) -> Answer<()> {
         let req = Request::WriteMultipleRegisters(address, Cow::Owned(values.to_vec()));
         let answer = self.call(unit, req, timeout).await?;
         Ok(match answer {
-            Ok(Response::WriteMultipleRegisters(a, n)) if a == address && usize::from(n) == values.len() => Ok(()),
-            Ok(other) => return Err(self.mismatch(format!("wrote {} at {address}, answer {other:?}", values.len()))),
+            Ok(Response::WriteMultipleRegisters(a, n))
+                if a == address && usize::from(n) == values.len() =>
+            {
+                Ok(())
+            }
+            Ok(other) => {
+                return Err(self.mismatch(format!(
+                    "wrote {} at {address}, answer {other:?}",
+                    values.len()
+                )));
+            }
             Err(e) => Err(e),
         })
     }
@@ -151,7 +186,12 @@ impl Link {
         LinkError::Mismatch(message)
     }
 
-    async fn call(&mut self, unit: u8, req: Request<'static>, timeout: Duration) -> Answer<Response> {
+    async fn call(
+        &mut self,
+        unit: u8,
+        req: Request<'static>,
+        timeout: Duration,
+    ) -> Answer<Response> {
         self.ensure_open(timeout).await?;
         if let (Some(timing), Some(last)) = (self.timing, self.last_io) {
             // RTU frames must be separated by the silent interval.
@@ -297,7 +337,11 @@ impl FlushingPort {
 }
 
 impl AsyncRead for FlushingPort {
-    fn poll_read(self: Pin<&mut Self>, cx: &mut TaskContext<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
+    fn poll_read(
+        self: Pin<&mut Self>,
+        cx: &mut TaskContext<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
         this.at_request_start = true;
         this.port.with(|s| Pin::new(s).poll_read(cx, buf))
@@ -305,7 +349,11 @@ impl AsyncRead for FlushingPort {
 }
 
 impl AsyncWrite for FlushingPort {
-    fn poll_write(self: Pin<&mut Self>, cx: &mut TaskContext<'_>, data: &[u8]) -> Poll<io::Result<usize>> {
+    fn poll_write(
+        self: Pin<&mut Self>,
+        cx: &mut TaskContext<'_>,
+        data: &[u8],
+    ) -> Poll<io::Result<usize>> {
         let this = self.get_mut();
         if std::mem::take(&mut this.at_request_start) {
             this.port

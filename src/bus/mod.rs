@@ -62,12 +62,23 @@ impl BusTask {
         let mut devices: Vec<DeviceRt> = bus
             .devices
             .iter()
-            .map(|d| DeviceRt::new(bus, d, wire, &saved.channels, saved.holes_of(&crate::state::device_key(d.unit, &d.model))))
+            .map(|d| {
+                DeviceRt::new(
+                    bus,
+                    d,
+                    wire,
+                    &saved.channels,
+                    saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
+                )
+            })
             .collect();
         log_dropped_state(&name, &saved, &devices);
 
         let start = Instant::now();
-        let mut slots: Vec<Slot> = devices.iter().map(|d| Slot::new(start, d.config.poll)).collect();
+        let mut slots: Vec<Slot> = devices
+            .iter()
+            .map(|d| Slot::new(start, d.config.poll))
+            .collect();
         let mut flush_at = start + self.state_flush;
         let mut stats_at = start + self.stats_interval;
         let mut stats_since = start;
@@ -75,8 +86,7 @@ impl BusTask {
         let mut line_down = false;
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
-        loop {
-            let Some(i) = earliest(&slots) else { break };
+        while let Some(i) = earliest(&slots) {
             let wake = slots[i].due.min(flush_at).min(stats_at);
             tokio::select! {
                 biased;
@@ -99,7 +109,10 @@ impl BusTask {
                 let wall = now - stats_since;
                 let stats = stats_json(&link, &devices, &slots, wall, link.busy - busy_at_stats);
                 tracing::info!(bus = %name, %stats, "bus stats");
-                let _ = self.out.send(Output::BusStats { bus: name.clone(), stats });
+                let _ = self.out.send(Output::BusStats {
+                    bus: name.clone(),
+                    stats,
+                });
                 stats_since = now;
                 busy_at_stats = link.busy;
                 stats_at = now + self.stats_interval;
@@ -126,7 +139,10 @@ impl BusTask {
                             tracing::info!(bus = %name, device = %d.name, "device back online");
                         }
                         d.online = Some(true);
-                        let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: true });
+                        let _ = self.out.send(Output::DeviceStatus {
+                            device: d.name.clone(),
+                            online: true,
+                        });
                     }
                     for r in readings {
                         let _ = self.out.send(Output::Reading(r));
@@ -152,7 +168,10 @@ impl BusTask {
                             tracing::warn!(bus = %name, device = %d.name, failures = d.failures, "device offline");
                             d.online = Some(false);
                             d.mark_gap();
-                            let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: false });
+                            let _ = self.out.send(Output::DeviceStatus {
+                                device: d.name.clone(),
+                                online: false,
+                            });
                         }
                         let wait = d.backoff.next_wait();
                         slots[i].defer_to(now + wait);
@@ -171,7 +190,10 @@ impl BusTask {
         }
         for d in &devices {
             if d.online == Some(true) {
-                let _ = self.out.send(Output::DeviceStatus { device: d.name.clone(), online: false });
+                let _ = self.out.send(Output::DeviceStatus {
+                    device: d.name.clone(),
+                    online: false,
+                });
             }
         }
         link.close();
@@ -183,7 +205,10 @@ fn snapshot(devices: &[DeviceRt]) -> BusState {
     for d in devices {
         s.channels.extend(d.counter_states());
         if !d.holes.is_empty() {
-            s.holes.insert(d.holes_key(), d.holes.iter().map(|h| (h.start, h.end)).collect());
+            s.holes.insert(
+                d.holes_key(),
+                d.holes.iter().map(|h| (h.start, h.end)).collect(),
+            );
         }
     }
     s
@@ -191,7 +216,10 @@ fn snapshot(devices: &[DeviceRt]) -> BusState {
 
 /// Saved channels that no configured device can have are not attached to anything: say so.
 fn log_dropped_state(bus: &str, saved: &BusState, devices: &[DeviceRt]) {
-    let kept: std::collections::BTreeSet<String> = devices.iter().flat_map(|d| d.counter_states().into_keys()).collect();
+    let kept: std::collections::BTreeSet<String> = devices
+        .iter()
+        .flat_map(|d| d.counter_states().into_keys())
+        .collect();
     for (key, state) in &saved.channels {
         if !kept.contains(key) {
             tracing::warn!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; dropped");
@@ -207,7 +235,13 @@ fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
     Some(sorted[idx])
 }
 
-fn stats_json(link: &Link, devices: &[DeviceRt], slots: &[Slot], wall: Duration, busy: Duration) -> serde_json::Value {
+fn stats_json(
+    link: &Link,
+    devices: &[DeviceRt],
+    slots: &[Slot],
+    wall: Duration,
+    busy: Duration,
+) -> serde_json::Value {
     let c = link.counters;
     let mut per_device = BTreeMap::new();
     for (d, s) in devices.iter().zip(slots) {

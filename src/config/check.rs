@@ -155,7 +155,11 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     m.password = t.opt("password", errs);
     if let Some(v) = t.duration("keep_alive", errs) {
         if v < Duration::from_secs(5) {
-            errs.push(&join(&t.path, "keep_alive"), t.origin(), "must be at least 5s");
+            errs.push(
+                &join(&t.path, "keep_alive"),
+                t.origin(),
+                "must be at least 5s",
+            );
         }
         m.keep_alive = v;
     }
@@ -192,7 +196,11 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let path = format!("buses.{name}");
     let mut t = Table::of(value, &path, errs)?;
     if !super::is_topic_safe(name) {
-        errs.push(&path, t.origin(), "bus name must be letters, digits, '-' or '_'");
+        errs.push(
+            &path,
+            t.origin(),
+            "bus name must be letters, digits, '-' or '_'",
+        );
     }
     let has_port = t.has("port");
     let has_host = t.has("host");
@@ -200,7 +208,11 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         let host = t.req::<String>("host", errs);
         let port = t.opt::<u16>("port", errs).unwrap_or(502);
         if port == 0 {
-            errs.push(&join(&path, "port"), t.origin(), "TCP port must be 1..65535");
+            errs.push(
+                &join(&path, "port"),
+                t.origin(),
+                "TCP port must be 1..65535",
+            );
         }
         for key in ["baud", "parity", "stop_bits"] {
             if t.has(key) {
@@ -242,20 +254,38 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let timeout = t.duration("timeout", errs);
     let guard = t.opt::<String>("guard", errs).map_or(Duration::ZERO, |s| {
         humantime::parse_duration(&s).unwrap_or_else(|e| {
-            errs.push(&join(&path, "guard"), t.origin(), format!("bad duration {s:?}: {e}"));
+            errs.push(
+                &join(&path, "guard"),
+                t.origin(),
+                format!("bad duration {s:?}: {e}"),
+            );
             Duration::ZERO
         })
     });
     let offline_after = t.opt::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
-        errs.push(&join(&path, "offline_after"), t.origin(), "must be at least 1");
+        errs.push(
+            &join(&path, "offline_after"),
+            t.origin(),
+            "must be at least 1",
+        );
     }
-    let backoff_min = t.duration("backoff_min", errs).unwrap_or(Duration::from_secs(1));
-    let backoff_max = t.duration("backoff_max", errs).unwrap_or(Duration::from_secs(60));
+    let backoff_min = t
+        .duration("backoff_min", errs)
+        .unwrap_or(Duration::from_secs(1));
+    let backoff_max = t
+        .duration("backoff_max", errs)
+        .unwrap_or(Duration::from_secs(60));
     if backoff_max < backoff_min {
-        errs.push(&join(&path, "backoff_max"), t.origin(), "must not be below backoff_min");
+        errs.push(
+            &join(&path, "backoff_max"),
+            t.origin(),
+            "must not be below backoff_min",
+        );
     }
-    let slow_poll = t.duration("slow_poll", errs).unwrap_or(Duration::from_secs(60));
+    let slow_poll = t
+        .duration("slow_poll", errs)
+        .unwrap_or(Duration::from_secs(60));
 
     let mut devices = Vec::new();
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
@@ -269,7 +299,10 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
                 errs.push(
                     &format!("{path}.devices.{dname}.unit"),
                     dvalue.origin(),
-                    format!("unit {} is already used by device {other} on this bus", d.unit),
+                    format!(
+                        "unit {} is already used by device {other} on this bus",
+                        d.unit
+                    ),
                 );
             }
             devices.push(d);
@@ -310,7 +343,11 @@ fn device(
         if (1..=247).contains(&u) {
             Some(u as u8)
         } else {
-            errs.push(&join(&path, "unit"), t.origin(), format!("unit {u} is outside 1..247"));
+            errs.push(
+                &join(&path, "unit"),
+                t.origin(),
+                format!("unit {u} is outside 1..247"),
+            );
             None
         }
     });
@@ -321,7 +358,10 @@ fn device(
             errs.push(
                 &join(&path, "model"),
                 t.origin(),
-                format!("unknown model {m:?}; known: {}", profiles.names().join(", ")),
+                format!(
+                    "unknown model {m:?}; known: {}",
+                    profiles.names().join(", ")
+                ),
             );
         }
         p
@@ -338,13 +378,21 @@ fn device(
         if let Some(p) = &profile
             && !p.all_channels().iter().any(|c| c.name == cname)
         {
-            errs.push(&cpath, ct.origin(), format!("model {} has no channel {cname}", p.model));
+            errs.push(
+                &cpath,
+                ct.origin(),
+                format!("model {} has no channel {cname}", p.model),
+            );
         }
         let ppr = ct.opt::<f64>("ppr", errs);
         let max_rate_hz = ct.opt::<f64>("max_rate_hz", errs);
         for (key, v) in [("ppr", ppr), ("max_rate_hz", max_rate_hz)] {
             if v.is_some_and(|v| !(v > 0.0 && v.is_finite())) {
-                errs.push(&join(&cpath, key), ct.origin(), "must be a number greater than zero");
+                errs.push(
+                    &join(&cpath, key),
+                    ct.origin(),
+                    "must be a number greater than zero",
+                );
             }
         }
         ct.finish(errs);

@@ -75,7 +75,11 @@ impl<'a> Table<'a> {
         match value.clone().try_deserialize::<T>() {
             Ok(v) => Some(v),
             Err(e) => {
-                errs.push(&join(&self.path, key), value.origin(), clean(&e.to_string()));
+                errs.push(
+                    &join(&self.path, key),
+                    value.origin(),
+                    clean(&e.to_string()),
+                );
                 None
             }
         }
@@ -98,7 +102,11 @@ impl<'a> Table<'a> {
         let text = match &value.kind {
             ValueKind::String(s) => s.clone(),
             _ => {
-                errs.push(&path, value.origin(), "expected a duration such as \"500ms\" or \"2s\"");
+                errs.push(
+                    &path,
+                    value.origin(),
+                    "expected a duration such as \"500ms\" or \"2s\"",
+                );
                 return None;
             }
         };
@@ -133,7 +141,11 @@ impl<'a> Table<'a> {
                 v
             }
             _ => {
-                errs.push(&join(&self.path, key), value.origin(), "expected a table of named entries");
+                errs.push(
+                    &join(&self.path, key),
+                    value.origin(),
+                    "expected a table of named entries",
+                );
                 Vec::new()
             }
         }

@@ -5,7 +5,10 @@ use super::Profile;
 const BUILTIN: &[(&str, &str)] = &[
     ("yl67.toml", include_str!("../../profiles/yl67.toml")),
     ("wj157.toml", include_str!("../../profiles/wj157.toml")),
-    ("zh-yx1600.toml", include_str!("../../profiles/zh-yx1600.toml")),
+    (
+        "zh-yx1600.toml",
+        include_str!("../../profiles/zh-yx1600.toml"),
+    ),
 ];
 
 /// The built-in profiles; they are checked by the test suite, so a failure here is a build bug.

@@ -26,10 +26,7 @@ pub enum ProfileError {
     #[error("profile {origin}: {message}")]
     Invalid { origin: String, message: String },
     #[error("profile directory {dir}: {source}")]
-    Dir {
-        dir: String,
-        source: std::io::Error,
-    },
+    Dir { dir: String, source: std::io::Error },
 }
 
 /// The work mode a module reported is not described by its profile.
@@ -51,6 +48,7 @@ pub struct Register {
 
 impl Register {
     /// Number of 16-bit registers the value spans.
+    #[allow(clippy::len_without_is_empty)] // a register is never empty
     pub fn len(&self) -> u16 {
         self.ty.words()
     }
@@ -352,13 +350,16 @@ impl Profiles {
                 }),
             }
         }
-        if errors.is_empty() { Ok(p) } else { Err(errors) }
+        if errors.is_empty() {
+            Ok(p)
+        } else {
+            Err(errors)
+        }
     }
 
     fn insert(&mut self, profile: Profile) {
         let profile = std::sync::Arc::new(profile);
-        self.by_name
-            .insert(profile.model.clone(), profile.clone());
+        self.by_name.insert(profile.model.clone(), profile.clone());
         for alias in &profile.aliases {
             self.by_name.insert(alias.clone(), profile.clone());
         }

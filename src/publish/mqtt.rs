@@ -31,14 +31,25 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
     let topics = Topics::new(&config.topic_root);
     let mut options = MqttOptions::new(config.client_id.clone(), config.host.clone(), config.port);
     options.set_keep_alive(config.keep_alive);
-    options.set_last_will(LastWill::new(topics.gateway_status(), "offline", QoS::AtLeastOnce, true, None));
+    options.set_last_will(LastWill::new(
+        topics.gateway_status(),
+        "offline",
+        QoS::AtLeastOnce,
+        true,
+        None,
+    ));
     if let Some(user) = &config.username {
         options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
     }
     let (client, eventloop) = AsyncClient::new(options, 1024);
     let (connected_tx, mut connected) = watch::channel(0u64);
     let loop_stop = CancellationToken::new();
-    let events = tokio::spawn(drive(eventloop, connected_tx, loop_stop.clone(), format!("{}:{}", config.host, config.port)));
+    let events = tokio::spawn(drive(
+        eventloop,
+        connected_tx,
+        loop_stop.clone(),
+        format!("{}:{}", config.host, config.port),
+    ));
 
     let reading_qos = qos(config.qos);
     loop {
@@ -79,7 +90,9 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
             }
         }
     }
-    let _ = client.publish(topics.gateway_status(), QoS::AtLeastOnce, true, "offline").await;
+    let _ = client
+        .publish(topics.gateway_status(), QoS::AtLeastOnce, true, "offline")
+        .await;
     let _ = client.disconnect().await;
     // Give the event loop a moment to flush the offline status and the disconnect.
     let _ = tokio::time::timeout(Duration::from_secs(2), events).await;
@@ -87,7 +100,12 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
 }
 
 /// Drives the connection; logs once per state change; reconnects after a pause.
-async fn drive(mut eventloop: EventLoop, connected: watch::Sender<u64>, stop: CancellationToken, broker: String) {
+async fn drive(
+    mut eventloop: EventLoop,
+    connected: watch::Sender<u64>,
+    stop: CancellationToken,
+    broker: String,
+) {
     let mut up = None;
     loop {
         let event = tokio::select! {

@@ -86,7 +86,13 @@ mod tests {
             count: 4_294_953_616,
             freq_hz: None,
             rpm: None,
-            update: Update { delta: 0, total: 0, seq: 1, rate_hz: None, event: None },
+            update: Update {
+                delta: 0,
+                total: 0,
+                seq: 1,
+                rate_hz: None,
+                event: None,
+            },
         };
         let v: serde_json::Value = serde_json::from_slice(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);

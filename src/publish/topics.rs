@@ -8,7 +8,9 @@ pub struct Topics {
 
 impl Topics {
     pub fn new(root: &str) -> Topics {
-        Topics { root: root.to_string() }
+        Topics {
+            root: root.to_string(),
+        }
     }
 
     pub fn root(&self) -> &str {

@@ -73,10 +73,13 @@ impl Plant {
                 let profile = profiles
                     .get(&d.model)
                     .ok_or_else(|| bus_err(format!("device {dname}: unknown model {}", d.model)))?;
-                let mut m = SimModule::new(profile, &d.modes).map_err(|e| bus_err(format!("device {dname}: {e}")))?;
+                let mut m = SimModule::new(profile, &d.modes)
+                    .map_err(|e| bus_err(format!("device {dname}: {e}")))?;
                 for (cname, c) in &d.channels {
                     if m.channel(cname).is_none() {
-                        return Err(bus_err(format!("device {dname}: no channel {cname} in this mode")));
+                        return Err(bus_err(format!(
+                            "device {dname}: no channel {cname} in this mode"
+                        )));
                     }
                     m.set_count(0.0, cname, c.count);
                     m.set_rate(0.0, cname, c.rate);
@@ -99,7 +102,8 @@ impl Plant {
                     Endpoint::Tcp(addr)
                 }
                 (None, link) => {
-                    let (path, slave) = server::serve_pty(service, cancel.clone()).map_err(|e| bus_err(format!("cannot create a pseudo-terminal: {e}")))?;
+                    let (path, slave) = server::serve_pty(service, cancel.clone())
+                        .map_err(|e| bus_err(format!("cannot create a pseudo-terminal: {e}")))?;
                     keep.push(slave);
                     let path = match link {
                         Some(link) => {
@@ -107,15 +111,20 @@ impl Plant {
                             if let Some(dir) = link.parent() {
                                 let _ = std::fs::create_dir_all(dir);
                             }
-                            std::os::unix::fs::symlink(&path, link)
-                                .map_err(|e| bus_err(format!("cannot link {}: {e}", link.display())))?;
+                            std::os::unix::fs::symlink(&path, link).map_err(|e| {
+                                bus_err(format!("cannot link {}: {e}", link.display()))
+                            })?;
                             link.clone()
                         }
                         None => path,
                     };
                     Endpoint::Serial(path)
                 }
-                (Some(_), Some(_)) => return Err(bus_err("give either `link` (serial) or `listen` (TCP), not both".into())),
+                (Some(_), Some(_)) => {
+                    return Err(bus_err(
+                        "give either `link` (serial) or `listen` (TCP), not both".into(),
+                    ));
+                }
             };
             buses.push(PlantBus {
                 name: name.clone(),
@@ -142,7 +151,12 @@ impl Plant {
     }
 
     /// Runs `f` on a module with the plant's current time.
-    pub fn with_module<R>(&self, bus: &str, unit: u8, f: impl FnOnce(&mut SimModule, f64) -> R) -> Option<R> {
+    pub fn with_module<R>(
+        &self,
+        bus: &str,
+        unit: u8,
+        f: impl FnOnce(&mut SimModule, f64) -> R,
+    ) -> Option<R> {
         let now = self.now();
         let b = self.bus(bus)?;
         let mut modules = b.modules.lock().unwrap_or_else(|e| e.into_inner());

@@ -177,7 +177,9 @@ impl SimModule {
 
     /// Sets a channel's count (as if preset) without generating pulses.
     pub fn set_count(&mut self, now: f64, name: &str, value: i64) -> bool {
-        self.channel_mut(name).map(|c| c.set_count(now, value)).is_some()
+        self.channel_mut(name)
+            .map(|c| c.set_count(now, value))
+            .is_some()
     }
 
     pub fn set_ppr(&mut self, name: &str, ppr: u16) -> bool {
@@ -186,7 +188,10 @@ impl SimModule {
 
     /// Power loss and return: counts the module does not keep go back to 0.
     pub fn power_cycle(&mut self, now: f64) {
-        let autosave = self.profile.autosave.is_none_or(|a| self.plain.get(&a) == Some(&1));
+        let autosave = self
+            .profile
+            .autosave
+            .is_none_or(|a| self.plain.get(&a) == Some(&1));
         for c in &mut self.channels {
             if !(c.spec.retains_count && autosave) {
                 c.set_count(now, 0);
@@ -216,8 +221,16 @@ impl SimModule {
                 Some(words[usize::from(address - r.address)])
             };
             let freq = c.freq();
-            let rpm = if c.ppr > 0 { freq * 60.0 / f64::from(c.ppr) } else { 0.0 };
-            let signed_rpm = if s.kind == ChannelKind::Encoder && c.rate < 0.0 { -rpm } else { rpm };
+            let rpm = if c.ppr > 0 {
+                freq * 60.0 / f64::from(c.ppr)
+            } else {
+                0.0
+            };
+            let signed_rpm = if s.kind == ChannelKind::Encoder && c.rate < 0.0 {
+                -rpm
+            } else {
+                rpm
+            };
             let found = pick(s.count, Value::Int(c.count(now)))
                 .or_else(|| s.freq.and_then(|r| pick(r, Value::Float(freq))))
                 .or_else(|| s.rpm.and_then(|r| pick(r, Value::Float(signed_rpm))))
@@ -226,7 +239,11 @@ impl SimModule {
                 return found;
             }
             if address == s.clear.register {
-                return Some(if s.clear.restart.is_empty() { 0 } else { c.command });
+                return Some(if s.clear.restart.is_empty() {
+                    0
+                } else {
+                    c.command
+                });
             }
         }
         None
@@ -238,7 +255,10 @@ impl SimModule {
             return Err(ExceptionCode::IllegalDataValue);
         }
         (start..start + len)
-            .map(|a| self.register(now, a).ok_or(ExceptionCode::IllegalDataAddress))
+            .map(|a| {
+                self.register(now, a)
+                    .ok_or(ExceptionCode::IllegalDataAddress)
+            })
             .collect()
     }
 
@@ -267,7 +287,10 @@ impl SimModule {
                 }
                 c.command = value;
                 handled = true;
-            } else if value == s.clear.code || s.clear_all.is_some_and(|a| a.register == address && a.code == value) {
+            } else if value == s.clear.code
+                || s.clear_all
+                    .is_some_and(|a| a.register == address && a.code == value)
+            {
                 c.set_count(now, 0);
                 handled = true;
             }
@@ -275,12 +298,16 @@ impl SimModule {
         if handled {
             return Ok(());
         }
-        if self.channels.iter().any(|c| c.spec.clear.register == address) {
+        if self
+            .channels
+            .iter()
+            .any(|c| c.spec.clear.register == address)
+        {
             return Err(ExceptionCode::IllegalDataValue);
         }
-        if self.plain.contains_key(&address) {
+        if let Some(v) = self.plain.get_mut(&address) {
             // Mode words, autosave: stored; modes take effect after a restart, as documented.
-            self.plain.insert(address, value);
+            *v = value;
             return Ok(());
         }
         for c in &mut self.channels {
@@ -293,16 +320,19 @@ impl SimModule {
     }
 
     /// FC16: presets a count (both words at once), or writes single registers in turn.
-    pub fn write_many(&mut self, now: f64, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+    pub fn write_many(
+        &mut self,
+        now: f64,
+        address: u16,
+        values: &[u16],
+    ) -> Result<(), ExceptionCode> {
         if values.is_empty() || values.len() > 123 {
             return Err(ExceptionCode::IllegalDataValue);
         }
         let order = self.profile.word_order;
-        if let Some(c) = self
-            .channels
-            .iter_mut()
-            .find(|c| c.spec.count.address == address && usize::from(c.spec.count.len()) == values.len())
-        {
+        if let Some(c) = self.channels.iter_mut().find(|c| {
+            c.spec.count.address == address && usize::from(c.spec.count.len()) == values.len()
+        }) {
             let v = decode(values, c.spec.count.ty, order).as_i64();
             c.set_count(now, v);
             return Ok(());
@@ -359,7 +389,10 @@ mod tests {
         m.write_one(0.0, 67, 10).unwrap();
         assert_eq!(m.channel("enc0").unwrap().count(0.0), 0);
         assert_eq!(m.channel("enc1").unwrap().count(0.0), 700);
-        assert_eq!(m.write_one(0.0, 67, 99), Err(ExceptionCode::IllegalDataValue));
+        assert_eq!(
+            m.write_one(0.0, 67, 99),
+            Err(ExceptionCode::IllegalDataValue)
+        );
     }
 
     #[test]
@@ -367,7 +400,11 @@ mod tests {
         let mut m = module("zh-yx1600", &[]);
         m.set_rate(0.0, "di1", 100.0);
         m.write_one(1.0, 0x1100, 0).unwrap();
-        assert_eq!(m.channel("di1").unwrap().count(2.0), 0, "stopped and cleared");
+        assert_eq!(
+            m.channel("di1").unwrap().count(2.0),
+            0,
+            "stopped and cleared"
+        );
         m.write_one(2.0, 0x1100, 0xA2).unwrap();
         assert_eq!(m.channel("di1").unwrap().count(3.0), 100);
         assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]));

@@ -35,7 +35,9 @@ impl SimService {
             return Ok(None);
         }
         let response = match req.request {
-            Request::ReadHoldingRegisters(start, len) => Response::ReadHoldingRegisters(m.read(now, start, len)?),
+            Request::ReadHoldingRegisters(start, len) => {
+                Response::ReadHoldingRegisters(m.read(now, start, len)?)
+            }
             Request::WriteSingleRegister(a, v) => {
                 m.write_one(now, a, v)?;
                 Response::WriteSingleRegister(a, v)
@@ -63,7 +65,10 @@ impl Service for SimService {
 
 /// Serves on a new pseudo-terminal; returns the path of its serial end and that end (keep it
 /// open so the line survives the gateway closing and reopening it).
-pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(PathBuf, SerialStream)> {
+pub fn serve_pty(
+    service: SimService,
+    cancel: CancellationToken,
+) -> io::Result<(PathBuf, SerialStream)> {
     let (master, slave) = SerialStream::pair().map_err(io::Error::other)?;
     let path = slave
         .name()
@@ -71,7 +76,10 @@ pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(
         .ok_or_else(|| io::Error::other("pseudo-terminal has no name"))?;
     let server = tokio_modbus::server::rtu::Server::new(master);
     tokio::spawn(async move {
-        if let Err(e) = server.serve_until(service, async move { cancel.cancelled().await }).await {
+        if let Err(e) = server
+            .serve_until(service, async move { cancel.cancelled().await })
+            .await
+        {
             tracing::warn!("simulated RTU bus stopped: {e}");
         }
     });
@@ -79,7 +87,11 @@ pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(
 }
 
 /// Serves Modbus TCP on `addr` (port 0 picks a free one); returns the bound address.
-pub async fn serve_tcp(addr: SocketAddr, service: SimService, cancel: CancellationToken) -> io::Result<SocketAddr> {
+pub async fn serve_tcp(
+    addr: SocketAddr,
+    service: SimService,
+    cancel: CancellationToken,
+) -> io::Result<SocketAddr> {
     let listener = tokio::net::TcpListener::bind(addr).await?;
     let bound = listener.local_addr()?;
     let server = tokio_modbus::server::tcp::Server::new(listener);

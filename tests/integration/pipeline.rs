@@ -46,24 +46,41 @@ async fn each_model_publishes_its_decoded_values_within_two_seconds() {
 
     let within = Duration::from_secs(2);
     let enc0 = sub
-        .wait_for("pulsegate/test/press/enc0", within, |m| m.json()["count"] == -13680)
+        .wait_for("pulsegate/test/press/enc0", within, |m| {
+            m.json()["count"] == -13680
+        })
         .await;
-    assert!(enc0.is_some(), "YL67 encoder 0 holding -13680 was not published within 2 s");
+    assert!(
+        enc0.is_some(),
+        "YL67 encoder 0 holding -13680 was not published within 2 s"
+    );
     let elapsed = enc0.unwrap().at - started;
     assert!(elapsed <= within, "took {elapsed:?}");
 
     let a1 = sub
-        .wait_for("pulsegate/test/press/a1", within, |m| m.json()["count"] == 4_294_953_616u64)
+        .wait_for("pulsegate/test/press/a1", within, |m| {
+            m.json()["count"] == 4_294_953_616u64
+        })
         .await;
-    assert!(a1.is_some(), "the same raw words on an input counting on its own must read 4294953616");
+    assert!(
+        a1.is_some(),
+        "the same raw words on an input counting on its own must read 4294953616"
+    );
 
     for topic in ["pulsegate/test/doors/di1", "pulsegate/test/gates/di5"] {
-        let m = sub.wait_for(topic, within, |m| m.json()["count"] == 100_000).await;
-        assert!(m.is_some(), "{topic}: ZH-YX1600 words 0x0001 0x86A0 must publish 100000");
+        let m = sub
+            .wait_for(topic, within, |m| m.json()["count"] == 100_000)
+            .await;
+        assert!(
+            m.is_some(),
+            "{topic}: ZH-YX1600 words 0x0001 0x86A0 must publish 100000"
+        );
     }
 
     let spindle = sub
-        .wait_for("pulsegate/test/spindle/enc0", within, |m| m.json()["freq_hz"].is_f64())
+        .wait_for("pulsegate/test/spindle/enc0", within, |m| {
+            m.json()["freq_hz"].is_f64()
+        })
         .await
         .expect("WJ157 encoder frequency published");
     let v = spindle.json();
@@ -71,13 +88,21 @@ async fn each_model_publishes_its_decoded_values_within_two_seconds() {
     assert_eq!(v["rpm"], 1234.5 * 60.0 / 500.0);
     assert!(v["ts"].as_str().unwrap().ends_with('Z'));
 
-    let status = sub.wait_for("pulsegate/test/status", within, |m| m.payload == "online").await;
+    let status = sub
+        .wait_for("pulsegate/test/status", within, |m| m.payload == "online")
+        .await;
     assert!(status.is_some(), "gateway status online");
-    let status = sub.wait_for("pulsegate/test/press/status", within, |m| m.payload == "online").await;
+    let status = sub
+        .wait_for("pulsegate/test/press/status", within, |m| {
+            m.payload == "online"
+        })
+        .await;
     assert!(status.is_some(), "device status online");
     // A subscriber arriving later gets the device status from the broker: it is retained.
     let late = Subscriber::start(broker.port, "pulsegate/test/press/status").await;
-    let retained = late.wait_for("pulsegate/test/press/status", within, |m| m.retain).await;
+    let retained = late
+        .wait_for("pulsegate/test/press/status", within, |m| m.retain)
+        .await;
     assert_eq!(retained.expect("retained device status").payload, "online");
 }
 
@@ -109,14 +134,25 @@ model = "zh-yx1600"
     let _gw = Gateway::start(&config);
     for d in ["a", "b", "c"] {
         let topic = format!("pulsegate/test/{d}/status");
-        assert!(sub.wait_for(&topic, Duration::from_secs(3), |m| m.payload == "online").await.is_some());
+        assert!(
+            sub.wait_for(&topic, Duration::from_secs(3), |m| m.payload == "online")
+                .await
+                .is_some()
+        );
     }
 
-    plant.with_module("line1", 2, |m, _| m.silent = true).unwrap();
+    plant
+        .with_module("line1", 2, |m, _| m.silent = true)
+        .unwrap();
     let offline = sub
-        .wait_for("pulsegate/test/b/status", Duration::from_secs(5), |m| m.payload == "offline")
+        .wait_for("pulsegate/test/b/status", Duration::from_secs(5), |m| {
+            m.payload == "offline"
+        })
         .await;
-    assert!(offline.is_some(), "the silent module's status must turn offline");
+    assert!(
+        offline.is_some(),
+        "the silent module's status must turn offline"
+    );
 
     sub.clear();
     let window = Duration::from_secs(4);
@@ -125,9 +161,15 @@ model = "zh-yx1600"
     for topic in ["pulsegate/test/a/enc0", "pulsegate/test/c/di1"] {
         let n = sub.on(topic).len() as f64;
         // Functional check with room for a loaded CI machine; the benchmark measures the ratio.
-        assert!(n >= expected * 0.75, "{topic}: {n} readings in {window:?}, expected about {expected}");
+        assert!(
+            n >= expected * 0.75,
+            "{topic}: {n} readings in {window:?}, expected about {expected}"
+        );
     }
-    assert!(sub.on("pulsegate/test/b/enc0").is_empty(), "no readings from the silent module");
+    assert!(
+        sub.on("pulsegate/test/b/enc0").is_empty(),
+        "no readings from the silent module"
+    );
 }
 
 #[test]
@@ -150,13 +192,29 @@ model = "wj157"
 poll = "fast"
 "#,
     );
-    let out = std::process::Command::new(bin()).args(["check", "--config"]).arg(&config).output().unwrap();
+    let out = std::process::Command::new(bin())
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("buses.line1.devices.press.pol: unknown key"), "{err}");
-    assert!(err.contains(".unit: unit 1 is already used by device"), "{err}");
-    assert!(err.contains("buses.line1.devices.other.poll") && err.contains("fast"), "{err}");
-    assert!(err.contains(&config.display().to_string()), "errors name the file: {err}");
+    assert!(
+        err.contains("buses.line1.devices.press.pol: unknown key"),
+        "{err}"
+    );
+    assert!(
+        err.contains(".unit: unit 1 is already used by device"),
+        "{err}"
+    );
+    assert!(
+        err.contains("buses.line1.devices.other.poll") && err.contains("fast"),
+        "{err}"
+    );
+    assert!(
+        err.contains(&config.display().to_string()),
+        "errors name the file: {err}"
+    );
 }
 
 #[test]
@@ -174,9 +232,20 @@ model = "yl67"
 poll = "500ms"
 "#,
     );
-    let out = std::process::Command::new(bin()).args(["check", "--config"]).arg(&config).output().unwrap();
+    let out = std::process::Command::new(bin())
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
-    assert!(text.contains("press") && text.contains("2 request(s) [16+8, 128+8]"), "{text}");
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("press") && text.contains("2 request(s) [16+8, 128+8]"),
+        "{text}"
+    );
     assert!(text.contains("ms on the line"), "{text}");
 }

@@ -1,4 +1,5 @@
 //! Real parts for the tests: a Mosquitto broker on a free loopback port, an MQTT subscriber,
+#![allow(dead_code)] // shared helpers: not every test module uses each one
 //! the simulated plant on real pseudo-terminals, and the gateway binary as a child process.
 
 use std::collections::BTreeMap;
@@ -14,12 +15,20 @@ use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 
 /// A free TCP port on 127.0.0.1.
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
 }
 
 /// A fresh directory under the system temp dir.
 pub fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("pulsegate-test-{name}-{}-{}", std::process::id(), free_port()));
+    let dir = std::env::temp_dir().join(format!(
+        "pulsegate-test-{name}-{}-{}",
+        std::process::id(),
+        free_port()
+    ));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
@@ -40,7 +49,11 @@ impl Broker {
 
     pub fn start_on(port: u16) -> Broker {
         let conf = std::env::temp_dir().join(format!("pulsegate-mosquitto-{port}.conf"));
-        std::fs::write(&conf, format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n")).unwrap();
+        std::fs::write(
+            &conf,
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+        )
+        .unwrap();
         let mosquitto = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
             .into_iter()
             .find(|p| Path::new(p).exists())
@@ -54,7 +67,10 @@ impl Broker {
             .expect("start mosquitto");
         let deadline = Instant::now() + Duration::from_secs(5);
         while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
-            assert!(Instant::now() < deadline, "mosquitto did not start on port {port}");
+            assert!(
+                Instant::now() < deadline,
+                "mosquitto did not start on port {port}"
+            );
             std::thread::sleep(Duration::from_millis(20));
         }
         Broker { port, child, conf }
@@ -127,7 +143,10 @@ impl Subscriber {
                 }
             }
         });
-        tokio::time::timeout(Duration::from_secs(5), ready_rx).await.expect("subscribed").unwrap();
+        tokio::time::timeout(Duration::from_secs(5), ready_rx)
+            .await
+            .expect("subscribed")
+            .unwrap();
         Subscriber { client, messages }
     }
 
@@ -136,11 +155,19 @@ impl Subscriber {
     }
 
     pub fn on(&self, topic: &str) -> Vec<Message> {
-        self.all().into_iter().filter(|m| m.topic == topic).collect()
+        self.all()
+            .into_iter()
+            .filter(|m| m.topic == topic)
+            .collect()
     }
 
     /// Waits until a message on `topic` satisfies `pred`; returns it.
-    pub async fn wait_for(&self, topic: &str, timeout: Duration, pred: impl Fn(&Message) -> bool) -> Option<Message> {
+    pub async fn wait_for(
+        &self,
+        topic: &str,
+        timeout: Duration,
+        pred: impl Fn(&Message) -> bool,
+    ) -> Option<Message> {
         let deadline = Instant::now() + timeout;
         loop {
             if let Some(m) = self.on(topic).into_iter().find(|m| pred(m)) {
@@ -193,7 +220,9 @@ impl Gateway {
     }
 
     pub fn signal(&self, sig: &str) {
-        let _ = Command::new("kill").args([&format!("-{sig}"), &self.pid().to_string()]).status();
+        let _ = Command::new("kill")
+            .args([&format!("-{sig}"), &self.pid().to_string()])
+            .status();
     }
 
     /// SIGKILL: no chance to save anything.
@@ -224,7 +253,13 @@ impl Drop for Gateway {
 
 /// Gateway config text for a running plant: one bus per plant bus, with the devices given as
 /// (bus, device, unit, model, poll) and extra TOML appended.
-pub fn gateway_toml(plant: &Plant, broker_port: u16, state_dir: &Path, devices: &[(&str, &str, u8, &str, &str)], extra: &str) -> String {
+pub fn gateway_toml(
+    plant: &Plant,
+    broker_port: u16,
+    state_dir: &Path,
+    devices: &[(&str, &str, u8, &str, &str)],
+    extra: &str,
+) -> String {
     let mut t = format!(
         "[gateway]\nid = \"test\"\nstate_dir = {state_dir:?}\nstate_flush = \"500ms\"\n\n[mqtt]\nhost = \"127.0.0.1\"\nport = {broker_port}\n\n"
     );
@@ -234,11 +269,23 @@ pub fn gateway_toml(plant: &Plant, broker_port: u16, state_dir: &Path, devices: 
     }
     for (bus, devs) in by_bus {
         match &plant.bus(bus).expect("bus in plant").endpoint {
-            Endpoint::Serial(p) => t += &format!("[buses.{bus}]\nport = {p:?}\nbaud = 115200\ntimeout = \"100ms\"\nbackoff_min = \"500ms\"\nbackoff_max = \"2s\"\n"),
-            Endpoint::Tcp(a) => t += &format!("[buses.{bus}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n", a.ip(), a.port()),
+            Endpoint::Serial(p) => {
+                t += &format!(
+                    "[buses.{bus}]\nport = {p:?}\nbaud = 115200\ntimeout = \"100ms\"\nbackoff_min = \"500ms\"\nbackoff_max = \"2s\"\n"
+                )
+            }
+            Endpoint::Tcp(a) => {
+                t += &format!(
+                    "[buses.{bus}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n",
+                    a.ip(),
+                    a.port()
+                )
+            }
         }
         for (_, name, unit, model, poll) in devs {
-            t += &format!("[buses.{bus}.devices.{name}]\nunit = {unit}\nmodel = {model:?}\npoll = {poll:?}\n");
+            t += &format!(
+                "[buses.{bus}.devices.{name}]\nunit = {unit}\nmodel = {model:?}\npoll = {poll:?}\n"
+            );
         }
         t += "\n";
     }
@@ -247,7 +294,9 @@ pub fn gateway_toml(plant: &Plant, broker_port: u16, state_dir: &Path, devices: 
 
 /// Starts a plant from TOML.
 pub async fn plant(toml: &str) -> Plant {
-    Plant::start(&SimConfig::from_toml(toml).unwrap()).await.unwrap()
+    Plant::start(&SimConfig::from_toml(toml).unwrap())
+        .await
+        .unwrap()
 }
 
 /// Writes `text` to `dir/pulsegate.toml`.
