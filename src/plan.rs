@@ -276,6 +276,6 @@ mod tests {
         };
         assert_eq!(t(115200).silent_interval(), Duration::from_micros(1750));
         let at_9600 = t(9600).silent_interval().as_secs_f64();
-        assert!((at_9600 - 3.5 * 10.0 / 9600.0).abs() < 1e-9);
+        assert!((at_9600 - 3.5 * 10.0 / 9600.0).abs() < 1e-6, "{at_9600}");
     }
 }
