@@ -30,11 +30,20 @@ model = "zh-yx1600"
 "#;
 
 fn check(text: &str) -> Result<Config, ConfigErrors> {
-    Config::from_toml(text, Path::new("/etc/pulsegate/pulsegate.toml"), Some(HashMap::new()))
+    Config::from_toml(
+        text,
+        Path::new("/etc/pulsegate/pulsegate.toml"),
+        Some(HashMap::new()),
+    )
 }
 
 fn errors(text: &str) -> Vec<String> {
-    check(text).unwrap_err().0.iter().map(|e| e.to_string()).collect()
+    check(text)
+        .unwrap_err()
+        .0
+        .iter()
+        .map(|e| e.to_string())
+        .collect()
 }
 
 #[test]
@@ -45,21 +54,41 @@ fn a_good_config_is_checked_into_typed_values() {
     assert_eq!(c.mqtt.qos, 1);
     assert_eq!(c.buses.len(), 2);
     let hall = &c.buses[0];
-    assert_eq!(hall.link, Link::Tcp { host: "10.0.0.7".into(), port: 20108 });
+    assert_eq!(
+        hall.link,
+        Link::Tcp {
+            host: "10.0.0.7".into(),
+            port: 20108
+        }
+    );
     let line1 = &c.buses[1];
-    assert!(matches!(line1.link, Link::Rtu { baud: 19200, parity: Parity::Even, stop_bits: 1, .. }));
+    assert!(matches!(
+        line1.link,
+        Link::Rtu {
+            baud: 19200,
+            parity: Parity::Even,
+            stop_bits: 1,
+            ..
+        }
+    ));
     let press = &line1.devices[0];
     assert_eq!(press.poll, Duration::from_millis(500));
     assert_eq!(press.answer_timeout(line1), Duration::from_millis(300));
     assert_eq!(press.channels["enc0"].ppr, Some(1024.0));
     // The bus has no timeout: the model's answer time.
-    assert_eq!(hall.devices[0].answer_timeout(hall), Duration::from_millis(100));
+    assert_eq!(
+        hall.devices[0].answer_timeout(hall),
+        Duration::from_millis(100)
+    );
 }
 
 #[test]
 fn the_environment_overrides_a_device_by_name() {
     let env = HashMap::from([
-        ("PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL".to_string(), "2s".to_string()),
+        (
+            "PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL".to_string(),
+            "2s".to_string(),
+        ),
         ("PULSEGATE__MQTT__PORT".to_string(), "1884".to_string()),
     ]);
     let c = Config::from_toml(GOOD, Path::new("x.toml"), Some(env)).unwrap();
@@ -69,9 +98,17 @@ fn the_environment_overrides_a_device_by_name() {
 
 #[test]
 fn an_error_from_the_environment_names_the_environment() {
-    let env = HashMap::from([("PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL".to_string(), "soon".to_string())]);
-    let err = Config::from_toml(GOOD, Path::new("x.toml"), Some(env)).unwrap_err().to_string();
-    assert!(err.contains("the environment: buses.line1.devices.press1.poll"), "{err}");
+    let env = HashMap::from([(
+        "PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL".to_string(),
+        "soon".to_string(),
+    )]);
+    let err = Config::from_toml(GOOD, Path::new("x.toml"), Some(env))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("the environment: buses.line1.devices.press1.poll"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -121,7 +158,10 @@ model = "yl67"
 "#,
     )
     .join("\n");
-    assert!(e.contains("buses.b.devices.press: device name is already used on bus a"), "{e}");
+    assert!(
+        e.contains("buses.b.devices.press: device name is already used on bus a"),
+        "{e}"
+    );
     assert!(e.contains("bad/name"), "{e}");
 }
 
@@ -133,8 +173,14 @@ fn a_bus_needs_a_port_or_a_host() {
 
 #[test]
 fn serial_settings_on_a_tcp_bus_are_refused() {
-    let e = errors("[buses.x]\nhost = \"h\"\nbaud = 9600\n[buses.x.devices.d]\nunit = 1\nmodel = \"yl67\"\n").join("\n");
-    assert!(e.contains("buses.x.baud: serial setting on a TCP bus"), "{e}");
+    let e = errors(
+        "[buses.x]\nhost = \"h\"\nbaud = 9600\n[buses.x.devices.d]\nunit = 1\nmodel = \"yl67\"\n",
+    )
+    .join("\n");
+    assert!(
+        e.contains("buses.x.baud: serial setting on a TCP bus"),
+        "{e}"
+    );
 }
 
 #[test]

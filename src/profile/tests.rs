@@ -27,7 +27,10 @@ fn ibf67_shares_the_yl67_profile() {
 fn yl67_encoders_in_quadrature_mode_are_enc0_to_enc3() {
     let ch = profile("yl67").channels(&[0, 0, 0, 0]).unwrap();
     assert_eq!(names(&ch), ["enc0", "enc1", "enc2", "enc3"]);
-    assert!(ch.iter().all(|c| c.kind == ChannelKind::Encoder && c.count.ty == ValueType::I32));
+    assert!(
+        ch.iter()
+            .all(|c| c.kind == ChannelKind::Encoder && c.count.ty == ValueType::I32)
+    );
 }
 
 #[test]
@@ -52,7 +55,13 @@ fn the_datasheet_clear_of_encoder_0_writes_10_to_register_67() {
     let ch = profile("yl67").channels(&[0, 0, 0, 0]).unwrap();
     assert_eq!((ch[0].clear.register, ch[0].clear.code), (0x43, 10));
     assert_eq!(ch[3].clear.code, 13);
-    assert_eq!(ch[0].clear_all, Some(CodeWrite { register: 67, code: 18 }));
+    assert_eq!(
+        ch[0].clear_all,
+        Some(CodeWrite {
+            register: 67,
+            code: 18
+        })
+    );
 }
 
 #[test]
@@ -60,7 +69,13 @@ fn yl67_di_clear_codes_run_20_to_27() {
     let ch = profile("yl67").channels(&[1, 1, 1, 1]).unwrap();
     let codes: Vec<u16> = ch.iter().map(|c| c.clear.code).collect();
     assert_eq!(codes, [20, 21, 22, 23, 24, 25, 26, 27]);
-    assert_eq!(ch[0].clear_all, Some(CodeWrite { register: 67, code: 36 }));
+    assert_eq!(
+        ch[0].clear_all,
+        Some(CodeWrite {
+            register: 67,
+            code: 36
+        })
+    );
 }
 
 #[test]
@@ -115,15 +130,23 @@ fn presets_must_fit_the_count_register() {
 
 #[test]
 fn a_broken_user_profile_is_an_error_naming_the_file() {
-    let err = Profile::from_toml("model = \"x\"\nword_order = \"sideways\"", "/etc/pulsegate/profiles/x.toml").unwrap_err();
-    assert!(err.to_string().contains("/etc/pulsegate/profiles/x.toml"), "{err}");
+    let err = Profile::from_toml(
+        "model = \"x\"\nword_order = \"sideways\"",
+        "/etc/pulsegate/profiles/x.toml",
+    )
+    .unwrap_err();
+    assert!(
+        err.to_string().contains("/etc/pulsegate/profiles/x.toml"),
+        "{err}"
+    );
 }
 
 #[test]
 fn user_profiles_are_loaded_from_a_directory() {
     let dir = std::env::temp_dir().join(format!("pulsegate-profiles-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let text = include_str!("../../profiles/wj157.toml").replace("model = \"wj157\"", "model = \"my-counter\"");
+    let text = include_str!("../../profiles/wj157.toml")
+        .replace("model = \"wj157\"", "model = \"my-counter\"");
     std::fs::write(dir.join("mine.toml"), text).unwrap();
     let p = Profiles::with_dir(&dir).unwrap();
     assert!(p.get("my-counter").is_some() && p.get("yl67").is_some());

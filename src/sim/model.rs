@@ -79,6 +79,9 @@ pub struct SimModule {
     plain: BTreeMap<u16, u16>,
     /// Silent modules do not answer at all.
     pub silent: bool,
+    /// Channels whose next read returns a count of 0 once (a glitch on the line or in the
+    /// module), then the true count again.
+    pub glitch_zero: Vec<String>,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -149,6 +152,7 @@ impl SimModule {
             channels,
             plain,
             silent: false,
+            glitch_zero: Vec::new(),
         })
     }
 
@@ -250,16 +254,31 @@ impl SimModule {
     }
 
     /// FC03: reads `len` registers from `start`; any undescribed register refuses the read.
-    pub fn read(&self, now: f64, start: u16, len: u16) -> Result<Vec<u16>, ExceptionCode> {
+    pub fn read(&mut self, now: f64, start: u16, len: u16) -> Result<Vec<u16>, ExceptionCode> {
         if len == 0 || len > 125 || u32::from(start) + u32::from(len) > 0x1_0000 {
             return Err(ExceptionCode::IllegalDataValue);
         }
-        (start..start + len)
+        let mut words: Vec<u16> = (start..start + len)
             .map(|a| {
                 self.register(now, a)
                     .ok_or(ExceptionCode::IllegalDataAddress)
             })
-            .collect()
+            .collect::<Result<_, _>>()?;
+        let mut hit = Vec::new();
+        for c in &self.channels {
+            let r = c.spec.count;
+            if self.glitch_zero.contains(&c.spec.name)
+                && r.address >= start
+                && r.end() <= start + len
+            {
+                for a in r.address..r.end() {
+                    words[usize::from(a - start)] = 0;
+                }
+                hit.push(c.spec.name.clone());
+            }
+        }
+        self.glitch_zero.retain(|n| !hit.contains(n));
+        Ok(words)
     }
 
     /// FC06.
@@ -376,7 +395,7 @@ mod tests {
 
     #[test]
     fn undescribed_registers_answer_exception_02() {
-        let m = module("yl67", &[0, 0, 0, 0]);
+        let mut m = module("yl67", &[0, 0, 0, 0]);
         assert_eq!(m.read(0.0, 24, 2), Err(ExceptionCode::IllegalDataAddress));
         assert_eq!(m.read(0.0, 16, 10), Err(ExceptionCode::IllegalDataAddress));
     }
@@ -433,5 +452,21 @@ mod tests {
         m.power_cycle(1.0);
         assert_eq!(m.channel("enc0").unwrap().count(1.0), 5);
         assert_eq!(m.channel("a1").unwrap().count(1.0), 0);
+    }
+}
+
+#[cfg(test)]
+mod glitch_tests {
+    use super::*;
+    use crate::profile::Profiles;
+
+    #[test]
+    fn a_glitch_reads_zero_once() {
+        let mut m =
+            SimModule::new(Profiles::builtin().get("yl67").unwrap(), &[1, 1, 1, 1]).unwrap();
+        m.set_count(0.0, "a0", 1_000_000);
+        m.glitch_zero.push("a0".into());
+        assert_eq!(m.read(0.0, 32, 16).unwrap()[..2], [0, 0]);
+        assert_ne!(m.read(0.0, 32, 16).unwrap()[..2], [0, 0]);
     }
 }

@@ -1,1 +1,255 @@
-//! Counter truth end to end: wrap, resets, glitches, restarts, frequency.
+//! Counter truth end to end: the simulator counts pulses on a pseudo-terminal, the gateway
+//! publishes to Mosquitto, and the test compares the published totals with the pulses the
+//! simulator generated.
+//!
+//! Each scenario starts its channel at rate 0, waits for the gateway's first reading (the
+//! baseline), runs pulses, and stops them again before comparing, so "pulses generated" and
+//! "total" cover the same span exactly.
+
+use std::time::{Duration, Instant};
+
+use pulsegate::sim::Plant;
+use serde_json::Value;
+
+use crate::support::*;
+
+/// A plant with one bus `line1`, the gateway polling its unit 1 as `dev` every 100 ms.
+struct Rig {
+    broker: Broker,
+    plant: Plant,
+    dir: std::path::PathBuf,
+    config: std::path::PathBuf,
+    sub: Subscriber,
+    gateway: Option<Gateway>,
+    topic: String,
+}
+
+impl Rig {
+    /// `setup` is the simulated channel's TOML, e.g. `count = 5, ppr = 360`.
+    async fn start(name: &str, model: &str, modes: &str, channel: &str, setup: &str) -> Rig {
+        let broker = Broker::start();
+        let plant = plant(&format!(
+            "[buses.line1.devices.dev]\nunit = 1\nmodel = {model:?}\nmodes = {modes}\nchannels.{channel} = {{ {setup} }}\n"
+        ))
+        .await;
+        let dir = temp_dir(name);
+        let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+        let text = gateway_toml(
+            &plant,
+            broker.port,
+            &dir,
+            &[("line1", "dev", 1, model, "100ms")],
+            "",
+        );
+        let config = write_config(&dir, &text);
+        let gateway = Some(Gateway::start(&config));
+        let topic = format!("pulsegate/test/dev/{channel}");
+        let rig = Rig {
+            broker,
+            plant,
+            dir,
+            config,
+            sub,
+            gateway,
+            topic,
+        };
+        rig.sub
+            .wait_for(&rig.topic, Duration::from_secs(3), |_| true)
+            .await
+            .expect("first reading (the baseline)");
+        rig
+    }
+
+    fn channel(&self) -> String {
+        self.topic.rsplit('/').next().unwrap().to_string()
+    }
+
+    fn set_rate(&self, rate: f64) {
+        let ch = self.channel();
+        self.plant
+            .with_module("line1", 1, |m, now| assert!(m.set_rate(now, &ch, rate)))
+            .unwrap();
+    }
+
+    fn generated(&self) -> i64 {
+        let ch = self.channel();
+        self.plant
+            .with_module("line1", 1, |m, now| m.channel(&ch).unwrap().generated(now))
+            .unwrap()
+    }
+
+    /// Stops the pulses and waits for a reading taken well after, so nothing is in flight.
+    async fn stop_and_settle(&self) -> Value {
+        self.set_rate(0.0);
+        let after = Instant::now() + Duration::from_millis(400);
+        let m = self
+            .sub
+            .wait_for(&self.topic, Duration::from_secs(5), |m| m.at > after)
+            .await
+            .expect("a reading after the pulses stopped");
+        m.json()
+    }
+
+    fn readings(&self) -> Vec<Value> {
+        readings(&self.sub, &self.topic)
+    }
+
+    fn events(&self, name: &str) -> usize {
+        self.readings()
+            .iter()
+            .filter(|r| r["event"] == name)
+            .count()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_di_count_wrapping_at_2_pow_32_keeps_every_delta_positive_and_the_total_exact() {
+    let rig = Rig::start("wrap-di", "wj157", "[1]", "a0", "count = 4294967000").await;
+    rig.set_rate(1000.0);
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let last = rig.stop_and_settle().await;
+    let generated = rig.generated();
+    let readings = rig.readings();
+    assert!(
+        readings.iter().all(|r| r["delta"].as_i64().unwrap() >= 0),
+        "a negative delta"
+    );
+    let sum: i64 = readings.iter().map(|r| r["delta"].as_i64().unwrap()).sum();
+    assert!((4900..=5100).contains(&generated), "generated {generated}");
+    assert_eq!(sum, generated, "sum of deltas");
+    assert_eq!(last["total"].as_i64().unwrap(), generated, "total");
+    assert!(
+        last["count"].as_i64().unwrap() < 10_000,
+        "the count wrapped"
+    );
+    assert_eq!(rig.events("rollover"), 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_encoder_crossing_the_i32_boundary_forwards_and_back_keeps_its_total_exact() {
+    let rig = Rig::start(
+        "wrap-enc",
+        "yl67",
+        "[0, 0, 0, 0]",
+        "enc0",
+        "count = 2147483000",
+    )
+    .await;
+    rig.set_rate(1000.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let forward = rig.stop_and_settle().await;
+    assert!(
+        forward["count"].as_i64().unwrap() < 0,
+        "crossed +2147483647 forwards: {forward}"
+    );
+    assert_eq!(forward["total"].as_i64().unwrap(), rig.generated());
+    rig.set_rate(-1000.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let back = rig.stop_and_settle().await;
+    assert!(back["count"].as_i64().unwrap() > 0, "crossed back: {back}");
+    assert_eq!(back["total"].as_i64().unwrap(), rig.generated());
+    assert_eq!(rig.events("rollover"), 2);
+    assert_eq!(rig.events("reset"), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_module_power_cycle_is_one_reset_and_the_total_stays_exact() {
+    let rig = Rig::start("power", "yl67", "[1, 1, 1, 1]", "a0", "count = 0").await;
+    rig.set_rate(800.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    rig.stop_and_settle().await;
+    rig.plant
+        .with_module("line1", 1, |m, now| m.power_cycle(now))
+        .unwrap();
+    rig.set_rate(800.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let last = rig.stop_and_settle().await;
+    assert_eq!(rig.events("reset"), 1, "exactly one reset event");
+    assert_eq!(last["total"].as_i64().unwrap(), rig.generated());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_injected_read_of_zero_leaves_the_total_unaffected() {
+    let rig = Rig::start("glitch", "yl67", "[1, 1, 1, 1]", "a0", "count = 1000000").await;
+    rig.set_rate(500.0);
+    tokio::time::sleep(Duration::from_millis(700)).await;
+    rig.plant
+        .with_module("line1", 1, |m, _| m.glitch_zero.push("a0".into()))
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let last = rig.stop_and_settle().await;
+    let readings = rig.readings();
+    assert!(
+        readings.iter().any(|r| r["count"] == 0),
+        "the glitch reached the gateway"
+    );
+    assert_eq!(last["total"].as_i64().unwrap(), rig.generated());
+    assert_eq!(rig.events("reset"), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gateway_killed_and_down_for_5s_books_the_pulses_counted_meanwhile_once() {
+    let mut rig = Rig::start("sigkill", "yl67", "[1, 1, 1, 1]", "a0", "count = 0").await;
+    rig.set_rate(1000.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    rig.gateway.take().unwrap().kill();
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let restarted = Instant::now();
+    rig.gateway = Some(Gateway::start(&rig.config));
+    rig.sub
+        .wait_for(&rig.topic, Duration::from_secs(3), |m| m.at > restarted)
+        .await
+        .expect("readings after the restart");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let last = rig.stop_and_settle().await;
+    assert_eq!(
+        last["total"].as_i64().unwrap(),
+        rig.generated(),
+        "total after SIGKILL and restart"
+    );
+    assert_eq!(rig.events("gap"), 1, "one gap event");
+    let _ = (&rig.broker, &rig.dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frequency_is_within_1_percent_and_rpm_follows_pulses_per_revolution() {
+    let rig = Rig::start(
+        "freq",
+        "yl67",
+        "[0, 0, 0, 0]",
+        "enc0",
+        "count = 0, ppr = 360",
+    )
+    .await;
+    rig.set_rate(2500.0);
+    let t0 = Instant::now() + Duration::from_millis(300);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let window: Vec<Value> = rig
+        .sub
+        .on(&rig.topic)
+        .into_iter()
+        .filter(|m| m.at > t0)
+        .map(|m| m.json())
+        .collect();
+    assert!(window.len() >= 10);
+    for r in &window {
+        let f = r["freq_hz"].as_f64().unwrap();
+        assert!((f - 2500.0).abs() <= 25.0, "freq_hz {f}");
+        let rpm = r["rpm"].as_f64().unwrap();
+        assert!(
+            (rpm - f * 60.0 / 360.0).abs() < 0.01,
+            "rpm {rpm} for freq_hz {f} at 360 ppr"
+        );
+    }
+    // The derived rate over the whole window, independent of the module's register.
+    let first = &window[0];
+    let last = window.last().unwrap();
+    let pulses = (last["total"].as_i64().unwrap() - first["total"].as_i64().unwrap()) as f64;
+    let secs = (humantime::parse_rfc3339(last["ts"].as_str().unwrap())
+        .unwrap()
+        .duration_since(humantime::parse_rfc3339(first["ts"].as_str().unwrap()).unwrap())
+        .unwrap())
+    .as_secs_f64();
+    let rate = pulses / secs;
+    assert!((rate - 2500.0).abs() <= 25.0, "derived rate {rate}");
+}
