@@ -1,1 +1,346 @@
+//! Clear and preset commands from MQTT. Pure: topic and payload in, a checked request or an error
+//! result out; results as JSON; a memory of recent ids so a repeated command is answered again
+//! without a second write.
+//!
+//! Nothing here writes to a module: a request reaches a bus only after every check passed.
 
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+use serde_json::{Map, Value, json};
+
+/// What the operator asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Op {
+    Clear,
+    Preset(i64),
+    ClearAll,
+}
+
+impl Op {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Op::Clear => "clear",
+            Op::Preset(_) => "preset",
+            Op::ClearAll => "clear_all",
+        }
+    }
+}
+
+/// A checked command, on its way to a bus.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Request {
+    pub device: String,
+    /// `None` for device-wide commands.
+    pub channel: Option<String>,
+    pub op: Op,
+    pub id: Option<String>,
+    /// Where the result goes: the result topic, plus the MQTT v5 response topic if given.
+    pub reply: Reply,
+    /// When the gateway received it.
+    pub received: tokio::time::Instant,
+    /// Give up (error `offline`) if the device has not answered by then.
+    pub expires: tokio::time::Instant,
+}
+
+/// Where and how to answer.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Reply {
+    pub topics: Vec<String>,
+    pub correlation: Option<bytes::Bytes>,
+}
+
+/// Why a command was refused or failed; `code` goes in the result, the text is for people.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CommandError {
+    #[error("payload is not a JSON object: {0}")]
+    NotJson(String),
+    #[error("missing \"op\"")]
+    MissingOp,
+    #[error("unknown op {0:?}: use clear or preset on a channel, clear_all on a device")]
+    UnknownOp(String),
+    #[error("preset needs \"value\"")]
+    MissingValue,
+    #[error("\"value\" must be an integer, got {0}")]
+    NotInteger(String),
+    #[error("{value} is outside the range of channel {channel}")]
+    OutOfRange { channel: String, value: i64 },
+    #[error("unexpected field {0:?}")]
+    UnexpectedField(String),
+    #[error("\"id\" must be a string")]
+    BadId,
+    #[error("no device {0}")]
+    UnknownDevice(String),
+    #[error("device {device} has no channel {channel}")]
+    UnknownChannel { device: String, channel: String },
+    #[error("commands are disabled for device {0}")]
+    Disabled(String),
+    #[error("device {0} did not answer before the command expired")]
+    Offline(String),
+    #[error("the write failed: {0}")]
+    WriteFailed(String),
+    #[error("read back {got} after the write, expected {expected}")]
+    ReadBack { expected: i64, got: i64 },
+}
+
+impl CommandError {
+    /// The machine-readable code in the result.
+    pub fn code(&self) -> &'static str {
+        match self {
+            CommandError::NotJson(_) => "bad_json",
+            CommandError::MissingOp => "missing_op",
+            CommandError::UnknownOp(_) => "unknown_op",
+            CommandError::MissingValue => "missing_value",
+            CommandError::NotInteger(_) => "bad_value",
+            CommandError::OutOfRange { .. } => "out_of_range",
+            CommandError::UnexpectedField(_) => "unexpected_field",
+            CommandError::BadId => "bad_id",
+            CommandError::UnknownDevice(_) => "unknown_device",
+            CommandError::UnknownChannel { .. } => "unknown_channel",
+            CommandError::Disabled(_) => "disabled",
+            CommandError::Offline(_) => "offline",
+            CommandError::WriteFailed(_) => "write_failed",
+            CommandError::ReadBack { .. } => "readback_mismatch",
+        }
+    }
+}
+
+/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+pub fn parse_topic<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
+    let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
+    let rest = rest.strip_suffix("/cmd")?;
+    match rest.split('/').collect::<Vec<_>>()[..] {
+        [device] if !device.is_empty() => Some((device, None)),
+        [device, channel] if !device.is_empty() && !channel.is_empty() => {
+            Some((device, Some(channel)))
+        }
+        _ => None,
+    }
+}
+
+/// The parts of a payload before the device is known: op, id.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parsed {
+    pub op: Op,
+    pub id: Option<String>,
+}
+
+/// Parses a payload strictly: a JSON object with `op`, `value` for preset, optional string `id`,
+/// nothing else. `channel` says whether it came on a channel or a device topic. On error the id,
+/// when it could be read, is returned too so the result can echo it.
+pub fn parse_payload(
+    payload: &[u8],
+    channel: bool,
+) -> Result<Parsed, (Option<String>, CommandError)> {
+    let value: Value = serde_json::from_slice(payload)
+        .map_err(|e| (None, CommandError::NotJson(e.to_string())))?;
+    let Value::Object(map) = value else {
+        return Err((None, CommandError::NotJson("not an object".into())));
+    };
+    let id = match map.get("id") {
+        None => None,
+        Some(Value::String(s)) => Some(s.clone()),
+        Some(_) => return Err((None, CommandError::BadId)),
+    };
+    let fail = |e| Err((id.clone(), e));
+    let allowed: &[&str] = match map.get("op") {
+        Some(Value::String(op)) if op == "preset" => &["op", "id", "value"],
+        _ => &["op", "id"],
+    };
+    if let Some(k) = map.keys().find(|k| !allowed.contains(&k.as_str())) {
+        return fail(CommandError::UnexpectedField(k.clone()));
+    }
+    let op = match map.get("op") {
+        None => return fail(CommandError::MissingOp),
+        Some(Value::String(op)) => match (op.as_str(), channel) {
+            ("clear", true) => Op::Clear,
+            ("preset", true) => Op::Preset(preset_value(&map).map_err(|e| (id.clone(), e))?),
+            ("clear_all", false) => Op::ClearAll,
+            _ => return fail(CommandError::UnknownOp(op.clone())),
+        },
+        Some(other) => return fail(CommandError::UnknownOp(other.to_string())),
+    };
+    Ok(Parsed { op, id })
+}
+
+fn preset_value(map: &Map<String, Value>) -> Result<i64, CommandError> {
+    match map.get("value") {
+        None | Some(Value::Null) => Err(CommandError::MissingValue),
+        Some(Value::Number(n)) => n
+            .as_i64()
+            .ok_or_else(|| CommandError::NotInteger(n.to_string())),
+        Some(other) => Err(CommandError::NotInteger(other.to_string())),
+    }
+}
+
+/// The result JSON of a command.
+pub fn result_json(
+    id: Option<&str>,
+    op: Option<&str>,
+    outcome: &Result<Option<i64>, CommandError>,
+) -> Value {
+    let mut v = json!({});
+    if let Some(id) = id {
+        v["id"] = json!(id);
+    }
+    if let Some(op) = op {
+        v["op"] = json!(op);
+    }
+    match outcome {
+        Ok(count) => {
+            v["ok"] = json!(true);
+            if let Some(c) = count {
+                v["count"] = json!(c);
+            }
+        }
+        Err(e) => {
+            v["ok"] = json!(false);
+            v["error"] = json!(e.code());
+            v["message"] = json!(e.to_string());
+        }
+    }
+    v
+}
+
+/// How long an answered id is remembered.
+pub const DEDUPE_WINDOW: Duration = Duration::from_secs(600);
+
+/// Recently seen command ids (per topic) and their results.
+#[derive(Debug, Default)]
+pub struct Dedupe {
+    seen: HashMap<(String, String), (Instant, Option<Value>)>,
+}
+
+/// What to do with a command whose id may have been seen.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Seen {
+    /// New: go ahead.
+    New,
+    /// Answered before: send this result again, write nothing.
+    Answered(Value),
+    /// Still being carried out: its result will come; write nothing.
+    InFlight,
+}
+
+impl Dedupe {
+    /// Records `id` on `topic` at `now` and says whether it is new.
+    pub fn check(&mut self, topic: &str, id: &str, now: Instant) -> Seen {
+        self.seen
+            .retain(|_, (t, _)| now.duration_since(*t) < DEDUPE_WINDOW);
+        let key = (topic.to_string(), id.to_string());
+        match self.seen.get(&key) {
+            Some((_, Some(result))) => Seen::Answered(result.clone()),
+            Some((_, None)) => Seen::InFlight,
+            None => {
+                self.seen.insert(key, (now, None));
+                Seen::New
+            }
+        }
+    }
+
+    /// Stores the result of a command so a repeat is answered with it.
+    pub fn answered(&mut self, topic: &str, id: &str, result: Value) {
+        if let Some(entry) = self.seen.get_mut(&(topic.to_string(), id.to_string())) {
+            entry.1 = Some(result);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn err(payload: &str, channel: bool) -> &'static str {
+        parse_payload(payload.as_bytes(), channel)
+            .unwrap_err()
+            .1
+            .code()
+    }
+
+    #[test]
+    fn command_topics_name_device_and_channel() {
+        assert_eq!(
+            parse_topic("pg/e1", "pg/e1/press/enc0/cmd"),
+            Some(("press", Some("enc0")))
+        );
+        assert_eq!(
+            parse_topic("pg/e1", "pg/e1/press/cmd"),
+            Some(("press", None))
+        );
+        assert_eq!(parse_topic("pg/e1", "pg/e1/press/enc0/cmd/result"), None);
+        assert_eq!(parse_topic("pg/e1", "pg/e1/a/b/c/cmd"), None);
+        assert_eq!(parse_topic("pg/e1", "other/press/cmd"), None);
+    }
+
+    #[test]
+    fn clear_and_preset_parse_on_a_channel() {
+        assert_eq!(
+            parse_payload(br#"{"op":"clear"}"#, true).unwrap().op,
+            Op::Clear
+        );
+        let p = parse_payload(br#"{"op":"preset","value":3000,"id":"a1"}"#, true).unwrap();
+        assert_eq!((p.op, p.id.as_deref()), (Op::Preset(3000), Some("a1")));
+        assert_eq!(
+            parse_payload(br#"{"op":"preset","value":-5}"#, true)
+                .unwrap()
+                .op,
+            Op::Preset(-5)
+        );
+    }
+
+    #[test]
+    fn clear_all_is_only_for_the_device_topic() {
+        assert_eq!(
+            parse_payload(br#"{"op":"clear_all"}"#, false).unwrap().op,
+            Op::ClearAll
+        );
+        assert_eq!(err(r#"{"op":"clear_all"}"#, true), "unknown_op");
+        assert_eq!(err(r#"{"op":"clear"}"#, false), "unknown_op");
+    }
+
+    #[test]
+    fn malformed_payloads_get_a_code_naming_the_cause() {
+        assert_eq!(err("clear", true), "bad_json");
+        assert_eq!(err("[1]", true), "bad_json");
+        assert_eq!(err("{}", true), "missing_op");
+        assert_eq!(err(r#"{"op":"explode"}"#, true), "unknown_op");
+        assert_eq!(err(r#"{"op":7}"#, true), "unknown_op");
+        assert_eq!(err(r#"{"op":"preset"}"#, true), "missing_value");
+        assert_eq!(err(r#"{"op":"preset","value":1.5}"#, true), "bad_value");
+        assert_eq!(err(r#"{"op":"preset","value":"3000"}"#, true), "bad_value");
+        assert_eq!(err(r#"{"op":"preset","value":1e30}"#, true), "bad_value");
+        assert_eq!(err(r#"{"op":"clear","value":5}"#, true), "unexpected_field");
+        assert_eq!(err(r#"{"op":"clear","id":5}"#, true), "bad_id");
+    }
+
+    #[test]
+    fn an_error_result_echoes_the_id_when_it_could_be_read() {
+        let (id, e) = parse_payload(br#"{"op":"preset","id":"x9"}"#, true).unwrap_err();
+        let v = result_json(id.as_deref(), Some("preset"), &Err(e));
+        assert_eq!(v["id"], "x9");
+        assert_eq!(v["ok"], false);
+        assert_eq!(v["error"], "missing_value");
+        assert!(v["message"].as_str().unwrap().contains("value"));
+    }
+
+    #[test]
+    fn an_ok_result_carries_the_count_read_back() {
+        let v = result_json(Some("a"), Some("preset"), &Ok(Some(3000)));
+        assert_eq!(v, json!({"id":"a","op":"preset","ok":true,"count":3000}));
+    }
+
+    #[test]
+    fn the_same_id_within_ten_minutes_is_answered_again_without_a_write() {
+        let mut d = Dedupe::default();
+        let t0 = Instant::now();
+        assert_eq!(d.check("t", "1", t0), Seen::New);
+        assert_eq!(d.check("t", "1", t0), Seen::InFlight);
+        d.answered("t", "1", json!({"ok":true}));
+        assert_eq!(
+            d.check("t", "1", t0 + Duration::from_secs(599)),
+            Seen::Answered(json!({"ok":true}))
+        );
+        assert_eq!(d.check("t", "1", t0 + Duration::from_secs(601)), Seen::New);
+        assert_eq!(d.check("other", "1", t0), Seen::New);
+    }
+}

@@ -18,6 +18,7 @@ pub mod config;
 pub mod counter;
 pub mod decode;
 pub mod demo;
+pub mod dispatch;
 pub mod plan;
 pub mod profile;
 pub mod publish;

@@ -31,6 +31,9 @@ pub enum PollError {
     },
     #[error("{0}")]
     Profile(String),
+    /// A command is waiting: the poll stepped aside after the transaction in flight.
+    #[error("poll interrupted by a command")]
+    Preempted,
 }
 
 impl PollError {
@@ -38,23 +41,28 @@ impl PollError {
     pub fn device_answered(&self) -> bool {
         !matches!(self, PollError::Link(_))
     }
+
+    /// Not a failure of the device at all.
+    pub fn is_preempted(&self) -> bool {
+        matches!(self, PollError::Preempted)
+    }
 }
 
 /// A channel being polled.
-struct ChannelRt {
-    spec: ChannelSpec,
-    name: Arc<str>,
-    counter: Counter,
-    ppr: Option<f64>,
+pub(super) struct ChannelRt {
+    pub(super) spec: ChannelSpec,
+    pub(super) name: Arc<str>,
+    pub(super) counter: Counter,
+    pub(super) ppr: Option<f64>,
 }
 
 /// Registers read in one poll, by block.
-struct Snapshot {
+pub(super) struct Snapshot {
     blocks: Vec<(Block, Vec<u16>, SystemTime)>,
 }
 
 impl Snapshot {
-    fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
+    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
         self.blocks
             .iter()
             .find(|(b, ..)| b.covers(r))
@@ -70,12 +78,12 @@ pub struct DeviceRt {
     pub name: Arc<str>,
     pub unit: u8,
     pub config: Device,
-    profile: Arc<Profile>,
+    pub(super) profile: Arc<Profile>,
     /// Answer timeout before line time is added.
     answer_timeout: Duration,
     wire: Wire,
     modes: Option<Vec<u16>>,
-    channels: Vec<ChannelRt>,
+    pub(super) channels: Vec<ChannelRt>,
     fast: Vec<Register>,
     /// Register ranges the device refused (exception 02): never bridged again.
     pub holes: Vec<Range<u16>>,
@@ -143,6 +151,11 @@ impl DeviceRt {
         out
     }
 
+    /// Whether the channels are known (the work modes were read).
+    pub fn discovered(&self) -> bool {
+        self.modes.is_some()
+    }
+
     /// The device was away: every channel's next delta covers the gap.
     pub fn mark_gap(&mut self) {
         for ch in &mut self.channels {
@@ -151,14 +164,21 @@ impl DeviceRt {
     }
 
     /// One poll: discovery and slow registers when due, then counts and frequencies.
-    pub async fn poll(&mut self, link: &mut Link) -> Result<Vec<Reading>, PollError> {
+    /// `preempt` is asked between transactions: when it says yes, the poll gives way.
+    pub async fn poll(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Vec<Reading>, PollError> {
         let slow_due = self
             .last_slow
             .is_none_or(|t| t.elapsed() >= self.slow_every);
         if self.modes.is_none() || slow_due {
-            self.read_slow(link).await?;
+            self.read_slow(link, preempt).await?;
         }
-        let snapshot = self.read_registers(link, &self.fast.clone()).await?;
+        let snapshot = self
+            .read_registers(link, &self.fast.clone(), preempt)
+            .await?;
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
         for ch in &mut self.channels {
@@ -191,7 +211,11 @@ impl DeviceRt {
     }
 
     /// Reads work modes (and with them the channel set) and pulses per revolution.
-    async fn read_slow(&mut self, link: &mut Link) -> Result<(), PollError> {
+    async fn read_slow(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
         let mode_regs = self.profile.mode_registers();
         let regs: Vec<Register> = mode_regs
             .iter()
@@ -200,7 +224,7 @@ impl DeviceRt {
                 ty: ValueType::U16,
             })
             .collect();
-        let snap = self.read_registers(link, &regs).await?;
+        let snap = self.read_registers(link, &regs, preempt).await?;
         let modes: Vec<u16> = regs
             .iter()
             .filter_map(|r| snap.get(r).map(|(w, _)| w[0]))
@@ -218,7 +242,7 @@ impl DeviceRt {
         }
         let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
         if !ppr_regs.is_empty() {
-            let snap = self.read_registers(link, &ppr_regs).await?;
+            let snap = self.read_registers(link, &ppr_regs, preempt).await?;
             let order = self.profile.word_order;
             for ch in &mut self.channels {
                 let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
@@ -277,15 +301,19 @@ impl DeviceRt {
 
     /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
     /// and is split at once.
-    async fn read_registers(
+    pub(super) async fn read_registers(
         &mut self,
         link: &mut Link,
         regs: &[Register],
+        preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Snapshot, PollError> {
         let mut blocks = plan_reads(regs, &self.holes, &self.wire);
         let mut out = Vec::with_capacity(blocks.len());
         let mut i = 0;
         while i < blocks.len() {
+            if preempt() {
+                return Err(PollError::Preempted);
+            }
             let b = blocks[i];
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
@@ -320,7 +348,7 @@ impl DeviceRt {
     }
 
     /// The answer timeout plus the time the request and answer take on the line.
-    fn timeout_for(&self, link: &Link, len: u16) -> Duration {
+    pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
             .timing()
             .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))

@@ -2,6 +2,7 @@
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
 mod device;
+mod execute;
 pub mod link;
 pub mod schedule;
 
@@ -10,10 +11,12 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::mpsc::UnboundedSender;
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
+use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::plan::Wire;
 use crate::reading::Output;
@@ -23,6 +26,12 @@ pub use device::PollError;
 use link::Link;
 use schedule::{Slot, earliest};
 
+/// A checked command for a device on this bus, and where its outcome goes.
+pub struct BusCommand {
+    pub request: Request,
+    pub done: oneshot::Sender<Result<Option<i64>, CommandError>>,
+}
+
 /// A running bus: its config and what it needs from the gateway.
 pub struct BusTask {
     bus: Bus,
@@ -30,21 +39,29 @@ pub struct BusTask {
     state_flush: Duration,
     stats_interval: Duration,
     out: UnboundedSender<Output>,
+    commands: UnboundedReceiver<BusCommand>,
 }
 
 impl BusTask {
-    pub fn new(bus: Bus, gateway: &Gateway, out: UnboundedSender<Output>) -> BusTask {
+    pub fn new(
+        bus: Bus,
+        gateway: &Gateway,
+        out: UnboundedSender<Output>,
+        commands: UnboundedReceiver<BusCommand>,
+    ) -> BusTask {
         BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
             state_flush: gateway.state_flush,
             stats_interval: gateway.stats_interval,
             bus,
             out,
+            commands,
         }
     }
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
-    pub async fn run(self, shutdown: CancellationToken) {
+    /// Commands go ahead of polls: a poll gives way after its transaction in flight.
+    pub async fn run(mut self, shutdown: CancellationToken) {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
         let saved = match BusState::load(&self.state_path) {
@@ -86,11 +103,25 @@ impl BusTask {
         let mut line_down = false;
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
+        let mut pending: Vec<BusCommand> = Vec::new();
         while let Some(i) = earliest(&slots) {
-            let wake = slots[i].due.min(flush_at).min(stats_at);
+            while let Ok(c) = self.commands.try_recv() {
+                pending.push(c);
+            }
+            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            let expiry = pending.iter().map(|c| c.request.expires).min();
+            let wake = slots[i]
+                .due
+                .min(flush_at)
+                .min(stats_at)
+                .min(expiry.unwrap_or(flush_at));
             tokio::select! {
                 biased;
                 () = shutdown.cancelled() => break,
+                Some(c) = self.commands.recv() => {
+                    pending.push(c);
+                    continue;
+                }
                 () = tokio::time::sleep_until(wake) => {}
             }
             let now = Instant::now();
@@ -121,9 +152,11 @@ impl BusTask {
                 continue;
             }
             let d = &mut devices[i];
-            let result = d.poll(&mut link).await;
+            let commands = &self.commands;
+            let result = d.poll(&mut link, &|| !commands.is_empty()).await;
             let now = Instant::now();
             match result {
+                Err(e) if e.is_preempted() => continue,
                 Ok(readings) => {
                     if line_down {
                         tracing::info!(bus = %name, "line is answering again");
@@ -198,6 +231,45 @@ impl BusTask {
         }
         link.close();
     }
+}
+
+/// Carries out the pending commands whose device can take them; answers expired ones with
+/// `offline`; keeps the rest waiting for their device.
+async fn run_commands(
+    pending: &mut Vec<BusCommand>,
+    devices: &mut [DeviceRt],
+    link: &mut Link,
+    out: &UnboundedSender<Output>,
+) {
+    let now = Instant::now();
+    let mut waiting = Vec::new();
+    for c in pending.drain(..) {
+        let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
+            let _ = c
+                .done
+                .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
+            continue;
+        };
+        if d.online == Some(true) && d.discovered() {
+            let executed = d.execute(link, &c.request).await;
+            for r in executed.readings {
+                let _ = out.send(Output::Reading(r));
+            }
+            if let Err(e) = &executed.result {
+                tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
+            } else {
+                tracing::info!(device = %d.name, channel = ?c.request.channel, op = c.request.op.name(), "command carried out");
+            }
+            let _ = c.done.send(executed.result);
+        } else if now >= c.request.expires {
+            let _ = c
+                .done
+                .send(Err(CommandError::Offline(c.request.device.clone())));
+        } else {
+            waiting.push(c);
+        }
+    }
+    *pending = waiting;
 }
 
 fn snapshot(devices: &[DeviceRt]) -> BusState {

@@ -6,15 +6,17 @@
 use std::time::Duration;
 
 use rumqttc::v5::mqttbytes::QoS;
+use rumqttc::v5::mqttbytes::v5::{Filter, PublishProperties, RetainForwardRule};
 use rumqttc::v5::mqttbytes::v5::{LastWill, Packet};
 use rumqttc::v5::{AsyncClient, Event, EventLoop, MqttOptions};
-use tokio::sync::mpsc::UnboundedReceiver;
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 use tokio::sync::watch;
 use tokio_util::sync::CancellationToken;
 
 use super::payload;
 use super::topics::Topics;
 use crate::config::Mqtt;
+use crate::dispatch::Incoming;
 use crate::reading::Output;
 
 fn qos(level: u8) -> QoS {
@@ -27,7 +29,12 @@ fn qos(level: u8) -> QoS {
 
 /// Runs MQTT until `shutdown`, then publishes the gateway offline and disconnects. Returns when
 /// `output` is closed and drained or shortly after shutdown.
-pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: CancellationToken) {
+pub async fn run(
+    config: Mqtt,
+    mut output: UnboundedReceiver<Output>,
+    incoming: UnboundedSender<Incoming>,
+    shutdown: CancellationToken,
+) {
     let topics = Topics::new(&config.topic_root);
     let mut options = MqttOptions::new(config.client_id.clone(), config.host.clone(), config.port);
     options.set_keep_alive(config.keep_alive);
@@ -47,6 +54,7 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
     let events = tokio::spawn(drive(
         eventloop,
         connected_tx,
+        incoming,
         loop_stop.clone(),
         format!("{}:{}", config.host, config.port),
     ));
@@ -56,7 +64,13 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
         tokio::select! {
             biased;
             Ok(()) = connected.changed() => {
-                // (Re)connected: say we are here. Retained device statuses stay on the broker.
+                // (Re)connected with a clean session: subscriptions are restored every time.
+                // Retained command messages are never forwarded (and ignored if they are).
+                let filters = [command_filter(&topics, "+/+/cmd"), command_filter(&topics, "+/cmd")];
+                if let Err(e) = client.subscribe_many(filters).await {
+                    tracing::error!("cannot subscribe to command topics: {e}");
+                }
+                // Say we are here. Retained device statuses stay on the broker.
                 let _ = client.publish(topics.gateway_status(), QoS::AtLeastOnce, true, "online").await;
             }
             out = output.recv() => {
@@ -70,9 +84,21 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
                         if online { b"online".to_vec() } else { b"offline".to_vec() },
                     ),
                     Output::BusStats { bus, stats } => (topics.bus_stats(&bus), false, QoS::AtMostOnce, stats.to_string().into_bytes()),
-                    Output::CommandResult { topics: to, payload, .. } => {
-                        for t in to {
-                            let _ = client.publish(t, QoS::AtLeastOnce, false, payload.to_string()).await;
+                    Output::CommandResult { topics: to, correlation, payload } => {
+                        for (i, t) in to.into_iter().enumerate() {
+                            let body = payload.to_string();
+                            // The MQTT v5 response topic (after the result topic) gets the
+                            // request's correlation data back.
+                            let sent = match (&correlation, i) {
+                                (Some(c), 1..) => {
+                                    let props = PublishProperties { correlation_data: Some(c.clone()), ..Default::default() };
+                                    client.publish_with_properties(t, QoS::AtLeastOnce, false, body, props).await
+                                }
+                                _ => client.publish(t, QoS::AtLeastOnce, false, body).await,
+                            };
+                            if sent.is_err() {
+                                tracing::error!("MQTT client stopped; command result dropped");
+                            }
                         }
                         continue;
                     }
@@ -99,10 +125,18 @@ pub async fn run(config: Mqtt, mut output: UnboundedReceiver<Output>, shutdown: 
     loop_stop.cancel();
 }
 
-/// Drives the connection; logs once per state change; reconnects after a pause.
+fn command_filter(topics: &Topics, tail: &str) -> Filter {
+    let mut f = Filter::new(format!("{}/{tail}", topics.root()), QoS::AtLeastOnce);
+    f.retain_forward_rule = RetainForwardRule::Never;
+    f
+}
+
+/// Drives the connection; logs once per state change; reconnects after a pause. Forwards
+/// command messages without waiting.
 async fn drive(
     mut eventloop: EventLoop,
     connected: watch::Sender<u64>,
+    incoming: UnboundedSender<Incoming>,
     stop: CancellationToken,
     broker: String,
 ) {
@@ -119,6 +153,16 @@ async fn drive(
                 }
                 up = Some(true);
                 connected.send_modify(|n| *n += 1);
+            }
+            Ok(Event::Incoming(Packet::Publish(p))) => {
+                let props = p.properties.unwrap_or_default();
+                let _ = incoming.send(Incoming {
+                    topic: String::from_utf8_lossy(&p.topic).into_owned(),
+                    payload: p.payload,
+                    retain: p.retain,
+                    response_topic: props.response_topic,
+                    correlation: props.correlation_data,
+                });
             }
             Ok(Event::Incoming(Packet::Disconnect(_))) => {}
             Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) => return,

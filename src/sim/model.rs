@@ -82,6 +82,8 @@ pub struct SimModule {
     /// Channels whose next read returns a count of 0 once (a glitch on the line or in the
     /// module), then the true count again.
     pub glitch_zero: Vec<String>,
+    /// Write requests (FC06/FC16) this module has received, accepted or not.
+    pub writes: u64,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -153,6 +155,7 @@ impl SimModule {
             plain,
             silent: false,
             glitch_zero: Vec::new(),
+            writes: 0,
         })
     }
 

@@ -39,10 +39,12 @@ impl SimService {
                 Response::ReadHoldingRegisters(m.read(now, start, len)?)
             }
             Request::WriteSingleRegister(a, v) => {
+                m.writes += 1;
                 m.write_one(now, a, v)?;
                 Response::WriteSingleRegister(a, v)
             }
             Request::WriteMultipleRegisters(a, values) => {
+                m.writes += 1;
                 m.write_many(now, a, &values)?;
                 Response::WriteMultipleRegisters(a, values.len() as u16)
             }

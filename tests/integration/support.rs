@@ -96,6 +96,7 @@ pub struct Message {
     pub payload: String,
     pub retain: bool,
     pub at: Instant,
+    pub correlation: Option<Vec<u8>>,
 }
 
 impl Message {
@@ -137,6 +138,10 @@ impl Subscriber {
                         payload: String::from_utf8_lossy(&p.payload).into(),
                         retain: p.retain,
                         at: Instant::now(),
+                        correlation: p
+                            .properties
+                            .and_then(|pr| pr.correlation_data)
+                            .map(|b| b.to_vec()),
                     }),
                     Ok(_) => {}
                     Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,

@@ -1,0 +1,221 @@
+//! Carrying out a clear or preset on a device: book what was counted before, write, read back,
+//! and rebase the counters so the write itself never moves a total.
+
+use std::collections::BTreeSet;
+
+use tokio::time::Instant;
+use tokio_modbus::ExceptionCode;
+
+use super::device::DeviceRt;
+use super::link::Link;
+use crate::command::{CommandError, Op, Request};
+use crate::counter::Event;
+use crate::decode::{decode, encode_int};
+use crate::profile::Register;
+use crate::reading::{Reading, unix_ms};
+
+/// The outcome of a command: readings to publish (booked counts and the event readings) and the
+/// result (the count read back for a single channel).
+pub struct Executed {
+    pub readings: Vec<Reading>,
+    pub result: Result<Option<i64>, CommandError>,
+}
+
+fn write_failed(e: impl std::fmt::Display) -> CommandError {
+    CommandError::WriteFailed(e.to_string())
+}
+
+fn exception(e: ExceptionCode) -> CommandError {
+    CommandError::WriteFailed(format!("the module refused the write: {e:?}"))
+}
+
+impl DeviceRt {
+    /// Carries out `req` on this (discovered) device.
+    pub async fn execute(&mut self, link: &mut Link, req: &Request) -> Executed {
+        let mut readings = Vec::new();
+        let result = self.execute_inner(link, req, &mut readings).await;
+        Executed { readings, result }
+    }
+
+    async fn execute_inner(
+        &mut self,
+        link: &mut Link,
+        req: &Request,
+        readings: &mut Vec<Reading>,
+    ) -> Result<Option<i64>, CommandError> {
+        let targets: Vec<usize> = match (&req.channel, req.op) {
+            (Some(name), _) => {
+                let i = self
+                    .channels
+                    .iter()
+                    .position(|c| &*c.name == name)
+                    .ok_or_else(|| CommandError::UnknownChannel {
+                        device: self.name.to_string(),
+                        channel: name.clone(),
+                    })?;
+                vec![i]
+            }
+            (None, _) => (0..self.channels.len()).collect(),
+        };
+        if let Op::Preset(v) = req.op {
+            let ch = &self.channels[targets[0]];
+            if !ch.spec.accepts_preset(v) {
+                return Err(CommandError::OutOfRange {
+                    channel: ch.name.to_string(),
+                    value: v,
+                });
+            }
+        }
+        // 1. Book what was counted up to now.
+        let counts: Vec<Register> = targets
+            .iter()
+            .map(|&i| self.channels[i].spec.count)
+            .collect();
+        let before = self
+            .read_registers(link, &counts, &|| false)
+            .await
+            .map_err(|e| write_failed(format!("reading before the write: {e}")))?;
+        for &i in &targets {
+            let order = self.profile.word_order;
+            let ch = &mut self.channels[i];
+            if let Some((w, at)) = before.get(&ch.spec.count) {
+                let count = decode(w, ch.spec.count.ty, order).as_i64();
+                let update = ch.counter.update(count, unix_ms(at));
+                readings.push(Reading {
+                    device: self.name.clone(),
+                    channel: ch.name.clone(),
+                    ts: at,
+                    count,
+                    freq_hz: None,
+                    rpm: None,
+                    update,
+                });
+            }
+        }
+        // 2. Write.
+        let written = Instant::now();
+        let expected: i64 =
+            match req.op {
+                Op::Preset(v) => {
+                    let ch = &self.channels[targets[0]];
+                    let words = encode_int(v, ch.spec.count.ty, self.profile.word_order)
+                        .ok_or_else(|| CommandError::OutOfRange {
+                            channel: ch.name.to_string(),
+                            value: v,
+                        })?;
+                    let timeout = self.timeout_for(link, 0);
+                    link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
+                        .await
+                        .map_err(write_failed)?
+                        .map_err(exception)?;
+                    v
+                }
+                Op::Clear | Op::ClearAll => {
+                    self.write_clears(link, &targets, req.op == Op::ClearAll)
+                        .await?;
+                    0
+                }
+            };
+        // 3. Read back and rebase.
+        let after = self
+            .read_registers(link, &counts, &|| false)
+            .await
+            .map_err(|e| write_failed(format!("reading back: {e}")))?;
+        let elapsed_ms = written.elapsed().as_millis() as u64;
+        let event = if matches!(req.op, Op::Preset(_)) {
+            Event::Preset
+        } else {
+            Event::Cleared
+        };
+        let mut mismatch = None;
+        let mut single = None;
+        for &i in &targets {
+            let order = self.profile.word_order;
+            let ch = &mut self.channels[i];
+            let Some((w, at)) = after.get(&ch.spec.count) else {
+                continue;
+            };
+            let got = decode(w, ch.spec.count.ty, order).as_i64();
+            // Pulses keep coming while we write: allow what the input can count meanwhile.
+            let slack = (ch.counter.spec.max_rate_hz * (elapsed_ms.max(1) as f64 / 1000.0) * 1.25
+                + 16.0) as i64;
+            if (got - expected).abs() > slack {
+                mismatch.get_or_insert(CommandError::ReadBack { expected, got });
+            }
+            let update = ch.counter.rebase(got, unix_ms(at), event);
+            readings.push(Reading {
+                device: self.name.clone(),
+                channel: ch.name.clone(),
+                ts: at,
+                count: got,
+                freq_hz: None,
+                rpm: None,
+                update,
+            });
+            single = Some(got);
+        }
+        match mismatch {
+            Some(e) => Err(e),
+            None => Ok(if targets.len() == 1 { single } else { None }),
+        }
+    }
+
+    /// Clears `targets`: with the mode's clear-all code where `all` and the profile has one,
+    /// channel by channel otherwise.
+    async fn write_clears(
+        &mut self,
+        link: &mut Link,
+        targets: &[usize],
+        all: bool,
+    ) -> Result<(), CommandError> {
+        let timeout = self.timeout_for(link, 1);
+        let mut done: BTreeSet<usize> = BTreeSet::new();
+        if all {
+            let codes: BTreeSet<_> = targets
+                .iter()
+                .filter_map(|&i| self.channels[i].spec.clear_all)
+                .collect();
+            for code in codes {
+                link.write_register(self.unit, code.register, code.code, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+                done.extend(
+                    targets
+                        .iter()
+                        .filter(|&&i| self.channels[i].spec.clear_all == Some(code)),
+                );
+            }
+        }
+        for &i in targets.iter().filter(|i| !done.contains(i)) {
+            let clear = self.channels[i].spec.clear.clone();
+            if clear.restart.is_empty() {
+                link.write_register(self.unit, clear.register, clear.code, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+            } else {
+                // The register also runs the counter: note its direction, clear, restart it so.
+                let state = link
+                    .read(self.unit, clear.register, 1, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+                let restart = if clear.restart.contains(&state[0]) {
+                    state[0]
+                } else {
+                    clear.restart[0]
+                };
+                link.write_register(self.unit, clear.register, clear.code, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+                link.write_register(self.unit, clear.register, restart, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+            }
+        }
+        Ok(())
+    }
+}
