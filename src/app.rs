@@ -25,12 +25,13 @@ pub async fn run(config: Config, shutdown: CancellationToken) {
     let router = Router::new(&config, &bus_commands, out_tx.clone());
     drop(bus_commands);
     let router = tokio::spawn(router.run(incoming_rx));
-    let mqtt = tokio::spawn(crate::publish::mqtt::run(
-        config.mqtt.clone(),
-        out_rx,
-        incoming_tx,
-        shutdown.clone(),
-    ));
+    let mqtt_config = config.mqtt.clone();
+    let spool_dir = config.gateway.state_dir.join("spool");
+    let flush = config.gateway.state_flush;
+    let mqtt_shutdown = shutdown.clone();
+    let mqtt = tokio::spawn(async move {
+        crate::publish::mqtt::run(mqtt_config, &spool_dir, flush, out_rx, incoming_tx, mqtt_shutdown).await
+    });
     drop(out_tx);
     for b in buses {
         if let Err(e) = b.await {

@@ -137,6 +137,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         qos: 1,
         retain: false,
         topic_root: format!("pulsegate/{gateway_id}"),
+        spool_bytes: 64 << 20,
     };
     let Some(mut t) = table else { return m };
     if let Some(v) = t.opt("host", errs) {
@@ -171,6 +172,12 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     }
     if let Some(v) = t.opt("retain", errs) {
         m.retain = v;
+    }
+    if let Some(mb) = t.opt::<u64>("spool_mb", errs) {
+        if mb == 0 {
+            errs.push(&join(&t.path, "spool_mb"), t.origin(), "must be at least 1");
+        }
+        m.spool_bytes = mb << 20;
     }
     if let Some(v) = t.opt::<String>("topic_root", errs) {
         let ok = !v.is_empty()

@@ -91,6 +91,8 @@ pub struct Mqtt {
     pub qos: u8,
     pub retain: bool,
     pub topic_root: String,
+    /// Bound of the store-and-forward spool (memory and disk), in bytes.
+    pub spool_bytes: u64,
 }
 
 /// `[buses.<name>]`

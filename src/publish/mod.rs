@@ -2,4 +2,5 @@
 
 pub mod mqtt;
 pub mod payload;
+pub mod spool;
 pub mod topics;

@@ -29,7 +29,7 @@ fn round3(v: f64) -> f64 {
 }
 
 /// `{"ts":"2026-11-21T22:38:43.123Z","count":-13680,…,"seq":42}`
-pub fn reading(r: &Reading) -> Vec<u8> {
+pub fn reading(r: &Reading) -> String {
     let json = ReadingJson {
         ts: humantime::format_rfc3339_millis(r.ts).to_string(),
         count: r.count,
@@ -41,7 +41,7 @@ pub fn reading(r: &Reading) -> Vec<u8> {
         event: r.update.event,
         seq: r.update.seq,
     };
-    serde_json::to_vec(&json).expect("reading serializes")
+    serde_json::to_string(&json).expect("reading serializes")
 }
 
 #[cfg(test)]
@@ -67,7 +67,7 @@ mod tests {
                 event: Some(Event::Rollover),
             },
         };
-        let v: serde_json::Value = serde_json::from_slice(&reading(&r)).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["ts"], "2026-11-21T22:38:43.123Z");
         assert_eq!(v["count"], -13680);
         assert_eq!(v["freq_hz"], 1000.0);
@@ -94,7 +94,7 @@ mod tests {
                 event: None,
             },
         };
-        let v: serde_json::Value = serde_json::from_slice(&reading(&r)).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);
         assert!(v.get("freq_hz").is_none() && v.get("event").is_none());
     }
