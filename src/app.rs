@@ -30,7 +30,15 @@ pub async fn run(config: Config, shutdown: CancellationToken) {
     let flush = config.gateway.state_flush;
     let mqtt_shutdown = shutdown.clone();
     let mqtt = tokio::spawn(async move {
-        crate::publish::mqtt::run(mqtt_config, &spool_dir, flush, out_rx, incoming_tx, mqtt_shutdown).await
+        crate::publish::mqtt::run(
+            mqtt_config,
+            &spool_dir,
+            flush,
+            out_rx,
+            incoming_tx,
+            mqtt_shutdown,
+        )
+        .await
     });
     drop(out_tx);
     for b in buses {

@@ -120,20 +120,21 @@ impl Counter {
         }
     }
 
-    /// Books a count read at `at_ms`.
-    pub fn update(&mut self, count: i64, at_ms: u64) -> Update {
+    /// Books a count read at `at_ms`. `None` when the read is held as suspect: it is not
+    /// published (no phantom value on a dashboard) and the next read decides what it was.
+    pub fn update(&mut self, count: i64, at_ms: u64) -> Option<Update> {
         let s = &mut self.state;
-        s.seq += 1;
         let Some(last) = s.count else {
             s.count = Some(count);
             s.at_ms = at_ms;
-            return self.outcome(0, None, None);
+            s.seq += 1;
+            return Some(self.outcome(0, None, None));
         };
         let elapsed = at_ms.saturating_sub(s.at_ms);
         let (d, wrapped) = self.spec.movement(last, count);
         if d.abs() <= self.spec.plausible(elapsed) {
             let rate = rate(d, elapsed);
-            return self.book(count, at_ms, d, wrapped.then_some(Event::Rollover), rate);
+            return Some(self.book(count, at_ms, d, wrapped.then_some(Event::Rollover), rate));
         }
         // Does not follow from the last booked count. Does it follow from a suspect read?
         if let Some((suspect, suspect_at)) = s.suspect {
@@ -142,11 +143,11 @@ impl Counter {
             if ds.abs() <= self.spec.plausible(since) {
                 // The module was reset: it has counted `count` pulses since (from zero).
                 let rate = rate(ds, since);
-                return self.book(count, at_ms, count, Some(Event::Reset), rate);
+                return Some(self.book(count, at_ms, count, Some(Event::Reset), rate));
             }
         }
         s.suspect = Some((count, at_ms));
-        self.outcome(0, None, None)
+        None
     }
 
     /// The gateway cleared or preset the channel and read back `count`: the total stays, the
@@ -170,6 +171,7 @@ impl Counter {
         rate: Option<f64>,
     ) -> Update {
         let s = &mut self.state;
+        s.seq += 1;
         s.count = Some(count);
         s.at_ms = at_ms;
         s.total += delta;
@@ -219,22 +221,30 @@ mod tests {
         })
     }
 
-    /// Feeds (count, ms) pairs and returns the updates.
-    fn feed(c: &mut Counter, reads: &[(i64, u64)]) -> Vec<Update> {
+    /// Feeds (count, ms) pairs and returns the updates (held reads as `None`).
+    fn feed(c: &mut Counter, reads: &[(i64, u64)]) -> Vec<Option<Update>> {
         reads.iter().map(|&(n, t)| c.update(n, t)).collect()
+    }
+
+    /// Like [`feed`] for reads that are all booked.
+    fn booked(c: &mut Counter, reads: &[(i64, u64)]) -> Vec<Update> {
+        feed(c, reads)
+            .into_iter()
+            .map(|u| u.expect("booked"))
+            .collect()
     }
 
     #[test]
     fn the_first_read_books_nothing() {
         let mut c = di(1000.0);
-        let u = c.update(500, 0);
+        let u = c.update(500, 0).unwrap();
         assert_eq!((u.delta, u.total, u.seq, u.event), (0, 0, 1, None));
     }
 
     #[test]
     fn steady_counting_adds_up() {
         let mut c = di(1000.0);
-        let u = feed(&mut c, &[(0, 0), (500, 500), (1000, 1000)]);
+        let u = booked(&mut c, &[(0, 0), (500, 500), (1000, 1000)]);
         assert_eq!(u.iter().map(|u| u.delta).collect::<Vec<_>>(), [0, 500, 500]);
         assert_eq!(c.state.total, 1000);
         assert_eq!(u[2].rate_hz, Some(1000.0));
@@ -243,7 +253,7 @@ mod tests {
     #[test]
     fn an_unsigned_count_wraps_at_2_pow_32_with_a_positive_delta() {
         let mut c = di(1000.0);
-        let u = feed(&mut c, &[(4_294_967_000, 0), (204, 500)]);
+        let u = booked(&mut c, &[(4_294_967_000, 0), (204, 500)]);
         assert_eq!(u[1].delta, 500);
         assert_eq!(u[1].event, Some(Event::Rollover));
         assert_eq!(c.state.total, 500);
@@ -254,7 +264,7 @@ mod tests {
         let mut c = encoder(1000.0);
         let max = i64::from(i32::MAX);
         let min = i64::from(i32::MIN);
-        let u = feed(&mut c, &[(max - 100, 0), (min + 99, 200), (max - 100, 400)]);
+        let u = booked(&mut c, &[(max - 100, 0), (min + 99, 200), (max - 100, 400)]);
         assert_eq!(u[1].delta, 200);
         assert_eq!(u[1].event, Some(Event::Rollover));
         assert_eq!(u[2].delta, -200);
@@ -265,18 +275,17 @@ mod tests {
     #[test]
     fn an_encoder_moving_backwards_gives_negative_deltas_without_events() {
         let mut c = encoder(1000.0);
-        let u = feed(&mut c, &[(100, 0), (-50, 500)]);
+        let u = booked(&mut c, &[(100, 0), (-50, 500)]);
         assert_eq!((u[1].delta, u[1].event), (-150, None));
     }
 
     #[test]
-    fn a_lone_zero_read_does_not_move_the_total() {
+    fn a_lone_zero_read_does_not_move_the_total_and_is_not_published() {
         let mut c = di(1000.0);
         let u = feed(&mut c, &[(1_000_000, 0), (0, 500), (1_001_000, 1000)]);
-        assert_eq!(u[1].delta, 0);
-        assert_eq!(u[1].total, 0);
-        assert_eq!(u[2].delta, 1000);
-        assert_eq!(u[2].event, None);
+        assert_eq!(u[1], None, "the odd read is held, not published");
+        let last = u[2].unwrap();
+        assert_eq!((last.delta, last.event, last.seq), (1000, None, 2));
         assert_eq!(c.state.total, 1000);
     }
 
@@ -288,13 +297,11 @@ mod tests {
             &mut c,
             &[(1_000_000, 0), (1_000_400, 400), (100, 900), (600, 1400)],
         );
-        assert_eq!(u[1].delta, 400);
-        assert_eq!(u[2].delta, 0, "the first read after the jump is held");
-        assert_eq!(u[3].delta, 600);
-        assert_eq!(u[3].event, Some(Event::Reset));
+        assert_eq!(u[1].unwrap().delta, 400);
+        assert_eq!(u[2], None, "the first read after the jump is held");
+        let reset = u[3].unwrap();
+        assert_eq!((reset.delta, reset.event), (600, Some(Event::Reset)));
         assert_eq!(c.state.total, 1000);
-        let resets = u.iter().filter(|u| u.event == Some(Event::Reset)).count();
-        assert_eq!(resets, 1);
     }
 
     #[test]
@@ -303,51 +310,59 @@ mod tests {
         // 1 kHz input can do; from the middle it would need ~2^31 pulses: a reset.
         let mut c = di(1000.0);
         let u = feed(&mut c, &[(2_000_000_000, 0), (10, 500), (510, 1000)]);
-        assert_eq!(u[1].event, None);
-        assert_eq!(u[2].event, Some(Event::Reset));
+        assert_eq!(u[1], None);
+        assert_eq!(u[2].unwrap().event, Some(Event::Reset));
         assert_eq!(c.state.total, 510);
     }
 
     #[test]
     fn a_clear_by_the_gateway_never_moves_the_total() {
         let mut c = di(1000.0);
-        feed(&mut c, &[(0, 0), (500, 500)]);
+        booked(&mut c, &[(0, 0), (500, 500)]);
         let u = c.rebase(0, 510, Event::Cleared);
         assert_eq!((u.delta, u.total, u.event), (0, 500, Some(Event::Cleared)));
-        let u = c.update(490, 1000);
+        let u = c.update(490, 1000).unwrap();
         assert_eq!((u.delta, u.total, u.event), (490, 990, None));
     }
 
     #[test]
     fn a_preset_by_the_gateway_never_moves_the_total() {
         let mut c = encoder(1000.0);
-        feed(&mut c, &[(0, 0), (-500, 500)]);
+        booked(&mut c, &[(0, 0), (-500, 500)]);
         let u = c.rebase(3000, 510, Event::Preset);
         assert_eq!((u.total, u.event), (-500, Some(Event::Preset)));
-        let u = c.update(3100, 600);
+        let u = c.update(3100, 600).unwrap();
         assert_eq!((u.delta, u.total), (100, -400));
     }
 
     #[test]
     fn resuming_books_the_pulses_counted_while_away_once_as_a_gap() {
         let mut c = di(1000.0);
-        feed(&mut c, &[(0, 0), (1000, 1000)]);
+        booked(&mut c, &[(0, 0), (1000, 1000)]);
         let saved = c.state.clone();
         let mut c = Counter::resume(c.spec, saved);
-        let u = c.update(6000, 6000);
+        let u = c.update(6000, 6000).unwrap();
         assert_eq!((u.delta, u.total, u.event), (5000, 6000, Some(Event::Gap)));
         assert_eq!(u.seq, 3);
-        let u = c.update(6500, 6500);
+        let u = c.update(6500, 6500).unwrap();
         assert_eq!(u.event, None);
     }
 
     #[test]
     fn a_device_that_was_away_books_its_gap_on_return() {
         let mut c = di(1000.0);
-        feed(&mut c, &[(0, 0)]);
+        booked(&mut c, &[(0, 0)]);
         c.mark_gap();
-        let u = c.update(3000, 3000);
+        let u = c.update(3000, 3000).unwrap();
         assert_eq!((u.delta, u.event), (3000, Some(Event::Gap)));
+    }
+
+    #[test]
+    fn seq_counts_published_readings_only() {
+        let mut c = di(1000.0);
+        let u = feed(&mut c, &[(0, 0), (5, 10), (4_000_000_000, 20), (10, 30)]);
+        let seqs: Vec<u64> = u.iter().flatten().map(|u| u.seq).collect();
+        assert_eq!(seqs, [1, 2, 3]);
     }
 
     #[test]

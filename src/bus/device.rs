@@ -196,7 +196,11 @@ impl DeviceRt {
                 (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
                 _ => None,
             };
-            let update = ch.counter.update(count, unix_ms(at));
+            // A read the counter holds as suspect is not published.
+            let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+                tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
+                continue;
+            };
             readings.push(Reading {
                 device: self.name.clone(),
                 channel: ch.name.clone(),

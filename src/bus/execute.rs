@@ -80,7 +80,9 @@ impl DeviceRt {
             let ch = &mut self.channels[i];
             if let Some((w, at)) = before.get(&ch.spec.count) {
                 let count = decode(w, ch.spec.count.ty, order).as_i64();
-                let update = ch.counter.update(count, unix_ms(at));
+                let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+                    continue;
+                };
                 readings.push(Reading {
                     device: self.name.clone(),
                     channel: ch.name.clone(),

@@ -69,14 +69,28 @@ impl Shared {
                         correlation_data: Some(c.clone().into()),
                         ..Default::default()
                     };
-                    self.client.try_publish_with_properties(e.topic.clone(), qos(e.qos), e.retain, e.payload.clone(), props)
+                    self.client.try_publish_with_properties(
+                        e.topic.clone(),
+                        qos(e.qos),
+                        e.retain,
+                        e.payload.clone(),
+                        props,
+                    )
                 }
-                None => self.client.try_publish(e.topic.clone(), qos(e.qos), e.retain, e.payload.clone()),
+                None => self.client.try_publish(
+                    e.topic.clone(),
+                    qos(e.qos),
+                    e.retain,
+                    e.payload.clone(),
+                ),
             };
             if sent.is_err() {
                 break;
             }
-            self.inflight.push_back(InFlight { pkid: None, acked: false });
+            self.inflight.push_back(InFlight {
+                pkid: None,
+                acked: false,
+            });
         }
     }
 
@@ -95,7 +109,11 @@ impl Shared {
 
     /// The broker acknowledged `pkid`.
     fn acked(&mut self, pkid: u16) {
-        if let Some(f) = self.inflight.iter_mut().find(|f| f.pkid == Some(pkid) && !f.acked) {
+        if let Some(f) = self
+            .inflight
+            .iter_mut()
+            .find(|f| f.pkid == Some(pkid) && !f.acked)
+        {
             f.acked = true;
         }
         self.release();
@@ -110,7 +128,14 @@ impl Shared {
         self.pump();
     }
 
-    fn push(&mut self, topic: String, body: String, qos: u8, retain: bool, correlation: Option<Vec<u8>>) {
+    fn push(
+        &mut self,
+        topic: String,
+        body: String,
+        qos: u8,
+        retain: bool,
+        correlation: Option<Vec<u8>>,
+    ) {
         if let Err(e) = self.spool.push(topic, body, qos, retain, correlation) {
             tracing::error!("{e}");
         }
@@ -135,7 +160,13 @@ pub async fn run(
     let topics = Topics::new(&config.topic_root);
     let mut options = MqttOptions::new(config.client_id.clone(), config.host.clone(), config.port);
     options.set_keep_alive(config.keep_alive);
-    options.set_last_will(LastWill::new(topics.gateway_status(), "offline", QoS::AtLeastOnce, true, None));
+    options.set_last_will(LastWill::new(
+        topics.gateway_status(),
+        "offline",
+        QoS::AtLeastOnce,
+        true,
+        None,
+    ));
     if let Some(user) = &config.username {
         options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
     }
@@ -149,7 +180,10 @@ pub async fn run(
         }
     };
     if !spool.is_empty() {
-        tracing::info!(messages = spool.len(), "spooled messages from the last run will be sent first");
+        tracing::info!(
+            messages = spool.len(),
+            "spooled messages from the last run will be sent first"
+        );
     }
     let shared = Arc::new(Mutex::new(Shared {
         spool,
@@ -161,7 +195,13 @@ pub async fn run(
     }));
     let loop_stop = CancellationToken::new();
     let broker = format!("{}:{}", config.host, config.port);
-    let events = tokio::spawn(drive(eventloop, shared.clone(), incoming, loop_stop.clone(), broker));
+    let events = tokio::spawn(drive(
+        eventloop,
+        shared.clone(),
+        incoming,
+        loop_stop.clone(),
+        broker,
+    ));
 
     let reading_qos = config.qos;
     let mut flush = tokio::time::interval(flush_every);
@@ -180,22 +220,40 @@ pub async fn run(
         };
         let Some(out) = out else { break };
         let (topic, retain, qos, body, correlation) = match out {
-            Output::Reading(r) => (topics.reading(&r.device, &r.channel), config.retain, reading_qos, payload::reading(&r), None),
-            Output::DeviceStatus { device, online } => {
-                (topics.device_status(&device), true, 1, if online { "online" } else { "offline" }.to_string(), None)
-            }
+            Output::Reading(r) => (
+                topics.reading(&r.device, &r.channel),
+                config.retain,
+                reading_qos,
+                payload::reading(&r),
+                None,
+            ),
+            Output::DeviceStatus { device, online } => (
+                topics.device_status(&device),
+                true,
+                1,
+                if online { "online" } else { "offline" }.to_string(),
+                None,
+            ),
             Output::BusStats { bus, stats } => {
                 if !lock(&shared).connected {
                     continue; // Health is of the moment: not worth spooling.
                 }
                 (topics.bus_stats(&bus), false, 0, stats.to_string(), None)
             }
-            Output::CommandResult { topics: to, correlation, payload } => {
+            Output::CommandResult {
+                topics: to,
+                correlation,
+                payload,
+            } => {
                 let mut s = lock(&shared);
                 for (i, t) in to.into_iter().enumerate() {
                     // The MQTT v5 response topic (after the result topic) gets the request's
                     // correlation data back.
-                    let c = if i > 0 { correlation.as_ref().map(|c| c.to_vec()) } else { None };
+                    let c = if i > 0 {
+                        correlation.as_ref().map(|c| c.to_vec())
+                    } else {
+                        None
+                    };
                     s.push(t, payload.to_string(), 1, false, c);
                 }
                 continue;
@@ -223,15 +281,23 @@ pub async fn run(
             tracing::error!("{e}");
         }
         if !s.spool.is_empty() {
-            tracing::info!(messages = s.spool.len(), "unsent messages kept for the next start");
+            tracing::info!(
+                messages = s.spool.len(),
+                "unsent messages kept for the next start"
+            );
         }
         if s.connected {
             s.direct += 1;
-            let _ = s.client.try_publish(s.topics.gateway_status(), QoS::AtLeastOnce, true, "offline");
+            let _ =
+                s.client
+                    .try_publish(s.topics.gateway_status(), QoS::AtLeastOnce, true, "offline");
             let _ = s.client.try_disconnect();
         }
     }
-    if tokio::time::timeout(Duration::from_secs(1), events).await.is_err() {
+    if tokio::time::timeout(Duration::from_secs(1), events)
+        .await
+        .is_err()
+    {
         loop_stop.cancel();
     }
 }
@@ -268,8 +334,16 @@ async fn drive(
                 s.spool.set_spilling(false);
                 // Say we are here before the backlog; restore subscriptions (clean session).
                 s.direct += 1;
-                let _ = s.client.try_publish(s.topics.gateway_status(), QoS::AtLeastOnce, true, "online");
-                let filters = [command_filter(&s.topics, "+/+/cmd"), command_filter(&s.topics, "+/cmd")];
+                let _ = s.client.try_publish(
+                    s.topics.gateway_status(),
+                    QoS::AtLeastOnce,
+                    true,
+                    "online",
+                );
+                let filters = [
+                    command_filter(&s.topics, "+/+/cmd"),
+                    command_filter(&s.topics, "+/cmd"),
+                ];
                 if let Err(e) = s.client.try_subscribe_many(filters) {
                     tracing::error!("cannot subscribe to command topics: {e}");
                 }
@@ -303,7 +377,9 @@ async fn drive(
                     // Take back everything rumqttc holds: with a clean session it would drop it
                     // at reconnect anyway. The spool sends it again, in order.
                     eventloop.clean();
-                    eventloop.pending.retain(|r| !matches!(r, Request::Publish(_) | Request::PubAck(_)));
+                    eventloop
+                        .pending
+                        .retain(|r| !matches!(r, Request::Publish(_) | Request::PubAck(_)));
                     s.inflight.clear();
                     s.direct = 0;
                 }

@@ -203,7 +203,11 @@ impl Spool {
         if need_new {
             self.flush()?;
             let path = self.dir.join(format!("{:020}.jsonl", entry.seq));
-            let file = OpenOptions::new().create(true).append(true).open(&path).map_err(io_err(&path))?;
+            let file = OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&path)
+                .map_err(io_err(&path))?;
             self.writer = Some(BufWriter::new(file));
             self.segments.push_back(Segment {
                 first: entry.seq,
@@ -226,7 +230,11 @@ impl Spool {
     /// Flushes the newest segment to the OS (called at each state flush and at shutdown).
     pub fn flush(&mut self) -> Result<(), SpoolError> {
         if let Some(w) = self.writer.as_mut() {
-            let path = self.segments.back().map(|s| s.path.clone()).unwrap_or_default();
+            let path = self
+                .segments
+                .back()
+                .map(|s| s.path.clone())
+                .unwrap_or_default();
             w.flush().map_err(io_err(&path))?;
             w.get_ref().sync_data().map_err(io_err(&path))?;
         }
@@ -242,7 +250,9 @@ impl Spool {
     /// Writes the messages that exist only in memory to a segment of their own, so a restart
     /// (or a crash) finds them. Their file sorts before newer ones by its first sequence number.
     pub fn spill(&mut self) -> Result<(), SpoolError> {
-        let pending: Vec<usize> = (0..self.mem.len()).filter(|&i| !self.mem[i].on_disk).collect();
+        let pending: Vec<usize> = (0..self.mem.len())
+            .filter(|&i| !self.mem[i].on_disk)
+            .collect();
         if pending.is_empty() {
             return self.flush();
         }
@@ -272,7 +282,11 @@ impl Spool {
             path,
             loaded: true,
         };
-        let at = self.segments.iter().position(|s| s.first > first).unwrap_or(self.segments.len());
+        let at = self
+            .segments
+            .iter()
+            .position(|s| s.first > first)
+            .unwrap_or(self.segments.len());
         self.segments.insert(at, seg);
         self.flush()
     }
@@ -304,7 +318,10 @@ impl Spool {
         for line in BufReader::new(file).lines() {
             let Ok(line) = line else { break };
             if let Ok(entry) = serde_json::from_str::<Entry>(&line) {
-                self.mem.push_back(MemEntry { entry, on_disk: true });
+                self.mem.push_back(MemEntry {
+                    entry,
+                    on_disk: true,
+                });
             }
         }
         true
@@ -346,7 +363,11 @@ impl Spool {
                 continue;
             }
             // A loaded segment none of whose messages is in flight goes whole.
-            let in_flight_upto = if keep == 0 { None } else { self.mem.get(keep - 1).map(|m| m.entry.seq) };
+            let in_flight_upto = if keep == 0 {
+                None
+            } else {
+                self.mem.get(keep - 1).map(|m| m.entry.seq)
+            };
             let idx = self
                 .segments
                 .iter()
@@ -358,7 +379,8 @@ impl Spool {
             }
             let s = self.segments.remove(idx).expect("index checked");
             if s.loaded {
-                self.mem.retain(|m| m.entry.seq < s.first || m.entry.seq > s.last);
+                self.mem
+                    .retain(|m| m.entry.seq < s.first || m.entry.seq > s.last);
             }
             let _ = std::fs::remove_file(&s.path);
             self.dropped += s.count;
@@ -378,7 +400,8 @@ mod tests {
 
     fn push(s: &mut Spool, n: u64) {
         for i in 0..n {
-            s.push(format!("t/{i}"), format!("{{\"n\":{i}}}"), 1, false, None).unwrap();
+            s.push(format!("t/{i}"), format!("{{\"n\":{i}}}"), 1, false, None)
+                .unwrap();
         }
     }
 
@@ -414,7 +437,11 @@ mod tests {
         s.set_spilling(false);
         push(&mut s, 2);
         assert_eq!(drain(&mut s), (1..=9).collect::<Vec<_>>());
-        assert_eq!(std::fs::read_dir(&d).unwrap().count(), 0, "acknowledged files are deleted");
+        assert_eq!(
+            std::fs::read_dir(&d).unwrap().count(),
+            0,
+            "acknowledged files are deleted"
+        );
     }
 
     #[test]

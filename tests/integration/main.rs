@@ -4,5 +4,6 @@
 mod commands;
 mod config_cases;
 mod counters;
+mod faults;
 mod pipeline;
 mod support;

@@ -48,10 +48,26 @@ impl Broker {
     }
 
     pub fn start_on(port: u16) -> Broker {
+        Self::start_with(port, "persistence false\n")
+    }
+
+    /// A broker that keeps sessions across its own restarts (saved at SIGTERM), and queues
+    /// without limit for subscribers that are away.
+    pub fn start_persistent(port: u16, dir: &Path) -> Broker {
+        Self::start_with(
+            port,
+            &format!(
+                "persistence true\npersistence_location {}/\nmax_queued_messages 0\n",
+                dir.display()
+            ),
+        )
+    }
+
+    fn start_with(port: u16, extra: &str) -> Broker {
         let conf = std::env::temp_dir().join(format!("pulsegate-mosquitto-{port}.conf"));
         std::fs::write(
             &conf,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+            format!("listener {port} 127.0.0.1\nallow_anonymous true\n{extra}"),
         )
         .unwrap();
         let mosquitto = ["/usr/sbin/mosquitto", "/usr/bin/mosquitto"]
@@ -78,6 +94,14 @@ impl Broker {
 
     pub fn stop(&mut self) {
         let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// SIGTERM: the broker saves its sessions and exits.
+    pub fn terminate(&mut self) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
         let _ = self.child.wait();
     }
 }
@@ -113,8 +137,22 @@ pub struct Subscriber {
 
 impl Subscriber {
     pub async fn start(port: u16, filter: &str) -> Subscriber {
-        let mut options = MqttOptions::new(format!("test-sub-{}", free_port()), "127.0.0.1", port);
+        Self::start_with(port, filter, None).await
+    }
+
+    /// A subscriber whose session (and subscription) the broker keeps while it is away.
+    pub async fn start_persistent(port: u16, filter: &str, client_id: &str) -> Subscriber {
+        Self::start_with(port, filter, Some(client_id)).await
+    }
+
+    async fn start_with(port: u16, filter: &str, persistent_id: Option<&str>) -> Subscriber {
+        let id = persistent_id.map_or_else(|| format!("test-sub-{}", free_port()), str::to_string);
+        let mut options = MqttOptions::new(id, "127.0.0.1", port);
         options.set_keep_alive(Duration::from_secs(30));
+        if persistent_id.is_some() {
+            options.set_clean_start(false);
+            options.set_session_expiry_interval(Some(3600));
+        }
         let (client, mut eventloop) = AsyncClient::new(options, 100);
         let messages = Arc::new(Mutex::new(Vec::new()));
         let sink = messages.clone();
