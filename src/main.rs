@@ -60,7 +60,7 @@ enum Command {
 
 fn init_logging(format: LogFormat) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new("info,tokio_modbus=warn,rumqttc=warn,rumqttd=off")
+        tracing_subscriber::EnvFilter::new("info,tokio_modbus=error,rumqttc=warn,rumqttd=off")
     });
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)

@@ -39,7 +39,10 @@ pub enum PollError {
 impl PollError {
     /// The device said something: it is there, even if it refused.
     pub fn device_answered(&self) -> bool {
-        !matches!(self, PollError::Link(_))
+        match self {
+            PollError::Link(l) => l.device_answered(),
+            _ => true,
+        }
     }
 
     /// Not a failure of the device at all.
@@ -173,8 +176,20 @@ impl DeviceRt {
         let slow_due = self
             .last_slow
             .is_none_or(|t| t.elapsed() >= self.slow_every);
-        if self.modes.is_none() || slow_due {
+        if self.modes.is_none() {
+            // Without the work modes there are no channels: discovery must succeed.
             self.read_slow(link, preempt).await?;
+        } else if slow_due {
+            // Once discovered, a failed refresh of the slow registers keeps the values known
+            // and tries again a slow interval later; the counts matter more.
+            match self.read_slow(link, preempt).await {
+                Err(PollError::Preempted) => return Err(PollError::Preempted),
+                Err(e) => {
+                    tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
+                    self.last_slow = Some(Instant::now());
+                }
+                Ok(()) => {}
+            }
         }
         let snapshot = self
             .read_registers(link, &self.fast.clone(), preempt)

@@ -11,6 +11,7 @@ use std::borrow::Cow;
 use std::io;
 use std::path::PathBuf;
 use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::task::{Context as TaskContext, Poll};
 use std::time::Duration;
@@ -37,12 +38,21 @@ pub enum LinkError {
     Io(#[from] io::Error),
     #[error("answer does not match the request: {0}")]
     Mismatch(String),
+    /// Bytes came back but never a valid frame: CRC errors, a frame cut short. The device is
+    /// there; the line is noisy.
+    #[error("garbled answer ({0} bytes, no valid frame) within {1:?}")]
+    Garbled(u64, Duration),
 }
 
 impl LinkError {
     /// Whether the fault lies with the line or adapter rather than one device.
     pub fn is_line_fault(&self) -> bool {
         matches!(self, LinkError::Open { .. } | LinkError::Io(_))
+    }
+
+    /// Something answered: the device is alive even though this answer is unusable.
+    pub fn device_answered(&self) -> bool {
+        matches!(self, LinkError::Garbled(..))
     }
 }
 
@@ -58,6 +68,8 @@ pub struct WireCounters {
     pub io_errors: u64,
     pub exceptions: u64,
     pub reconnects: u64,
+    /// Answers that arrived garbled (bad CRC, cut short).
+    pub garbled: u64,
 }
 
 /// One bus's wire.
@@ -66,6 +78,8 @@ pub struct Link {
     timing: Option<LineTiming>,
     port: Option<SharedPort>,
     ctx: Option<Context>,
+    /// Bytes read from the serial port, to tell a garbled answer from silence.
+    bytes_in: Arc<AtomicU64>,
     last_io: Option<Instant>,
     pub counters: WireCounters,
     /// Time the line was busy with our transactions (for utilisation).
@@ -93,6 +107,7 @@ impl Link {
             timing,
             port: None,
             ctx: None,
+            bytes_in: Arc::default(),
             last_io: None,
             counters: WireCounters::default(),
             busy: Duration::ZERO,
@@ -201,16 +216,23 @@ impl Link {
         ctx.set_slave(Slave(unit));
         self.counters.transactions += 1;
         let started = Instant::now();
+        let bytes_before = self.bytes_in.load(Ordering::Relaxed);
         let result = tokio::time::timeout(timeout, ctx.call(req)).await;
         let now = Instant::now();
         self.busy += now - started;
         self.last_io = Some(now);
         match result {
             Err(_elapsed) => {
-                self.counters.timeouts += 1;
                 // A late answer may still arrive: rebuild so it cannot be read as the next one.
                 self.ctx = None;
-                Err(LinkError::Timeout(timeout))
+                let got = self.bytes_in.load(Ordering::Relaxed) - bytes_before;
+                if got > 0 {
+                    self.counters.garbled += 1;
+                    Err(LinkError::Garbled(got, timeout))
+                } else {
+                    self.counters.timeouts += 1;
+                    Err(LinkError::Timeout(timeout))
+                }
             }
             Ok(Err(tokio_modbus::Error::Transport(e))) => {
                 self.counters.io_errors += 1;
@@ -241,7 +263,10 @@ impl Link {
                         p
                     }
                 };
-                self.ctx = Some(tokio_modbus::client::rtu::attach(FlushingPort::new(port)));
+                self.ctx = Some(tokio_modbus::client::rtu::attach(FlushingPort::new(
+                    port,
+                    self.bytes_in.clone(),
+                )));
             }
             LinkConfig::Tcp { host, port } => {
                 let what = format!("{host}:{port}");
@@ -325,13 +350,15 @@ impl SharedPort {
 struct FlushingPort {
     port: SharedPort,
     at_request_start: bool,
+    bytes_in: Arc<AtomicU64>,
 }
 
 impl FlushingPort {
-    fn new(port: SharedPort) -> FlushingPort {
+    fn new(port: SharedPort, bytes_in: Arc<AtomicU64>) -> FlushingPort {
         FlushingPort {
             port,
             at_request_start: true,
+            bytes_in,
         }
     }
 }
@@ -344,7 +371,11 @@ impl AsyncRead for FlushingPort {
     ) -> Poll<io::Result<()>> {
         let this = self.get_mut();
         this.at_request_start = true;
-        this.port.with(|s| Pin::new(s).poll_read(cx, buf))
+        let before = buf.filled().len();
+        let poll = this.port.with(|s| Pin::new(s).poll_read(cx, buf));
+        let n = buf.filled().len() - before;
+        this.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
+        poll
     }
 }
 

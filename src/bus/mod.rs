@@ -1,6 +1,7 @@
 //! One task per bus: one transaction at a time, devices polled earliest deadline first, offline
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
+mod availability;
 mod device;
 mod execute;
 pub mod link;
@@ -158,58 +159,31 @@ impl BusTask {
             match result {
                 Err(e) if e.is_preempted() => continue,
                 Ok(readings) => {
-                    if line_down {
+                    if std::mem::take(&mut line_down) {
                         tracing::info!(bus = %name, "line is answering again");
-                        line_down = false;
-                    }
-                    d.failures = 0;
-                    d.backoff.reset();
-                    if d.last_error.take().is_some() && d.online == Some(true) {
-                        tracing::info!(bus = %name, device = %d.name, "device answering again");
-                    }
-                    if d.online != Some(true) {
-                        if d.online == Some(false) {
-                            tracing::info!(bus = %name, device = %d.name, "device back online");
+                        // Devices that went offline with the line are probed at once.
+                        for (j, other) in devices.iter_mut().enumerate() {
+                            if other.online == Some(false) {
+                                other.backoff.reset();
+                                slots[j].defer_to(now);
+                            }
                         }
-                        d.online = Some(true);
-                        let _ = self.out.send(Output::DeviceStatus {
-                            device: d.name.clone(),
-                            online: true,
-                        });
                     }
+                    let d = &mut devices[i];
+                    availability::answered(d, &name, &self.out);
                     for r in readings {
                         let _ = self.out.send(Output::Reading(r));
                     }
                     slots[i].advance(now);
                 }
                 Err(e) => {
-                    let message = e.to_string();
-                    if let PollError::Link(l) = &e
-                        && l.is_line_fault()
-                        && !line_down
-                    {
-                        tracing::error!(bus = %name, "line fault: {message}");
-                        line_down = true;
+                    let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());
+                    if line_fault && !std::mem::replace(&mut line_down, true) {
+                        tracing::error!(bus = %name, "line fault: {e}");
                     }
-                    if d.last_error.as_deref() != Some(message.as_str()) {
-                        tracing::warn!(bus = %name, device = %d.name, unit = d.unit, "{message}");
-                        d.last_error = Some(message);
-                    }
-                    d.failures += 1;
-                    if d.failures >= bus.offline_after && !e.device_answered() {
-                        if d.online != Some(false) {
-                            tracing::warn!(bus = %name, device = %d.name, failures = d.failures, "device offline");
-                            d.online = Some(false);
-                            d.mark_gap();
-                            let _ = self.out.send(Output::DeviceStatus {
-                                device: d.name.clone(),
-                                online: false,
-                            });
-                        }
-                        let wait = d.backoff.next_wait();
-                        slots[i].defer_to(now + wait);
-                    } else {
-                        slots[i].advance(now);
+                    match availability::failed(d, &e, bus, line_fault, &name, &self.out) {
+                        Some(wait) => slots[i].defer_to(now + wait),
+                        None => slots[i].advance(now),
                     }
                 }
             }
@@ -334,6 +308,7 @@ fn stats_json(
         "utilisation": busy.as_secs_f64() / wall.as_secs_f64().max(1e-9),
         "transactions": c.transactions,
         "timeouts": c.timeouts,
+        "garbled": c.garbled,
         "stale_dropped": c.mismatches,
         "io_errors": c.io_errors,
         "exceptions": c.exceptions,

@@ -5,6 +5,7 @@
 //! the gateway talks to it over the wire like to real modules.
 
 mod config;
+pub mod line;
 pub mod model;
 mod server;
 
@@ -35,6 +36,23 @@ pub struct PlantBus {
     pub name: String,
     pub endpoint: Endpoint,
     pub modules: Modules,
+    /// The line emulator between gateway and modules, where the bus has one.
+    pub line: Option<line::Line>,
+    wire: Mutex<Option<Wire>>,
+    service: server::SimService,
+    link: Option<PathBuf>,
+}
+
+/// The serving end of a pseudo-terminal bus: dropping it unplugs the adapter.
+struct Wire {
+    cancel: CancellationToken,
+    _keep: Option<serialport::TTYPort>,
+}
+
+impl Drop for Wire {
+    fn drop(&mut self) {
+        self.cancel.cancel();
+    }
 }
 
 /// A running simulated plant.
@@ -42,8 +60,6 @@ pub struct Plant {
     pub buses: Vec<PlantBus>,
     start: Instant,
     cancel: CancellationToken,
-    /// Pseudo-terminal slave ends kept open so the line stays up between gateway runs.
-    _keep: Vec<tokio_serial::SerialStream>,
 }
 
 /// The plant could not be started.
@@ -62,7 +78,6 @@ impl Plant {
         let start = Instant::now();
         let cancel = CancellationToken::new();
         let mut buses = Vec::new();
-        let mut keep = Vec::new();
         for (name, bus) in &config.buses {
             let bus_err = |message: String| SimError::Bus {
                 bus: name.clone(),
@@ -94,31 +109,64 @@ impl Plant {
             }
             let modules: Modules = Arc::new(Mutex::new(modules));
             let service = server::SimService::new(modules.clone(), start);
+            let mut line = None;
+            let mut wire = None;
             let endpoint = match (&bus.listen, &bus.link) {
                 (Some(addr), None) => {
-                    let addr = server::serve_tcp(*addr, service, cancel.clone())
+                    let addr = server::serve_tcp(*addr, service.clone(), cancel.clone())
                         .await
                         .map_err(|e| bus_err(format!("cannot listen on {addr}: {e}")))?;
                     Endpoint::Tcp(addr)
                 }
                 (None, link) => {
-                    let (path, slave) = server::serve_pty(service, cancel.clone())
-                        .map_err(|e| bus_err(format!("cannot create a pseudo-terminal: {e}")))?;
-                    keep.push(slave);
-                    let path = match link {
+                    let path = match bus.line {
+                        Some(spec) => {
+                            let seed = 0x5EED ^ buses.len() as u64;
+                            let (l, module_path) = line::Line::start(spec, seed).map_err(|e| {
+                                bus_err(format!("cannot start the line emulator: {e}"))
+                            })?;
+                            let port =
+                                serialport::new(module_path.display().to_string(), spec.baud)
+                                    .open_native()
+                                    .map(server::private)
+                                    .map_err(|e| {
+                                        bus_err(format!(
+                                            "cannot open {}: {e}",
+                                            module_path.display()
+                                        ))
+                                    })?;
+                            let c = cancel.child_token();
+                            server::serve_port(port, service.clone(), c.clone());
+                            wire = Some(Wire {
+                                cancel: c,
+                                _keep: None,
+                            });
+                            let p = l.gateway_path.clone();
+                            line = Some(l);
+                            p
+                        }
+                        None => {
+                            let c = cancel.child_token();
+                            let (path, slave) = server::serve_pty(service.clone(), c.clone())
+                                .map_err(|e| {
+                                    bus_err(format!("cannot create a pseudo-terminal: {e}"))
+                                })?;
+                            wire = Some(Wire {
+                                cancel: c,
+                                _keep: Some(slave),
+                            });
+                            path
+                        }
+                    };
+                    match link {
                         Some(link) => {
-                            let _ = std::fs::remove_file(link);
-                            if let Some(dir) = link.parent() {
-                                let _ = std::fs::create_dir_all(dir);
-                            }
-                            std::os::unix::fs::symlink(&path, link).map_err(|e| {
+                            relink(&path, link).map_err(|e| {
                                 bus_err(format!("cannot link {}: {e}", link.display()))
                             })?;
-                            link.clone()
+                            Endpoint::Serial(link.clone())
                         }
-                        None => path,
-                    };
-                    Endpoint::Serial(path)
+                        None => Endpoint::Serial(path),
+                    }
                 }
                 (Some(_), Some(_)) => {
                     return Err(bus_err(
@@ -130,13 +178,16 @@ impl Plant {
                 name: name.clone(),
                 endpoint,
                 modules,
+                line,
+                wire: Mutex::new(wire),
+                service,
+                link: bus.link.clone(),
             });
         }
         Ok(Plant {
             buses,
             start,
             cancel,
-            _keep: keep,
         })
     }
 
@@ -163,10 +214,53 @@ impl Plant {
         modules.get_mut(&unit).map(|m| f(m, now))
     }
 
+    /// Pulls the bus's USB adapter: its pseudo-terminal disappears, and so does its link.
+    pub fn unplug(&self, bus: &str) {
+        if let Some(b) = self.bus(bus) {
+            b.wire.lock().unwrap_or_else(|e| e.into_inner()).take();
+            if let Some(link) = &b.link {
+                let _ = std::fs::remove_file(link);
+            }
+        }
+    }
+
+    /// Plugs the adapter back: a new pseudo-terminal behind the same link.
+    pub fn plug(&self, bus: &str) -> Result<(), SimError> {
+        let b = self
+            .bus(bus)
+            .ok_or_else(|| SimError::Config(format!("no bus {bus}")))?;
+        let err = |message: String| SimError::Bus {
+            bus: bus.into(),
+            message,
+        };
+        let link = b
+            .link
+            .as_ref()
+            .ok_or_else(|| err("only a bus with a `link` can be plugged back".into()))?;
+        let c = self.cancel.child_token();
+        let (path, slave) =
+            server::serve_pty(b.service.clone(), c.clone()).map_err(|e| err(e.to_string()))?;
+        relink(&path, link).map_err(|e| err(e.to_string()))?;
+        *b.wire.lock().unwrap_or_else(|e| e.into_inner()) = Some(Wire {
+            cancel: c,
+            _keep: Some(slave),
+        });
+        Ok(())
+    }
+
     /// Stops serving.
     pub fn stop(&self) {
         self.cancel.cancel();
     }
+}
+
+/// Points `link` at `target`, replacing what was there.
+fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<()> {
+    let _ = std::fs::remove_file(link);
+    if let Some(dir) = link.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::os::unix::fs::symlink(target, link)
 }
 
 impl Drop for Plant {

@@ -6,9 +6,10 @@ use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Instant;
 
+use serialport::{SerialPort, TTYPort};
 use tokio_modbus::server::Service;
 use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
-use tokio_serial::{SerialPort, SerialStream};
+use tokio_serial::SerialStream;
 use tokio_util::sync::CancellationToken;
 
 use super::Modules;
@@ -65,27 +66,57 @@ impl Service for SimService {
     }
 }
 
+/// Marks a descriptor close-on-exec: a pseudo-terminal end inherited by a child process (the
+/// gateway started by a test) would keep the line up after the simulator drops it.
+pub fn private(port: TTYPort) -> TTYPort {
+    use nix::fcntl::{FcntlArg, FdFlag, fcntl};
+    use std::os::fd::AsRawFd;
+    let _ = fcntl(port.as_raw_fd(), FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC));
+    port
+}
+
 /// Serves on a new pseudo-terminal; returns the path of its serial end and that end (keep it
 /// open so the line survives the gateway closing and reopening it).
-pub fn serve_pty(
-    service: SimService,
-    cancel: CancellationToken,
-) -> io::Result<(PathBuf, SerialStream)> {
-    let (master, slave) = SerialStream::pair().map_err(io::Error::other)?;
+pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(PathBuf, TTYPort)> {
+    let (master, slave) = TTYPort::pair().map_err(io::Error::other)?;
+    let (master, slave) = (private(master), private(slave));
     let path = slave
         .name()
         .map(PathBuf::from)
         .ok_or_else(|| io::Error::other("pseudo-terminal has no name"))?;
-    let server = tokio_modbus::server::rtu::Server::new(master);
+    serve_port(master, service, cancel);
+    Ok((path, slave))
+}
+
+/// Serves Modbus RTU on `port` until `cancel`. A request tokio-modbus cannot decode (line
+/// noise) ends its server loop, so the loop is started again on a duplicate of the port.
+pub fn serve_port(port: TTYPort, service: SimService, cancel: CancellationToken) {
     tokio::spawn(async move {
-        if let Err(e) = server
-            .serve_until(service, async move { cancel.cancelled().await })
-            .await
-        {
-            tracing::warn!("simulated RTU bus stopped: {e}");
+        let mut port = port;
+        loop {
+            let Ok(spare) = port.try_clone_native().map(private) else {
+                tracing::warn!("simulated RTU bus: cannot duplicate the port");
+                return;
+            };
+            let stream = match SerialStream::try_from(port) {
+                Ok(s) => s,
+                Err(e) => {
+                    tracing::warn!("simulated RTU bus: {e}");
+                    return;
+                }
+            };
+            let server = tokio_modbus::server::rtu::Server::new(stream);
+            let c = cancel.clone();
+            match server
+                .serve_until(service.clone(), async move { c.cancelled().await })
+                .await
+            {
+                Ok(_) => return,
+                Err(e) => tracing::debug!("simulated RTU bus: {e}; serving on"),
+            }
+            port = spare;
         }
     });
-    Ok((path, slave))
 }
 
 /// Serves Modbus TCP on `addr` (port 0 picks a free one); returns the bound address.

@@ -178,10 +178,23 @@ async fn one_injected_read_of_zero_leaves_the_total_unaffected() {
         .unwrap();
     tokio::time::sleep(Duration::from_millis(1000)).await;
     let last = rig.stop_and_settle().await;
+    let consumed = rig
+        .plant
+        .with_module("line1", 1, |m, _| m.glitch_zero.is_empty())
+        .unwrap();
+    assert!(consumed, "the glitch reached the gateway");
     let readings = rig.readings();
     assert!(
-        readings.iter().any(|r| r["count"] == 0),
-        "the glitch reached the gateway"
+        readings.iter().all(|r| r["count"] != 0),
+        "the odd read is not published"
+    );
+    let seqs: Vec<i64> = readings
+        .iter()
+        .map(|r| r["seq"].as_i64().unwrap())
+        .collect();
+    assert!(
+        seqs.windows(2).all(|w| w[1] == w[0] + 1),
+        "seq has no hole: {seqs:?}"
     );
     assert_eq!(last["total"].as_i64().unwrap(), rig.generated());
     assert_eq!(rig.events("reset"), 0);

@@ -1,0 +1,65 @@
+//! Device availability: online at the first good answer, offline after `offline_after`
+//! consecutive failures, then probed with backoff. Logged once per change, not per poll.
+
+use std::time::Duration;
+
+use tokio::sync::mpsc::UnboundedSender;
+
+use super::device::{DeviceRt, PollError};
+use crate::config::Bus;
+use crate::reading::Output;
+
+/// The device answered a whole poll.
+pub(super) fn answered(d: &mut DeviceRt, bus: &str, out: &UnboundedSender<Output>) {
+    d.failures = 0;
+    d.backoff.reset();
+    if d.last_error.take().is_some() && d.online == Some(true) {
+        tracing::info!(bus, device = %d.name, "device answering again");
+    }
+    if d.online != Some(true) {
+        if d.online == Some(false) {
+            tracing::info!(bus, device = %d.name, "device back online");
+        }
+        d.online = Some(true);
+        let _ = out.send(Output::DeviceStatus {
+            device: d.name.clone(),
+            online: true,
+        });
+    }
+}
+
+/// A poll failed. Returns how long to wait before probing the device again when it is (now)
+/// offline; `None` to keep its schedule. While the line itself is down (adapter gone), offline
+/// devices are probed every `backoff_min` so the bus is back within seconds of the line.
+pub(super) fn failed(
+    d: &mut DeviceRt,
+    e: &PollError,
+    bus: &Bus,
+    line_fault: bool,
+    bus_name: &str,
+    out: &UnboundedSender<Output>,
+) -> Option<Duration> {
+    let message = e.to_string();
+    if d.last_error.as_deref() != Some(message.as_str()) {
+        tracing::warn!(bus = bus_name, device = %d.name, unit = d.unit, "{message}");
+        d.last_error = Some(message);
+    }
+    d.failures += 1;
+    if d.failures < bus.offline_after || e.device_answered() {
+        return None;
+    }
+    if d.online != Some(false) {
+        tracing::warn!(bus = bus_name, device = %d.name, failures = d.failures, "device offline");
+        d.online = Some(false);
+        d.mark_gap();
+        let _ = out.send(Output::DeviceStatus {
+            device: d.name.clone(),
+            online: false,
+        });
+    }
+    Some(if line_fault {
+        bus.backoff_min
+    } else {
+        d.backoff.next_wait()
+    })
+}
