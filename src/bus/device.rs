@@ -98,7 +98,7 @@ pub struct DeviceRt {
     pub backoff: Backoff,
     pub last_error: Option<String>,
     /// Poll latencies (seconds), most recent last, for p50/p99.
-    pub latencies: Vec<f64>,
+    pub latencies: std::collections::VecDeque<f64>,
 }
 
 impl DeviceRt {
@@ -131,7 +131,7 @@ impl DeviceRt {
             online: None,
             backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
             last_error: None,
-            latencies: Vec::new(),
+            latencies: std::collections::VecDeque::new(),
             config: config.clone(),
         }
     }
@@ -191,9 +191,10 @@ impl DeviceRt {
                 Ok(()) => {}
             }
         }
-        let snapshot = self
-            .read_registers(link, &self.fast.clone(), preempt)
-            .await?;
+        let fast = std::mem::take(&mut self.fast);
+        let snapshot = self.read_registers(link, &fast, preempt).await;
+        self.fast = fast;
+        let snapshot = snapshot?;
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
         for ch in &mut self.channels {
@@ -377,8 +378,8 @@ impl DeviceRt {
 
     fn record_latency(&mut self, d: Duration) {
         if self.latencies.len() >= 256 {
-            self.latencies.remove(0);
+            self.latencies.pop_front();
         }
-        self.latencies.push(d.as_secs_f64());
+        self.latencies.push_back(d.as_secs_f64());
     }
 }

@@ -78,8 +78,10 @@ pub struct Link {
     timing: Option<LineTiming>,
     port: Option<SharedPort>,
     ctx: Option<Context>,
-    /// Bytes read from the serial port, to tell a garbled answer from silence.
+    /// Bytes read from the serial port, to tell a garbled answer from silence, and when the
+    /// last of them arrived (the silent interval counts from there).
     bytes_in: Arc<AtomicU64>,
+    last_byte: Arc<Mutex<Option<Instant>>>,
     last_io: Option<Instant>,
     pub counters: WireCounters,
     /// Time the line was busy with our transactions (for utilisation).
@@ -108,6 +110,7 @@ impl Link {
             port: None,
             ctx: None,
             bytes_in: Arc::default(),
+            last_byte: Arc::default(),
             last_io: None,
             counters: WireCounters::default(),
             busy: Duration::ZERO,
@@ -210,7 +213,7 @@ impl Link {
         self.ensure_open(timeout).await?;
         if let (Some(timing), Some(last)) = (self.timing, self.last_io) {
             // RTU frames must be separated by the silent interval.
-            tokio::time::sleep_until(last + timing.silent_interval()).await;
+            wait_until(last + timing.silent_interval()).await;
         }
         let ctx = self.ctx.as_mut().expect("opened above");
         ctx.set_slave(Slave(unit));
@@ -220,7 +223,8 @@ impl Link {
         let result = tokio::time::timeout(timeout, ctx.call(req)).await;
         let now = Instant::now();
         self.busy += now - started;
-        self.last_io = Some(now);
+        let last_byte = self.last_byte.lock().unwrap_or_else(|e| e.into_inner()).take();
+        self.last_io = Some(last_byte.unwrap_or(now).min(now));
         match result {
             Err(_elapsed) => {
                 // A late answer may still arrive: rebuild so it cannot be read as the next one.
@@ -266,6 +270,7 @@ impl Link {
                 self.ctx = Some(tokio_modbus::client::rtu::attach(FlushingPort::new(
                     port,
                     self.bytes_in.clone(),
+                    self.last_byte.clone(),
                 )));
             }
             LinkConfig::Tcp { host, port } => {
@@ -321,6 +326,43 @@ impl Link {
     }
 }
 
+/// Waits until `t` with sub-millisecond precision. The runtime's timer ticks in milliseconds,
+/// which at 115200 baud (1.75 ms silent interval) would cost a third of the line's capacity;
+/// the last stretch is slept on a blocking thread instead, which the OS wakes on time.
+async fn wait_until(t: Instant) {
+    const COARSE: Duration = Duration::from_millis(2);
+    let now = Instant::now();
+    if t <= now {
+        return;
+    }
+    if t - now > COARSE {
+        tokio::time::sleep_until(t - COARSE).await;
+    }
+    // Even with a fine timer slack the OS wakes a little late: sleep short of the mark, then
+    // yield until it.
+    const SPIN: Duration = Duration::from_micros(30);
+    let rest = t.saturating_duration_since(Instant::now());
+    if rest > SPIN {
+        let _ = tokio::task::spawn_blocking(move || {
+            fine_timer_slack();
+            std::thread::sleep(rest - SPIN)
+        })
+        .await;
+    }
+    while Instant::now() < t {
+        tokio::task::yield_now().await;
+    }
+}
+
+/// Asks Linux to wake this thread's sleeps on time: the default timer slack (50 us) would
+/// stretch every silent interval.
+pub fn fine_timer_slack() {
+    // SAFETY: PR_SET_TIMERSLACK takes one integer argument and only affects this thread.
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
+    }
+}
+
 fn port_name(p: &std::path::Path) -> String {
     // Follow udev-style symlinks so errors and locks name the real device.
     std::fs::canonicalize(p)
@@ -351,14 +393,16 @@ struct FlushingPort {
     port: SharedPort,
     at_request_start: bool,
     bytes_in: Arc<AtomicU64>,
+    last_byte: Arc<Mutex<Option<Instant>>>,
 }
 
 impl FlushingPort {
-    fn new(port: SharedPort, bytes_in: Arc<AtomicU64>) -> FlushingPort {
+    fn new(port: SharedPort, bytes_in: Arc<AtomicU64>, last_byte: Arc<Mutex<Option<Instant>>>) -> FlushingPort {
         FlushingPort {
             port,
             at_request_start: true,
             bytes_in,
+            last_byte,
         }
     }
 }
@@ -374,7 +418,10 @@ impl AsyncRead for FlushingPort {
         let before = buf.filled().len();
         let poll = this.port.with(|s| Pin::new(s).poll_read(cx, buf));
         let n = buf.filled().len() - before;
-        this.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
+        if n > 0 {
+            this.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
+            *this.last_byte.lock().unwrap_or_else(|e| e.into_inner()) = Some(Instant::now());
+        }
         poll
     }
 }

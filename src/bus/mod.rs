@@ -291,7 +291,7 @@ fn stats_json(
     let c = link.counters;
     let mut per_device = BTreeMap::new();
     for (d, s) in devices.iter().zip(slots) {
-        let mut lat = d.latencies.clone();
+        let mut lat: Vec<f64> = d.latencies.iter().copied().collect();
         lat.sort_by(f64::total_cmp);
         per_device.insert(
             d.name.to_string(),

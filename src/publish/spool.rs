@@ -21,11 +21,26 @@ pub struct Entry {
     /// Spool sequence number: strictly increasing, across restarts.
     pub seq: u64,
     pub topic: String,
-    pub payload: String,
+    /// Shared, so handing it to the MQTT client (and again after a reconnect) copies nothing.
+    #[serde(with = "text")]
+    pub payload: bytes::Bytes,
     pub qos: u8,
     pub retain: bool,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub correlation: Option<Vec<u8>>,
+}
+
+/// Payloads are UTF-8 (JSON and status words): stored as text in the segment files.
+mod text {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(b: &bytes::Bytes, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&String::from_utf8_lossy(b))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<bytes::Bytes, D::Error> {
+        Ok(bytes::Bytes::from(String::deserialize(d)?))
+    }
 }
 
 impl Entry {
@@ -166,7 +181,7 @@ impl Spool {
         let entry = Entry {
             seq: self.next_seq,
             topic,
-            payload,
+            payload: payload.into(),
             qos,
             retain,
             correlation,

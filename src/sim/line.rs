@@ -70,7 +70,7 @@ impl Rng {
 
 /// Sleeps until `t`: the OS sleep for the bulk, a short spin for the last stretch.
 fn sleep_until(t: Instant) {
-    const SPIN: Duration = Duration::from_micros(150);
+    const SPIN: Duration = Duration::from_micros(30);
     let now = Instant::now();
     if t > now + SPIN {
         std::thread::sleep(t - now - SPIN);
@@ -163,6 +163,7 @@ fn carry(
     line_free: &Mutex<Instant>,
 ) {
     use serialport::SerialPort;
+    crate::bus::link::fine_timer_slack();
     let _ = from.set_timeout(Duration::from_millis(50));
     let mut buf = [0u8; 512];
     while !stop.load(Ordering::Relaxed) {
@@ -193,7 +194,9 @@ fn carry(
         // The bytes occupy the line (dropped ones too: they were sent) from when it is free.
         let done = {
             let mut free = line_free.lock().unwrap_or_else(|e| e.into_inner());
-            let start = (*free).max(arrived + delay);
+            // The module's turnaround counts from the end of the request (the line's last use),
+            // not from when the simulator happened to answer.
+            let start = arrived.max(*free + delay);
             *free = start + spec.char_time() * n as u32;
             *free
         };
