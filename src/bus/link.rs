@@ -223,7 +223,11 @@ impl Link {
         let result = tokio::time::timeout(timeout, ctx.call(req)).await;
         let now = Instant::now();
         self.busy += now - started;
-        let last_byte = self.last_byte.lock().unwrap_or_else(|e| e.into_inner()).take();
+        let last_byte = self
+            .last_byte
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
         self.last_io = Some(last_byte.unwrap_or(now).min(now));
         match result {
             Err(_elapsed) => {
@@ -397,7 +401,11 @@ struct FlushingPort {
 }
 
 impl FlushingPort {
-    fn new(port: SharedPort, bytes_in: Arc<AtomicU64>, last_byte: Arc<Mutex<Option<Instant>>>) -> FlushingPort {
+    fn new(
+        port: SharedPort,
+        bytes_in: Arc<AtomicU64>,
+        last_byte: Arc<Mutex<Option<Instant>>>,
+    ) -> FlushingPort {
         FlushingPort {
             port,
             at_request_start: true,

@@ -82,8 +82,10 @@ pub struct SimModule {
     /// Channels whose next read returns a count of 0 once (a glitch on the line or in the
     /// module), then the true count again.
     pub glitch_zero: Vec<String>,
-    /// Write requests (FC06/FC16) this module has received, accepted or not.
+    /// Write requests (FC06/FC16) this module has received, accepted or not, and when the last
+    /// one arrived (plant seconds).
     pub writes: u64,
+    pub last_write: Option<f64>,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -156,6 +158,7 @@ impl SimModule {
             silent: false,
             glitch_zero: Vec::new(),
             writes: 0,
+            last_write: None,
         })
     }
 

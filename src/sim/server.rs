@@ -41,11 +41,13 @@ impl SimService {
             }
             Request::WriteSingleRegister(a, v) => {
                 m.writes += 1;
+                m.last_write.get_or_insert(now);
                 m.write_one(now, a, v)?;
                 Response::WriteSingleRegister(a, v)
             }
             Request::WriteMultipleRegisters(a, values) => {
                 m.writes += 1;
+                m.last_write.get_or_insert(now);
                 m.write_many(now, a, &values)?;
                 Response::WriteMultipleRegisters(a, values.len() as u16)
             }
