@@ -127,11 +127,19 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
     gateway.stats_interval = warmup;
     let mut handles = Vec::new();
     let mut keep = Vec::new();
+    let health = pulsegate::health::Health::default();
     for bus in &config.buses {
         let (ctx, crx) = tokio::sync::mpsc::unbounded_channel();
         keep.push(ctx);
         handles.push(tokio::spawn(
-            BusTask::new(bus.clone(), &gateway, tx.clone(), crx).run(shutdown.clone()),
+            BusTask::new(
+                bus.clone(),
+                &gateway,
+                tx.clone(),
+                crx,
+                health.heart(&bus.name),
+            )
+            .run(shutdown.clone()),
         ));
     }
     drop(tx);
@@ -450,8 +458,14 @@ async fn process_cpu_per_tx(figures: &mut Vec<Figure>) {
     drop(plant);
 }
 
-/// Stats messages seen on a topic, via mosquitto_sub.
-struct StatsTap(std::sync::Arc<std::sync::Mutex<Vec<(Instant, u64)>>>);
+/// Stats messages seen on a topic, via mosquitto_sub (killed with the tap).
+struct StatsTap(std::sync::Arc<std::sync::Mutex<Vec<(Instant, u64)>>>, u32);
+
+impl Drop for StatsTap {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").arg(self.1.to_string()).status();
+    }
+}
 
 impl StatsTap {
     fn transactions_in(&self, window: Duration) -> u64 {
@@ -476,6 +490,7 @@ fn subscribe_count(port: u16, topic: &str) -> StatsTap {
         .spawn()
         .expect("mosquitto_sub (package mosquitto-clients)");
     let out = child.stdout.take().unwrap();
+    let pid = child.id();
     std::thread::spawn(move || {
         use std::io::BufRead;
         for line in std::io::BufReader::new(out).lines().map_while(Result::ok) {
@@ -487,7 +502,7 @@ fn subscribe_count(port: u16, topic: &str) -> StatsTap {
         }
         let _ = child.wait();
     });
-    StatsTap(store)
+    StatsTap(store, pid)
 }
 
 async fn thousand_devices(figures: &mut Vec<Figure>) {

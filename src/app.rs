@@ -1,34 +1,55 @@
-//! Wires a checked config into running tasks: one per bus, one for MQTT, one command router.
+//! Wires a checked config into running tasks: one per bus, one for MQTT, the command router,
+//! the systemd supervisor; and applies a reloaded config to the buses that changed.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 
-use tokio::sync::mpsc::unbounded_channel;
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
+use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-use crate::bus::BusTask;
-use crate::config::Config;
+use crate::bus::{BusCommand, BusTask};
+use crate::config::{Bus, Config};
 use crate::dispatch::Router;
+use crate::health::Health;
+use crate::reading::Output;
 
-/// Runs the gateway until `shutdown` is cancelled; then each bus finishes its transaction in
-/// flight and saves its state, and MQTT says the gateway is offline.
-pub async fn run(config: Config, shutdown: CancellationToken) {
+/// A bus task and what it takes to stop it or talk to it.
+struct Running {
+    config: Bus,
+    stop: CancellationToken,
+    task: JoinHandle<()>,
+    commands: UnboundedSender<BusCommand>,
+}
+
+/// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
+/// applied: buses whose config did not change keep running with their counters; changed ones
+/// restart (their counter state goes through the state file); removed ones stop.
+pub async fn run_with_reloads(
+    config: Config,
+    shutdown: CancellationToken,
+    mut reloads: UnboundedReceiver<Config>,
+) {
+    let health = Arc::new(Health::default());
     let (out_tx, out_rx) = unbounded_channel();
     let (incoming_tx, incoming_rx) = unbounded_channel();
-    let mut bus_commands = HashMap::new();
-    let mut buses = Vec::new();
-    for bus in config.buses.iter().cloned() {
-        let (cmd_tx, cmd_rx) = unbounded_channel();
-        bus_commands.insert(bus.name.clone(), cmd_tx);
-        let task = BusTask::new(bus, &config.gateway, out_tx.clone(), cmd_rx);
-        buses.push(tokio::spawn(task.run(shutdown.clone())));
+    let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
+
+    let mut running: BTreeMap<String, Running> = BTreeMap::new();
+    for bus in &config.buses {
+        let r = start_bus(bus, &config, &health, &out_tx, &shutdown);
+        running.insert(bus.name.clone(), r);
     }
-    let router = Router::new(&config, &bus_commands, out_tx.clone());
-    drop(bus_commands);
+    let router = Router::new(&config, &senders(&running), out_tx.clone());
+    let targets = router.targets();
     let router = tokio::spawn(router.run(incoming_rx));
+
     let mqtt_config = config.mqtt.clone();
     let spool_dir = config.gateway.state_dir.join("spool");
     let flush = config.gateway.state_flush;
     let mqtt_shutdown = shutdown.clone();
+    let mqtt_heart = health.heart("mqtt");
+    let mqtt_health = health.clone();
     let mqtt = tokio::spawn(async move {
         crate::publish::mqtt::run(
             mqtt_config,
@@ -36,13 +57,30 @@ pub async fn run(config: Config, shutdown: CancellationToken) {
             flush,
             out_rx,
             incoming_tx,
+            mqtt_heart,
+            mqtt_health,
             mqtt_shutdown,
         )
         .await
     });
+
+    let mut current = config;
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => break,
+            new = reloads.recv() => {
+                let Some(new) = new else {
+                    shutdown.cancelled().await;
+                    break;
+                };
+                apply(&mut current, new, &mut running, &health, &out_tx, &shutdown).await;
+                Router::set_targets(&targets, &current, &senders(&running));
+            }
+        }
+    }
     drop(out_tx);
-    for b in buses {
-        if let Err(e) = b.await {
+    for (_, r) in std::mem::take(&mut running) {
+        if let Err(e) = r.task.await {
             tracing::error!("bus task failed: {e}");
         }
     }
@@ -50,4 +88,87 @@ pub async fn run(config: Config, shutdown: CancellationToken) {
     if let Err(e) = mqtt.await {
         tracing::error!("MQTT task failed: {e}");
     }
+    let _ = supervisor.await;
+}
+
+/// Runs the gateway until `shutdown` (no reloads).
+pub async fn run(config: Config, shutdown: CancellationToken) {
+    let (_keep, reloads) = unbounded_channel();
+    run_with_reloads(config, shutdown, reloads).await;
+}
+
+fn start_bus(
+    bus: &Bus,
+    config: &Config,
+    health: &Health,
+    out: &UnboundedSender<Output>,
+    shutdown: &CancellationToken,
+) -> Running {
+    let (cmd_tx, cmd_rx) = unbounded_channel();
+    let stop = shutdown.child_token();
+    let heart = health.heart(&format!("bus/{}", bus.name));
+    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart);
+    Running {
+        config: bus.clone(),
+        task: tokio::spawn(task.run(stop.clone())),
+        stop,
+        commands: cmd_tx,
+    }
+}
+
+fn senders(running: &BTreeMap<String, Running>) -> HashMap<String, UnboundedSender<BusCommand>> {
+    running
+        .iter()
+        .map(|(n, r)| (n.clone(), r.commands.clone()))
+        .collect()
+}
+
+async fn apply(
+    current: &mut Config,
+    new: Config,
+    running: &mut BTreeMap<String, Running>,
+    health: &Health,
+    out: &UnboundedSender<Output>,
+    shutdown: &CancellationToken,
+) {
+    if new.mqtt != current.mqtt || new.gateway != current.gateway {
+        tracing::warn!("changes to [gateway] or [mqtt] take effect at the next restart");
+    }
+    let mut kept = 0;
+    let names: Vec<String> = running.keys().cloned().collect();
+    for name in names {
+        let same = new
+            .buses
+            .iter()
+            .any(|b| b.name == name && *b == running[&name].config);
+        if same {
+            kept += 1;
+            continue;
+        }
+        let r = running.remove(&name).expect("listed above");
+        r.stop.cancel();
+        let _ = r.task.await;
+        health.forget(&format!("bus/{name}"));
+        tracing::info!(bus = %name, "bus stopped for the new config");
+    }
+    for bus in &new.buses {
+        if !running.contains_key(&bus.name) {
+            // The gateway and MQTT settings stay those the gateway started with.
+            let mut cfg = new.clone();
+            cfg.gateway = current.gateway.clone();
+            running.insert(
+                bus.name.clone(),
+                start_bus(bus, &cfg, health, out, shutdown),
+            );
+            tracing::info!(bus = %bus.name, "bus started for the new config");
+        }
+    }
+    let devices: Vec<String> = new.devices().map(|(_, d)| d.name.clone()).collect();
+    health.retain_devices(&devices);
+    tracing::info!(unchanged = kept, buses = new.buses.len(), "config reloaded");
+    let gateway = current.gateway.clone();
+    let mqtt = current.mqtt.clone();
+    *current = new;
+    current.gateway = gateway;
+    current.mqtt = mqtt;
 }

@@ -16,6 +16,28 @@ use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::reading::Output;
 
+fn targets_of(
+    config: &Config,
+    buses: &HashMap<String, UnboundedSender<BusCommand>>,
+) -> HashMap<String, Target> {
+    config
+        .devices()
+        .filter_map(|(bus, d)| {
+            let target = Target {
+                bus: buses.get(&bus.name)?.clone(),
+                commands: d.commands,
+                channels: d
+                    .profile
+                    .all_channels()
+                    .into_iter()
+                    .map(|c| c.name)
+                    .collect(),
+            };
+            Some((d.name.clone(), target))
+        })
+        .collect()
+}
+
 /// A message that arrived on a command topic.
 #[derive(Debug, Clone)]
 pub struct Incoming {
@@ -26,7 +48,8 @@ pub struct Incoming {
     pub correlation: Option<Bytes>,
 }
 
-struct Target {
+/// Where a device's commands go.
+pub struct Target {
     bus: UnboundedSender<BusCommand>,
     commands: bool,
     channels: BTreeSet<String>,
@@ -35,10 +58,13 @@ struct Target {
 /// How long a command waits for an offline device.
 pub const EXPIRY: Duration = Duration::from_secs(10);
 
+/// Devices by name, swapped whole when the config is reloaded.
+pub type Targets = Arc<std::sync::RwLock<HashMap<String, Target>>>;
+
 /// The command router of a gateway.
 pub struct Router {
     root: String,
-    targets: HashMap<String, Target>,
+    targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
 }
@@ -50,28 +76,26 @@ impl Router {
         buses: &HashMap<String, UnboundedSender<BusCommand>>,
         out: UnboundedSender<Output>,
     ) -> Router {
-        let mut targets = HashMap::new();
-        for (bus, d) in config.devices() {
-            targets.insert(
-                d.name.clone(),
-                Target {
-                    bus: buses[&bus.name].clone(),
-                    commands: d.commands,
-                    channels: d
-                        .profile
-                        .all_channels()
-                        .into_iter()
-                        .map(|c| c.name)
-                        .collect(),
-                },
-            );
-        }
         Router {
             root: config.mqtt.topic_root.clone(),
-            targets,
+            targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
         }
+    }
+
+    /// The router's device table, to update after a reload.
+    pub fn targets(&self) -> Targets {
+        self.targets.clone()
+    }
+
+    /// Points the router at the devices of a reloaded config.
+    pub fn set_targets(
+        targets: &Targets,
+        config: &Config,
+        buses: &HashMap<String, UnboundedSender<BusCommand>>,
+    ) {
+        *targets.write().unwrap_or_else(|e| e.into_inner()) = targets_of(config, buses);
     }
 
     /// Handles messages until the MQTT side closes the channel.
@@ -118,7 +142,8 @@ impl Router {
             }
         }
         let refuse = |e: CommandError| self.finish(&msg.topic, &reply, id, op, &Err(e));
-        let Some(target) = self.targets.get(device) else {
+        let targets = self.targets.read().unwrap_or_else(|e| e.into_inner());
+        let Some(target) = targets.get(device) else {
             return refuse(CommandError::UnknownDevice(device.into()));
         };
         if !target.commands {

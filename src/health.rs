@@ -51,12 +51,13 @@ impl Heart {
     pub fn beat(&self) {
         let ms = self.start.elapsed().as_millis() as u64;
         self.beat.at_ms.store(ms, Ordering::Relaxed);
-        self.beat.started.store(true, Ordering::Relaxed);
     }
 
-    /// The line (or broker connection) is up or down.
+    /// The line (or broker connection) is up or down; either way the loop has made its first
+    /// attempt.
     pub fn set_up(&self, up: bool) {
         self.beat.up.store(up, Ordering::Relaxed);
+        self.beat.started.store(true, Ordering::Relaxed);
     }
 }
 
@@ -99,24 +100,40 @@ impl Health {
         let now = self.start.elapsed().as_millis() as u64;
         lock(&self.loops)
             .iter()
-            .filter(|(_, b)| now.saturating_sub(b.at_ms.load(Ordering::Relaxed)) > limit.as_millis() as u64)
+            .filter(|(_, b)| {
+                now.saturating_sub(b.at_ms.load(Ordering::Relaxed)) > limit.as_millis() as u64
+            })
             .map(|(n, _)| n.clone())
             .collect()
     }
 
     /// Whether every loop has made its first attempt.
     pub fn all_started(&self) -> bool {
-        lock(&self.loops).values().all(|b| b.started.load(Ordering::Relaxed))
+        lock(&self.loops)
+            .values()
+            .all(|b| b.started.load(Ordering::Relaxed))
     }
 
     /// One line for `systemctl status`.
     pub fn status_line(&self) -> String {
         let loops = lock(&self.loops);
-        let buses: Vec<_> = loops.iter().filter(|(n, _)| n.starts_with("bus/")).collect();
-        let up = buses.iter().filter(|(_, b)| b.up.load(Ordering::Relaxed)).count();
+        let buses: Vec<_> = loops
+            .iter()
+            .filter(|(n, _)| n.starts_with("bus/"))
+            .collect();
+        let up = buses
+            .iter()
+            .filter(|(_, b)| b.up.load(Ordering::Relaxed))
+            .count();
         let mqtt = loops
             .get("mqtt")
-            .map(|b| if b.up.load(Ordering::Relaxed) { "MQTT connected" } else { "MQTT disconnected" })
+            .map(|b| {
+                if b.up.load(Ordering::Relaxed) {
+                    "MQTT connected"
+                } else {
+                    "MQTT disconnected"
+                }
+            })
             .unwrap_or("MQTT not started");
         let devices = lock(&self.devices);
         let online = devices.values().filter(|o| **o).count();
@@ -141,7 +158,10 @@ mod tests {
         assert!(h.stale(Duration::from_secs(60)).is_empty());
         std::thread::sleep(Duration::from_millis(30));
         a.beat();
-        assert_eq!(h.stale(Duration::from_millis(20)), vec!["bus/b".to_string()]);
+        assert_eq!(
+            h.stale(Duration::from_millis(20)),
+            vec!["bus/b".to_string()]
+        );
     }
 
     #[test]
@@ -152,15 +172,19 @@ mod tests {
         h.heart("mqtt").set_up(true);
         h.device("press", true);
         h.device("doors", false);
-        assert_eq!(h.status_line(), "1/2 buses up, 1/2 devices online, MQTT connected");
+        assert_eq!(
+            h.status_line(),
+            "1/2 buses up, 1/2 devices online, MQTT connected"
+        );
     }
 
     #[test]
     fn ready_waits_for_every_loop_to_start() {
         let h = Health::default();
         let a = h.heart("bus/a");
-        assert!(!h.all_started());
         a.beat();
+        assert!(!h.all_started(), "running is not yet having tried the line");
+        a.set_up(false);
         assert!(h.all_started());
     }
 }

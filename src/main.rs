@@ -58,12 +58,30 @@ enum Command {
     },
 }
 
+/// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
+/// readable text on stderr otherwise (colours only on a terminal), or as JSON lines with
+/// `--log-format json`.
 fn init_logging(format: LogFormat) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        tracing_subscriber::EnvFilter::new("info,tokio_modbus=error,rumqttc=warn,rumqttd=off")
-    });
+    use std::io::IsTerminal;
+    use tracing_subscriber::prelude::*;
+    let filter = || {
+        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+            tracing_subscriber::EnvFilter::new("info,tokio_modbus=error,rumqttc=warn,rumqttd=off")
+        })
+    };
+    if matches!(format, LogFormat::Human)
+        && std::env::var_os("JOURNAL_STREAM").is_some()
+        && let Ok(journald) = tracing_journald::layer()
+    {
+        tracing_subscriber::registry()
+            .with(filter())
+            .with(journald.with_syslog_identifier("pulsegate".into()))
+            .init();
+        return;
+    }
     let builder = tracing_subscriber::fmt()
-        .with_env_filter(filter)
+        .with_env_filter(filter())
+        .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr);
     match format {
         LogFormat::Human => builder.init(),
@@ -84,6 +102,31 @@ fn on_signals(token: CancellationToken) -> anyhow::Result<()> {
         std::process::exit(130);
     });
     Ok(())
+}
+
+/// SIGHUP reloads the config file: a valid one goes to the running gateway, a bad one is
+/// refused (logged) and the old one keeps running.
+fn on_hangup(path: PathBuf) -> anyhow::Result<tokio::sync::mpsc::UnboundedReceiver<Config>> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut hup = signal(SignalKind::hangup())?;
+    let (tx, rx) = tokio::sync::mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while hup.recv().await.is_some() {
+            match Config::load(&path) {
+                Ok(c) => {
+                    tracing::info!(config = %path.display(), "reloading the config");
+                    if tx.send(c).is_err() {
+                        break;
+                    }
+                }
+                Err(e) => tracing::error!(
+                    "new config refused, the old one keeps running: {}",
+                    e.to_string().trim_end()
+                ),
+            }
+        }
+    });
+    Ok(rx)
 }
 
 fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
@@ -129,15 +172,16 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             println!("config {} is valid", config.source.display());
             Ok(ExitCode::SUCCESS)
         }
-        Command::Run { config } => {
-            let config = match load(&config) {
+        Command::Run { config: path } => {
+            let config = match load(&path) {
                 Ok(c) => c,
                 Err(code) => return Ok(code),
             };
             let shutdown = CancellationToken::new();
             on_signals(shutdown.clone())?;
+            let reloads = on_hangup(path)?;
             tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
-            pulsegate::app::run(config, shutdown).await;
+            pulsegate::app::run_with_reloads(config, shutdown, reloads).await;
             Ok(ExitCode::SUCCESS)
         }
         Command::Simulate { config } => {

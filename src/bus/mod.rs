@@ -19,6 +19,7 @@ use tokio_util::sync::CancellationToken;
 
 use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
+use crate::health::Heart;
 use crate::plan::Wire;
 use crate::reading::Output;
 use crate::state::{BusState, bus_path};
@@ -41,6 +42,7 @@ pub struct BusTask {
     stats_interval: Duration,
     out: UnboundedSender<Output>,
     commands: UnboundedReceiver<BusCommand>,
+    heart: Heart,
 }
 
 impl BusTask {
@@ -49,6 +51,7 @@ impl BusTask {
         gateway: &Gateway,
         out: UnboundedSender<Output>,
         commands: UnboundedReceiver<BusCommand>,
+        heart: Heart,
     ) -> BusTask {
         BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
@@ -57,6 +60,7 @@ impl BusTask {
             bus,
             out,
             commands,
+            heart,
         }
     }
 
@@ -105,14 +109,23 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
         let mut pending: Vec<BusCommand> = Vec::new();
+        let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
+            self.heart.beat();
+            if stall.is_some_and(|at| start.elapsed() >= at) {
+                tracing::error!(bus = %name, "test hook: this bus loop now stalls");
+                shutdown.cancelled().await;
+                break;
+            }
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
             run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
             let expiry = pending.iter().map(|c| c.request.expires).min();
+            // Wake at least every second so the heart beats while the devices are slow.
             let wake = slots[i]
                 .due
+                .min(Instant::now() + Duration::from_secs(1))
                 .min(flush_at)
                 .min(stats_at)
                 .min(expiry.unwrap_or(flush_at));
@@ -169,6 +182,7 @@ impl BusTask {
                             }
                         }
                     }
+                    self.heart.set_up(true);
                     let d = &mut devices[i];
                     availability::answered(d, &name, &self.out);
                     for r in readings {
@@ -178,6 +192,7 @@ impl BusTask {
                 }
                 Err(e) => {
                     let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());
+                    self.heart.set_up(!line_fault);
                     if line_fault && !std::mem::replace(&mut line_down, true) {
                         tracing::error!(bus = %name, "line fault: {e}");
                     }
@@ -205,6 +220,14 @@ impl BusTask {
         }
         link.close();
     }
+}
+
+/// Fault injection for the watchdog test: `PULSEGATE_TEST_STALL_BUS=<bus>:<seconds>` makes that
+/// bus loop stop making progress after so long, as a stuck loop would.
+fn stall_hook(bus: &str) -> Option<Duration> {
+    let v = std::env::var("PULSEGATE_TEST_STALL_BUS").ok()?;
+    let (name, secs) = v.split_once(':')?;
+    (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
 /// Carries out the pending commands whose device can take them; answers expired ones with

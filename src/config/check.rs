@@ -133,6 +133,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         client_id: format!("pulsegate-{gateway_id}"),
         username: None,
         password: None,
+        tls: None,
         keep_alive: Duration::from_secs(30),
         qos: 1,
         retain: false,
@@ -153,7 +154,58 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         m.client_id = v;
     }
     m.username = t.opt("username", errs);
-    m.password = t.opt("password", errs);
+    m.password = t.opt::<String>("password", errs).map(super::Secret);
+    if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
+        match std::fs::read_to_string(&file) {
+            Ok(p) => m.password = Some(super::Secret(p.trim_end_matches(['\n', '\r']).to_string())),
+            Err(e) => errs.push(
+                &join(&t.path, "password_file"),
+                t.origin(),
+                format!("cannot read {}: {e}", file.display()),
+            ),
+        }
+    }
+    if m.password.is_none() {
+        // systemd's LoadCredential=mqtt-password:… puts it here for this service only.
+        if let Some(dir) = std::env::var_os("CREDENTIALS_DIRECTORY") {
+            if let Ok(p) = std::fs::read_to_string(Path::new(&dir).join("mqtt-password")) {
+                m.password = Some(super::Secret(p.trim_end_matches(['\n', '\r']).to_string()));
+            }
+        }
+    }
+    if let Some(mut tt) = t.table("tls", errs) {
+        let ca_file = tt.req::<PathBuf>("ca_file", errs);
+        let cert_file = tt.opt::<PathBuf>("cert_file", errs);
+        let key_file = tt.opt::<PathBuf>("key_file", errs);
+        if cert_file.is_some() != key_file.is_some() {
+            errs.push(
+                &tt.path.clone(),
+                tt.origin(),
+                "cert_file and key_file go together",
+            );
+        }
+        for (key, file) in [
+            ("ca_file", &ca_file),
+            ("cert_file", &cert_file),
+            ("key_file", &key_file),
+        ] {
+            if let Some(f) = file
+                && !f.is_file()
+            {
+                errs.push(
+                    &join(&tt.path, key),
+                    tt.origin(),
+                    format!("no such file {}", f.display()),
+                );
+            }
+        }
+        tt.finish(errs);
+        m.tls = ca_file.map(|ca_file| super::Tls {
+            ca_file,
+            cert_file,
+            key_file,
+        });
+    }
     if let Some(v) = t.duration("keep_alive", errs) {
         if v < Duration::from_secs(5) {
             errs.push(

@@ -79,6 +79,26 @@ pub struct Gateway {
     pub profile_dir: PathBuf,
 }
 
+/// A secret (the MQTT password): never printed, never logged.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(pub String);
+
+impl fmt::Debug for Secret {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("Secret(***)")
+    }
+}
+
+/// `[mqtt.tls]`: TLS to the broker (rustls).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Tls {
+    /// CA certificate(s) the broker's certificate must chain to (PEM).
+    pub ca_file: PathBuf,
+    /// Client certificate and key (PEM), for brokers that ask for one.
+    pub cert_file: Option<PathBuf>,
+    pub key_file: Option<PathBuf>,
+}
+
 /// `[mqtt]`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mqtt {
@@ -86,7 +106,10 @@ pub struct Mqtt {
     pub port: u16,
     pub client_id: String,
     pub username: Option<String>,
-    pub password: Option<String>,
+    /// From `password`, `password_file`, `PULSEGATE__MQTT__PASSWORD`, or the systemd credential
+    /// `mqtt-password` (`LoadCredential=`).
+    pub password: Option<Secret>,
+    pub tls: Option<Tls>,
     pub keep_alive: Duration,
     pub qos: u8,
     pub retain: bool,

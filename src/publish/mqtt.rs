@@ -17,14 +17,16 @@ use std::time::Duration;
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::mqttbytes::v5::{Filter, LastWill, Packet, PublishProperties, RetainForwardRule};
 use rumqttc::v5::{AsyncClient, Event, EventLoop, MqttOptions, Request};
+use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::payload;
 use super::spool::Spool;
 use super::topics::Topics;
-use crate::config::Mqtt;
+use crate::config::{Mqtt, Tls};
 use crate::dispatch::Incoming;
+use crate::health::Heart;
 use crate::reading::Output;
 
 /// Messages handed to rumqttc before their acknowledgement.
@@ -149,12 +151,33 @@ fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
 /// the gateway offline and disconnects.
+/// TLS to the broker with rustls: the broker's certificate must chain to `ca_file`; a client
+/// certificate is presented when configured.
+fn tls_transport(tls: &Tls) -> Result<Transport, String> {
+    // One process-wide crypto provider (ring: pure Rust and C, no system library needed).
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    let read = |p: &Path| std::fs::read(p).map_err(|e| format!("cannot read {}: {e}", p.display()));
+    let ca = read(&tls.ca_file)?;
+    let client_auth = match (&tls.cert_file, &tls.key_file) {
+        (Some(c), Some(k)) => Some((read(c)?, read(k)?)),
+        _ => None,
+    };
+    Ok(Transport::tls_with_config(TlsConfiguration::Simple {
+        ca,
+        alpn: None,
+        client_auth,
+    }))
+}
+
+#[allow(clippy::too_many_arguments)] // the task's whole world, wired once by the app
 pub async fn run(
     config: Mqtt,
     spool_dir: &Path,
     flush_every: Duration,
     mut output: UnboundedReceiver<Output>,
     incoming: UnboundedSender<Incoming>,
+    heart: Heart,
+    health: std::sync::Arc<crate::health::Health>,
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&config.topic_root);
@@ -168,7 +191,20 @@ pub async fn run(
         None,
     ));
     if let Some(user) = &config.username {
-        options.set_credentials(user.clone(), config.password.clone().unwrap_or_default());
+        let password = config
+            .password
+            .as_ref()
+            .map(|p| p.0.clone())
+            .unwrap_or_default();
+        options.set_credentials(user.clone(), password);
+    }
+    if let Some(tls) = &config.tls {
+        match tls_transport(tls) {
+            Ok(t) => {
+                options.set_transport(t);
+            }
+            Err(e) => tracing::error!("MQTT TLS: {e}; the connection will fail until it is fixed"),
+        }
     }
     let (client, eventloop) = AsyncClient::new(options, WINDOW + 64);
     let spool = match Spool::open(spool_dir, config.spool_bytes) {
@@ -205,9 +241,15 @@ pub async fn run(
 
     let reading_qos = config.qos;
     let mut flush = tokio::time::interval(flush_every);
+    let mut beat = tokio::time::interval(Duration::from_secs(1));
     loop {
+        heart.beat();
         let out = tokio::select! {
             out = output.recv() => out,
+            _ = beat.tick() => {
+                heart.set_up(lock(&shared).connected);
+                continue;
+            }
             _ = flush.tick() => {
                 let mut s = lock(&shared);
                 // While the broker is away, memory is written out so a crash loses little.
@@ -227,13 +269,16 @@ pub async fn run(
                 payload::reading(&r),
                 None,
             ),
-            Output::DeviceStatus { device, online } => (
-                topics.device_status(&device),
-                true,
-                1,
-                if online { "online" } else { "offline" }.to_string(),
-                None,
-            ),
+            Output::DeviceStatus { device, online } => {
+                health.device(&device, online);
+                (
+                    topics.device_status(&device),
+                    true,
+                    1,
+                    if online { "online" } else { "offline" }.to_string(),
+                    None,
+                )
+            }
             Output::BusStats { bus, stats } => {
                 if !lock(&shared).connected {
                     continue; // Health is of the moment: not worth spooling.

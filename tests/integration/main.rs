@@ -6,4 +6,5 @@ mod config_cases;
 mod counters;
 mod faults;
 mod pipeline;
+mod service;
 mod support;

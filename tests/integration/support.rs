@@ -63,6 +63,20 @@ impl Broker {
         )
     }
 
+    /// A broker with extra listener lines; `wait_port` is the one to wait for.
+    pub fn start_with_config(port: u16, extra: &str, wait_port: u16) -> Broker {
+        let b = Self::start_with(port, extra);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while std::net::TcpStream::connect(("127.0.0.1", wait_port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "mosquitto did not listen on {wait_port}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        b
+    }
+
     fn start_with(port: u16, extra: &str) -> Broker {
         let conf = std::env::temp_dir().join(format!("pulsegate-mosquitto-{port}.conf"));
         std::fs::write(
@@ -137,17 +151,35 @@ pub struct Subscriber {
 
 impl Subscriber {
     pub async fn start(port: u16, filter: &str) -> Subscriber {
-        Self::start_with(port, filter, None).await
+        Self::start_with(port, filter, None, None).await
     }
 
     /// A subscriber whose session (and subscription) the broker keeps while it is away.
     pub async fn start_persistent(port: u16, filter: &str, client_id: &str) -> Subscriber {
-        Self::start_with(port, filter, Some(client_id)).await
+        Self::start_with(port, filter, Some(client_id), None).await
     }
 
-    async fn start_with(port: u16, filter: &str, persistent_id: Option<&str>) -> Subscriber {
+    /// A subscriber that logs in.
+    pub async fn start_with_login(
+        port: u16,
+        filter: &str,
+        user: &str,
+        password: &str,
+    ) -> Subscriber {
+        Self::start_with(port, filter, None, Some((user, password))).await
+    }
+
+    async fn start_with(
+        port: u16,
+        filter: &str,
+        persistent_id: Option<&str>,
+        login: Option<(&str, &str)>,
+    ) -> Subscriber {
         let id = persistent_id.map_or_else(|| format!("test-sub-{}", free_port()), str::to_string);
         let mut options = MqttOptions::new(id, "127.0.0.1", port);
+        if let Some((u, p)) = login {
+            options.set_credentials(u, p);
+        }
         options.set_keep_alive(Duration::from_secs(30));
         if persistent_id.is_some() {
             options.set_clean_start(false);
