@@ -344,3 +344,40 @@ mod tests {
         assert_eq!(d.check("other", "1", t0), Seen::New);
     }
 }
+
+#[cfg(test)]
+mod fuzz {
+    use super::*;
+
+    /// Ten thousand random and mutated payloads: the parser answers each with a result and never
+    /// panics.
+    #[test]
+    fn the_parser_never_panics_on_arbitrary_bytes() {
+        let mut x = 0x2545_F491_4F6C_DD1Du64;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let base = br#"{"op":"preset","value":-2147483648,"id":"\u00e9"}"#;
+        for _ in 0..10_000 {
+            let mut p = base.to_vec();
+            for _ in 0..next() % 6 {
+                let i = (next() as usize) % p.len();
+                p[i] = next() as u8;
+            }
+            p.truncate((next() as usize) % (p.len() + 1));
+            for channel in [true, false] {
+                let r = parse_payload(&p, channel);
+                let json = match &r {
+                    Ok(parsed) => {
+                        result_json(parsed.id.as_deref(), Some(parsed.op.name()), &Ok(None))
+                    }
+                    Err((id, e)) => result_json(id.as_deref(), None, &Err(e.clone())),
+                };
+                assert!(json.get("ok").is_some());
+            }
+        }
+    }
+}

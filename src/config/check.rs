@@ -144,7 +144,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     if let Some(v) = t.opt("host", errs) {
         m.host = v;
     }
-    if let Some(v) = t.opt::<u16>("port", errs) {
+    if let Some(v) = t.int::<u16>("port", errs) {
         if v == 0 {
             errs.push(&join(&t.path, "port"), t.origin(), "must be 1..65535");
         }
@@ -216,7 +216,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         }
         m.keep_alive = v;
     }
-    if let Some(v) = t.opt::<u8>("qos", errs) {
+    if let Some(v) = t.int::<u8>("qos", errs) {
         if v > 2 {
             errs.push(&join(&t.path, "qos"), t.origin(), "must be 0, 1 or 2");
         }
@@ -225,7 +225,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     if let Some(v) = t.opt("retain", errs) {
         m.retain = v;
     }
-    if let Some(mb) = t.opt::<u64>("spool_mb", errs) {
+    if let Some(mb) = t.int::<u64>("spool_mb", errs) {
         if mb == 0 {
             errs.push(&join(&t.path, "spool_mb"), t.origin(), "must be at least 1");
         }
@@ -265,7 +265,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let has_host = t.has("host");
     let link = if has_host {
         let host = t.req::<String>("host", errs);
-        let port = t.opt::<u16>("port", errs).unwrap_or(502);
+        let port = t.int::<u16>("port", errs).unwrap_or(502);
         if port == 0 {
             errs.push(
                 &join(&path, "port"),
@@ -281,7 +281,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         }
         host.map(|host| Link::Tcp { host, port })
     } else if has_port {
-        let baud = t.opt::<u32>("baud", errs).unwrap_or(9600);
+        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
         if !BAUDS.contains(&baud) {
             errs.push(
                 &join(&path, "baud"),
@@ -290,11 +290,21 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             );
         }
         let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
-        let stop_bits = t.opt::<u8>("stop_bits", errs).unwrap_or(1);
+        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
         if !(1..=2).contains(&stop_bits) {
             errs.push(&join(&path, "stop_bits"), t.origin(), "must be 1 or 2");
         }
-        let port = t.opt::<PathBuf>("port", errs);
+        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
+            let ok = p.is_absolute();
+            if !ok {
+                errs.push(
+                    &join(&path, "port"),
+                    t.origin(),
+                    "must be an absolute path such as /dev/ttyUSB0",
+                );
+            }
+            ok
+        });
         port.map(|port| Link::Rtu {
             port,
             baud,
@@ -321,7 +331,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             Duration::ZERO
         })
     });
-    let offline_after = t.opt::<u32>("offline_after", errs).unwrap_or(3);
+    let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
         errs.push(
             &join(&path, "offline_after"),
@@ -398,7 +408,10 @@ fn device(
              (it is a topic level)",
         );
     }
-    let unit = t.req::<i64>("unit", errs).and_then(|u| {
+    if !t.has("unit") {
+        errs.push(&join(&path, "unit"), t.origin(), "missing");
+    }
+    let unit = t.int::<i64>("unit", errs).and_then(|u| {
         if (1..=247).contains(&u) {
             Some(u as u8)
         } else {

@@ -95,6 +95,36 @@ impl<'a> Table<'a> {
         self.opt(key, errs)
     }
 
+    /// An optional integer. Strings of digits are taken (environment overrides are strings);
+    /// a decimal number is refused rather than rounded (1.5 must not become unit 1).
+    pub fn int<T: TryFrom<i64>>(&mut self, key: &str, errs: &mut Errors) -> Option<T> {
+        let value = self.take(key)?;
+        let path = join(&self.path, key);
+        let n: Option<i64> = match &value.kind {
+            ValueKind::I64(n) => Some(*n),
+            ValueKind::U64(n) => i64::try_from(*n).ok(),
+            ValueKind::I128(n) => i64::try_from(*n).ok(),
+            ValueKind::U128(n) => i64::try_from(*n).ok(),
+            ValueKind::String(s) => s.trim().parse().ok(),
+            _ => None,
+        };
+        let Some(n) = n else {
+            let what = match &value.kind {
+                ValueKind::Float(_) => "expected a whole number, not a decimal one",
+                _ => "expected a whole number",
+            };
+            errs.push(&path, value.origin(), what);
+            return None;
+        };
+        match T::try_from(n) {
+            Ok(v) => Some(v),
+            Err(_) => {
+                errs.push(&path, value.origin(), format!("{n} is out of range"));
+                None
+            }
+        }
+    }
+
     /// An optional humantime duration ("300ms", "1m 30s"), which must be greater than zero.
     pub fn duration(&mut self, key: &str, errs: &mut Errors) -> Option<Duration> {
         let value = self.take(key)?;

@@ -38,6 +38,9 @@ pub struct SimDeviceConfig {
     /// Start silent (never answering).
     #[serde(default)]
     pub silent: bool,
+    /// Answer nonsense in well-formed frames.
+    #[serde(default)]
+    pub nonsense: bool,
     #[serde(default)]
     pub channels: BTreeMap<String, SimChannelConfig>,
 }

@@ -103,6 +103,7 @@ impl Plant {
                     }
                 }
                 m.silent = d.silent;
+                m.nonsense = d.nonsense;
                 if modules.insert(d.unit, m).is_some() {
                     return Err(bus_err(format!("unit {} used twice", d.unit)));
                 }

@@ -79,6 +79,9 @@ pub struct SimModule {
     plain: BTreeMap<u16, u16>,
     /// Silent modules do not answer at all.
     pub silent: bool,
+    /// A module answering nonsense in well-formed frames (valid CRC): wrong register counts,
+    /// answers to another function, unknown exception codes.
+    pub nonsense: bool,
     /// Channels whose next read returns a count of 0 once (a glitch on the line or in the
     /// module), then the true count again.
     pub glitch_zero: Vec<String>,
@@ -156,6 +159,7 @@ impl SimModule {
             channels,
             plain,
             silent: false,
+            nonsense: false,
             glitch_zero: Vec::new(),
             writes: 0,
             last_write: None,

@@ -35,6 +35,13 @@ impl SimService {
         if m.silent {
             return Ok(None);
         }
+        if m.nonsense {
+            m.writes += u64::from(matches!(
+                req.request,
+                Request::WriteSingleRegister(..) | Request::WriteMultipleRegisters(..)
+            ));
+            return nonsense(&req.request, m.writes.wrapping_add(now.to_bits()));
+        }
         let response = match req.request {
             Request::ReadHoldingRegisters(start, len) => {
                 Response::ReadHoldingRegisters(m.read(now, start, len)?)
@@ -54,6 +61,22 @@ impl SimService {
             _ => return Err(ExceptionCode::IllegalFunction),
         };
         Ok(Some(response))
+    }
+}
+
+/// A well-framed answer that does not fit `req`.
+fn nonsense(req: &Request<'_>, salt: u64) -> Result<Option<Response>, ExceptionCode> {
+    let len = match req {
+        Request::ReadHoldingRegisters(_, n) => usize::from(*n),
+        _ => 1,
+    };
+    match salt % 4 {
+        0 => Ok(Some(Response::ReadHoldingRegisters(vec![0xDEAD; len + 1]))),
+        1 => Ok(Some(Response::ReadHoldingRegisters(
+            vec![0xBEEF; len.saturating_sub(1)],
+        ))),
+        2 => Ok(Some(Response::WriteSingleRegister(0xFFFF, 0x1234))),
+        _ => Err(ExceptionCode::Custom(0x40 + (salt % 32) as u8)),
     }
 }
 

@@ -354,3 +354,105 @@ async fn an_mqtt5_request_is_answered_on_its_response_topic_with_its_correlation
     assert_eq!(reply.json()["ok"], true);
     assert_eq!(reply.correlation.as_deref(), Some(&b"corr-42"[..]));
 }
+
+/// Payloads a fuzzer would send: random bytes, cut and mutated JSON, wrong types, deep nesting.
+fn fuzzed(rng: &mut u64) -> Vec<u8> {
+    let mut next = || {
+        *rng ^= *rng << 13;
+        *rng ^= *rng >> 7;
+        *rng ^= *rng << 17;
+        *rng
+    };
+    let seeds: [&[u8]; 6] = [
+        br#"{"op":"preset","value":3000,"id":"x"}"#,
+        br#"{"op":"clear"}"#,
+        br#"{"op":"clear_all"}"#,
+        br#"[{"op":"clear"}]"#,
+        br#"{"op":"preset","value":{"v":1}}"#,
+        b"\xff\xfe\x00garbage",
+    ];
+    let mut p = seeds[(next() % 6) as usize].to_vec();
+    match next() % 5 {
+        0 => p = (0..next() % 64).map(|_| next() as u8).collect(),
+        1 => p.truncate((next() as usize) % (p.len() + 1)),
+        2 => {
+            for _ in 0..1 + next() % 4 {
+                let i = (next() as usize) % p.len().max(1);
+                if i < p.len() {
+                    p[i] = next() as u8;
+                }
+            }
+        }
+        3 => {
+            p = format!(
+                "{}{}",
+                "[".repeat((next() % 200) as usize),
+                "]".repeat((next() % 200) as usize)
+            )
+            .into_bytes()
+        }
+        _ => p.extend_from_slice(b",\"extra\":1}"),
+    }
+    p
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ten_thousand_fuzzed_payloads_cause_no_write_and_no_crash() {
+    let rig = Rig::start("cmd-fuzz").await;
+    let writes = rig.writes();
+    let topics = [
+        "yl/enc0/cmd",
+        "yl/a1/cmd",
+        "yl/cmd",
+        "wj/a0/cmd",
+        "zh/di1/cmd",
+        "zh/cmd",
+        "ibf/enc3/cmd",
+    ];
+    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+    let mut sent = 0;
+    while sent < 10_000 {
+        let p = fuzzed(&mut rng);
+        let channel = !topics[sent % topics.len()].ends_with("/cmd")
+            || topics[sent % topics.len()].matches('/').count() == 2;
+        // Only malformed ones: a fuzzer that happens to write a valid command would rightly write.
+        if pulsegate::command::parse_payload(&p, channel).is_ok() {
+            continue;
+        }
+        rig.sub
+            .client
+            .publish(
+                format!("pulsegate/test/{}", topics[sent % topics.len()]),
+                QoS::AtMostOnce,
+                false,
+                p,
+            )
+            .await
+            .unwrap();
+        sent += 1;
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let results = loop {
+        let n = rig
+            .sub
+            .all()
+            .iter()
+            .filter(|m| m.topic.ends_with("/cmd/result"))
+            .count();
+        if n >= 10_000 || Instant::now() > deadline {
+            break n;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    assert_eq!(results, 10_000, "every payload answered");
+    assert_eq!(rig.writes(), writes, "no write reached a module");
+    let t = Instant::now();
+    assert!(
+        rig.sub
+            .wait_for("pulsegate/test/yl/enc0", Duration::from_secs(2), |m| m.at
+                > t)
+            .await
+            .is_some(),
+        "still polling"
+    );
+}

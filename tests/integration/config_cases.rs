@@ -1,1 +1,636 @@
-//! Broken configs as golden cases.
+//! Broken configs as a table: each case changes one key of a good config (or adds, or removes
+//! one) and names the error it must produce, by key path and message. None may panic, and each
+//! error must name the file.
+
+use std::path::Path;
+
+const BASE: &str = r#"
+[gateway]
+id = "edge-01"
+state_dir = "/var/lib/pulsegate"
+state_flush = "5s"
+stats_interval = "60s"
+[mqtt]
+host = "127.0.0.1"
+port = 1883
+client_id = "gw"
+keep_alive = "30s"
+qos = 1
+retain = false
+topic_root = "plant/edge-01"
+spool_mb = 64
+[buses.line1]
+port = "/dev/ttyUSB0"
+baud = 9600
+parity = "none"
+stop_bits = 1
+timeout = "300ms"
+guard = "1ms"
+offline_after = 3
+backoff_min = "1s"
+backoff_max = "60s"
+slow_poll = "60s"
+[buses.line1.devices.press1]
+unit = 1
+model = "yl67"
+poll = "500ms"
+timeout = "200ms"
+commands = true
+[buses.line1.devices.press1.channels.enc0]
+ppr = 1024
+max_rate_hz = 20000
+[buses.hall2]
+host = "127.0.0.1"
+port = 20108
+[buses.hall2.devices.doors]
+unit = 1
+model = "zh-yx1600"
+"#;
+
+/// (key path, new value as TOML or "-" to remove it, expected error path, expected message part)
+const CASES: &[(&str, &str, &str, &str)] = &[
+    // unknown keys, at every level
+    ("gateway.idd", "\"x\"", "gateway.idd", "unknown key"),
+    ("mqtt.hostname", "\"x\"", "mqtt.hostname", "unknown key"),
+    (
+        "buses.line1.bauds",
+        "9600",
+        "buses.line1.bauds",
+        "unknown key",
+    ),
+    (
+        "buses.line1.devices.press1.pol",
+        "\"1s\"",
+        "buses.line1.devices.press1.pol",
+        "unknown key",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.pp",
+        "1",
+        "buses.line1.devices.press1.channels.enc0.pp",
+        "unknown key",
+    ),
+    (
+        "buses.hall2.devices.doors.modle",
+        "\"yl67\"",
+        "buses.hall2.devices.doors.modle",
+        "unknown key",
+    ),
+    ("extra", "1", "extra", "unknown key"),
+    ("mqtt.tls.cafile", "\"x\"", "mqtt.tls.cafile", "unknown key"),
+    // gateway
+    ("gateway.id", "\"a/b\"", "gateway.id", "topic level"),
+    ("gateway.id", "\"a+b\"", "gateway.id", "topic level"),
+    ("gateway.id", "\"\"", "gateway.id", "topic level"),
+    ("gateway.id", "\"edge 01\"", "gateway.id", "topic level"),
+    (
+        "gateway.state_flush",
+        "\"0s\"",
+        "gateway.state_flush",
+        "greater than zero",
+    ),
+    (
+        "gateway.state_flush",
+        "\"soon\"",
+        "gateway.state_flush",
+        "bad duration",
+    ),
+    (
+        "gateway.state_flush",
+        "5",
+        "gateway.state_flush",
+        "expected a duration",
+    ),
+    (
+        "gateway.state_flush",
+        "\"5 parsecs\"",
+        "gateway.state_flush",
+        "bad duration",
+    ),
+    (
+        "gateway.stats_interval",
+        "\"0ms\"",
+        "gateway.stats_interval",
+        "greater than zero",
+    ),
+    (
+        "gateway.stats_interval",
+        "true",
+        "gateway.stats_interval",
+        "expected a duration",
+    ),
+    (
+        "gateway.state_dir",
+        "[1]",
+        "gateway.state_dir",
+        "invalid type",
+    ),
+    ("gateway", "5", "gateway", "expected a table"),
+    // mqtt
+    ("mqtt.port", "0", "mqtt.port", "1..65535"),
+    ("mqtt.port", "70000", "mqtt.port", "out of range"),
+    ("mqtt.port", "-1", "mqtt.port", "out of range"),
+    ("mqtt.port", "\"x\"", "mqtt.port", "whole number"),
+    ("mqtt.qos", "3", "mqtt.qos", "0, 1 or 2"),
+    ("mqtt.qos", "-1", "mqtt.qos", "out of range"),
+    (
+        "mqtt.keep_alive",
+        "\"1s\"",
+        "mqtt.keep_alive",
+        "at least 5s",
+    ),
+    (
+        "mqtt.keep_alive",
+        "\"0s\"",
+        "mqtt.keep_alive",
+        "greater than zero",
+    ),
+    (
+        "mqtt.keep_alive",
+        "\"x\"",
+        "mqtt.keep_alive",
+        "bad duration",
+    ),
+    ("mqtt.retain", "\"yes please\"", "mqtt.retain", "invalid"),
+    ("mqtt.topic_root", "\"a/#\"", "mqtt.topic_root", "wildcards"),
+    (
+        "mqtt.topic_root",
+        "\"a/+/b\"",
+        "mqtt.topic_root",
+        "wildcards",
+    ),
+    ("mqtt.topic_root", "\"/a\"", "mqtt.topic_root", "leading"),
+    ("mqtt.topic_root", "\"a/\"", "mqtt.topic_root", "trailing"),
+    (
+        "mqtt.topic_root",
+        "\"a//b\"",
+        "mqtt.topic_root",
+        "empty levels",
+    ),
+    (
+        "mqtt.topic_root",
+        "\"\"",
+        "mqtt.topic_root",
+        "without wildcards",
+    ),
+    ("mqtt.spool_mb", "0", "mqtt.spool_mb", "at least 1"),
+    ("mqtt.spool_mb", "-5", "mqtt.spool_mb", "out of range"),
+    (
+        "mqtt.password_file",
+        "\"/nonexistent/pw\"",
+        "mqtt.password_file",
+        "cannot read",
+    ),
+    (
+        "mqtt.tls.ca_file",
+        "\"/nonexistent/ca.pem\"",
+        "mqtt.tls.ca_file",
+        "no such file",
+    ),
+    (
+        "mqtt.tls.cert_file",
+        "\"/nonexistent/c.pem\"",
+        "mqtt.tls.ca_file",
+        "missing",
+    ),
+    ("mqtt", "\"broker\"", "mqtt", "expected a table"),
+    // buses
+    ("buses", "5", "buses", "table of named entries"),
+    (
+        "buses.line1.baud",
+        "1234",
+        "buses.line1.baud",
+        "not a rate the modules support",
+    ),
+    ("buses.line1.baud", "0", "buses.line1.baud", "not a rate"),
+    (
+        "buses.line1.baud",
+        "9600.5",
+        "buses.line1.baud",
+        "not a decimal",
+    ),
+    (
+        "buses.line1.baud",
+        "\"fast\"",
+        "buses.line1.baud",
+        "whole number",
+    ),
+    (
+        "buses.line1.parity",
+        "\"mark\"",
+        "buses.line1.parity",
+        "does not have variant",
+    ),
+    (
+        "buses.line1.parity",
+        "1",
+        "buses.line1.parity",
+        "should be represented",
+    ),
+    (
+        "buses.line1.stop_bits",
+        "3",
+        "buses.line1.stop_bits",
+        "1 or 2",
+    ),
+    (
+        "buses.line1.stop_bits",
+        "0",
+        "buses.line1.stop_bits",
+        "1 or 2",
+    ),
+    (
+        "buses.line1.timeout",
+        "\"0s\"",
+        "buses.line1.timeout",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.timeout",
+        "\"300\"",
+        "buses.line1.timeout",
+        "bad duration",
+    ),
+    (
+        "buses.line1.timeout",
+        "300",
+        "buses.line1.timeout",
+        "expected a duration",
+    ),
+    (
+        "buses.line1.guard",
+        "\"x\"",
+        "buses.line1.guard",
+        "bad duration",
+    ),
+    (
+        "buses.line1.offline_after",
+        "0",
+        "buses.line1.offline_after",
+        "at least 1",
+    ),
+    (
+        "buses.line1.offline_after",
+        "-3",
+        "buses.line1.offline_after",
+        "out of range",
+    ),
+    (
+        "buses.line1.backoff_min",
+        "\"0s\"",
+        "buses.line1.backoff_min",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.backoff_max",
+        "\"500ms\"",
+        "buses.line1.backoff_max",
+        "below backoff_min",
+    ),
+    (
+        "buses.line1.slow_poll",
+        "\"never\"",
+        "buses.line1.slow_poll",
+        "bad duration",
+    ),
+    ("buses.line1.port", "5", "buses.line1.port", "absolute path"),
+    ("buses.line1.port", "-", "buses.line1", "needs `port`"),
+    (
+        "buses.line1.devices",
+        "-",
+        "buses.line1.devices",
+        "no device on this bus",
+    ),
+    (
+        "buses.line1.devices",
+        "3",
+        "buses.line1.devices",
+        "table of named entries",
+    ),
+    ("buses.hall2.port", "0", "buses.hall2.port", "1..65535"),
+    (
+        "buses.hall2.port",
+        "\"/dev/ttyS0\"",
+        "buses.hall2.port",
+        "whole number",
+    ),
+    (
+        "buses.hall2.baud",
+        "9600",
+        "buses.hall2.baud",
+        "serial setting on a TCP bus",
+    ),
+    (
+        "buses.hall2.parity",
+        "\"even\"",
+        "buses.hall2.parity",
+        "serial setting on a TCP bus",
+    ),
+    (
+        "buses.hall2.stop_bits",
+        "2",
+        "buses.hall2.stop_bits",
+        "serial setting on a TCP bus",
+    ),
+    ("buses.line1", "\"x\"", "buses.line1", "expected a table"),
+    (
+        "buses.\"line 3\"",
+        "{ port = \"/dev/ttyS1\", devices = { d9 = { unit = 9, model = \"yl67\" } } }",
+        "buses.line 3",
+        "bus name",
+    ),
+    (
+        "buses.line4",
+        "{ port = \"/dev/ttyS1\" }",
+        "buses.line4.devices",
+        "no device on this bus",
+    ),
+    (
+        "buses.line5",
+        "{ devices = { d5 = { unit = 5, model = \"yl67\" } } }",
+        "buses.line5",
+        "needs `port`",
+    ),
+    // devices
+    (
+        "buses.line1.devices.press1.unit",
+        "0",
+        "buses.line1.devices.press1.unit",
+        "outside 1..247",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "248",
+        "buses.line1.devices.press1.unit",
+        "outside 1..247",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "-1",
+        "buses.line1.devices.press1.unit",
+        "outside 1..247",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "1000",
+        "buses.line1.devices.press1.unit",
+        "outside 1..247",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "1.5",
+        "buses.line1.devices.press1.unit",
+        "not a decimal",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "\"one\"",
+        "buses.line1.devices.press1.unit",
+        "whole number",
+    ),
+    (
+        "buses.line1.devices.press1.unit",
+        "true",
+        "buses.line1.devices.press1.unit",
+        "whole number",
+    ),
+    (
+        "buses.line1.port",
+        "\"ttyUSB0\"",
+        "buses.line1.port",
+        "absolute path",
+    ),
+    (
+        "buses.line1.devices.press1.poll",
+        "\"1 fortnight\"",
+        "buses.line1.devices.press1.poll",
+        "bad duration",
+    ),
+    ("mqtt.qos", "1.0", "mqtt.qos", "not a decimal"),
+    (
+        "buses.line1.devices.press1.unit",
+        "-",
+        "buses.line1.devices.press1.unit",
+        "missing",
+    ),
+    (
+        "buses.line1.devices.press1.model",
+        "\"yl68\"",
+        "buses.line1.devices.press1.model",
+        "unknown model",
+    ),
+    (
+        "buses.line1.devices.press1.model",
+        "\"\"",
+        "buses.line1.devices.press1.model",
+        "unknown model",
+    ),
+    (
+        "buses.line1.devices.press1.model",
+        "67",
+        "buses.line1.devices.press1.model",
+        "unknown model",
+    ),
+    (
+        "buses.line1.devices.press1.model",
+        "-",
+        "buses.line1.devices.press1.model",
+        "missing",
+    ),
+    (
+        "buses.line1.devices.press1.poll",
+        "\"0ms\"",
+        "buses.line1.devices.press1.poll",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.devices.press1.poll",
+        "\"fast\"",
+        "buses.line1.devices.press1.poll",
+        "bad duration",
+    ),
+    (
+        "buses.line1.devices.press1.poll",
+        "500",
+        "buses.line1.devices.press1.poll",
+        "expected a duration",
+    ),
+    (
+        "buses.line1.devices.press1.poll",
+        "\"-1s\"",
+        "buses.line1.devices.press1.poll",
+        "bad duration",
+    ),
+    (
+        "buses.line1.devices.press1.timeout",
+        "\"0s\"",
+        "buses.line1.devices.press1.timeout",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc9",
+        "{ ppr = 5 }",
+        "buses.line1.devices.press1.channels.enc9",
+        "has no channel enc9",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "0",
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "-5",
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "\"many\"",
+        "buses.line1.devices.press1.channels.enc0.ppr",
+        "invalid",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.max_rate_hz",
+        "0",
+        "buses.line1.devices.press1.channels.enc0.max_rate_hz",
+        "greater than zero",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0",
+        "7",
+        "buses.line1.devices.press1.channels.enc0",
+        "expected a table",
+    ),
+    (
+        "buses.line1.devices.press1",
+        "[]",
+        "buses.line1.devices.press1",
+        "expected a table",
+    ),
+    (
+        "buses.line1.devices.\"bad/name\"",
+        "{ unit = 7, model = \"yl67\" }",
+        "buses.line1.devices.bad/name",
+        "device name",
+    ),
+    (
+        "buses.line1.devices.status",
+        "{ unit = 7, model = \"yl67\" }",
+        "buses.line1.devices.status",
+        "not status, bus or cmd",
+    ),
+    (
+        "buses.line1.devices.cmd",
+        "{ unit = 7, model = \"yl67\" }",
+        "buses.line1.devices.cmd",
+        "not status, bus or cmd",
+    ),
+    (
+        "buses.line1.devices.twin",
+        "{ unit = 1, model = \"wj157\" }",
+        ".unit",
+        "already used by device",
+    ),
+    (
+        "buses.hall2.devices.press1",
+        "{ unit = 9, model = \"wj157\" }",
+        "buses.line1.devices.press1",
+        "already used on bus",
+    ),
+    (
+        "buses.line1.devices.wj",
+        "{ unit = 2, model = \"wj157\", channels = { enc3 = { ppr = 1 } } }",
+        "buses.line1.devices.wj.channels.enc3",
+        "model wj157 has no channel enc3",
+    ),
+];
+
+/// Sets `path` in a TOML table to `value` (TOML text), or removes it with "-".
+fn mutate(base: &str, path: &str, value: &str) -> String {
+    let mut doc: toml::Table = base.parse().unwrap();
+    let keys: Vec<String> = split_path(path);
+    let (last, parents) = keys.split_last().unwrap();
+    let mut t = &mut doc;
+    for k in parents {
+        t = t
+            .entry(k.clone())
+            .or_insert_with(|| toml::Value::Table(Default::default()))
+            .as_table_mut()
+            .expect("a table on the way");
+    }
+    if value == "-" {
+        t.remove(last);
+    } else {
+        let v: toml::Table = format!("v = {value}").parse().unwrap();
+        t.insert(last.clone(), v["v"].clone());
+    }
+    toml::to_string(&doc).unwrap()
+}
+
+fn split_path(path: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut cur = String::new();
+    let mut quoted = false;
+    for c in path.chars() {
+        match c {
+            '"' => quoted = !quoted,
+            '.' if !quoted => out.push(std::mem::take(&mut cur)),
+            c => cur.push(c),
+        }
+    }
+    out.push(cur);
+    out
+}
+
+#[test]
+fn the_base_config_is_valid() {
+    pulsegate::config::Config::from_toml(
+        BASE,
+        Path::new("/etc/pulsegate/pulsegate.toml"),
+        Some(Default::default()),
+    )
+    .unwrap();
+}
+
+#[test]
+fn every_broken_config_is_refused_naming_its_key_and_file() {
+    assert!(CASES.len() >= 100, "{} cases", CASES.len());
+    let file = Path::new("/etc/pulsegate/pulsegate.toml");
+    let mut failures = Vec::new();
+    for (path, value, want_path, want) in CASES {
+        let text = mutate(BASE, path, value);
+        let result = std::panic::catch_unwind(|| {
+            pulsegate::config::Config::from_toml(&text, file, Some(Default::default()))
+        });
+        let errors = match result {
+            Err(_) => {
+                failures.push(format!("{path} = {value}: PANIC"));
+                continue;
+            }
+            Ok(Ok(_)) => {
+                failures.push(format!("{path} = {value}: accepted"));
+                continue;
+            }
+            Ok(Err(e)) => e.0,
+        };
+        let hit = errors.iter().any(|e| {
+            e.path.ends_with(want_path)
+                && e.message.contains(want)
+                && e.origin == file.display().to_string()
+        });
+        if !hit {
+            failures.push(format!(
+                "{path} = {value}: want {want_path}: {want}; got {errors:?}"
+            ));
+        }
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases:\n{}",
+        failures.len(),
+        CASES.len(),
+        failures.join("\n")
+    );
+}

@@ -368,3 +368,38 @@ channels.enc1 = { rate = 120.0 }
 fn start_count(ch: &str) -> i64 {
     if ch == "a0" { 4_294_960_000 } else { 0 }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_module_answering_nonsense_is_refused_without_a_panic_or_a_wrong_value() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.a]\nunit = 1\nmodel = \"yl67\"\n[buses.line1.devices.b]\nunit = 2\nmodel = \"yl67\"\nnonsense = true\n",
+    )
+    .await;
+    let dir = temp_dir("nonsense");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices = [
+        ("line1", "a", 1, "yl67", "100ms"),
+        ("line1", "b", 2, "yl67", "100ms"),
+    ];
+    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
+    let gw = Gateway::start(&config);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    assert!(
+        sub.on("pulsegate/test/a/enc0").len() > 10,
+        "the sane module is polled"
+    );
+    assert!(
+        sub.all()
+            .iter()
+            .all(|m| !m.topic.starts_with("pulsegate/test/b/enc")),
+        "nothing published from nonsense"
+    );
+    let log = gw.log_text();
+    assert!(
+        log.contains("does not match the request") || log.contains("refused"),
+        "{log}"
+    );
+    let (status, _) = gw.terminate();
+    assert!(status.success(), "no panic: {status:?}");
+}
