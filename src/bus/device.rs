@@ -99,6 +99,11 @@ pub struct DeviceRt {
     pub last_error: Option<String>,
     /// Poll latencies (seconds), most recent last, for p50/p99.
     pub latencies: std::collections::VecDeque<f64>,
+    /// Measured turnaround (seconds, moving average), RTU only.
+    turnaround: Option<f64>,
+    /// Time between good polls (seconds, moving average), against the configured interval.
+    pub achieved_interval: Option<f64>,
+    last_good_poll: Option<Instant>,
 }
 
 impl DeviceRt {
@@ -132,6 +137,9 @@ impl DeviceRt {
             backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
             last_error: None,
             latencies: std::collections::VecDeque::new(),
+            turnaround: None,
+            achieved_interval: None,
+            last_good_poll: None,
             config: config.clone(),
         }
     }
@@ -227,6 +235,12 @@ impl DeviceRt {
                 update,
             });
         }
+        let now = Instant::now();
+        if let Some(last) = self.last_good_poll.replace(now) {
+            let gap = (now - last).as_secs_f64();
+            self.achieved_interval =
+                Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
+        }
         Ok(readings)
     }
 
@@ -274,6 +288,7 @@ impl DeviceRt {
                 ch.ppr = configured.or(read.filter(|p| *p > 0.0));
             }
         }
+        self.replan_with_turnaround(link);
         self.last_slow = Some(Instant::now());
         Ok(())
     }
@@ -339,7 +354,7 @@ impl DeviceRt {
             let started = Instant::now();
             match link.read(self.unit, b.start, b.len, timeout).await? {
                 Ok(words) => {
-                    self.record_latency(started.elapsed());
+                    self.record_latency(started.elapsed(), link, b.len);
                     out.push((b, words, SystemTime::now()));
                     i += 1;
                 }
@@ -376,10 +391,33 @@ impl DeviceRt {
         self.answer_timeout + line
     }
 
-    fn record_latency(&mut self, d: Duration) {
+    /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
+    /// the time the request and answer of `len` registers take on the line.
+    fn record_latency(&mut self, d: Duration, link: &Link, len: u16) {
         if self.latencies.len() >= 256 {
             self.latencies.pop_front();
         }
         self.latencies.push_back(d.as_secs_f64());
+        if let Some(t) = link.timing() {
+            let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
+            let turnaround = d.saturating_sub(line).as_secs_f64();
+            self.turnaround = Some(match self.turnaround {
+                Some(old) => old * 0.9 + turnaround * 0.1,
+                None => turnaround,
+            });
+        }
+    }
+
+    /// The device's measured turnaround (RTU), in seconds.
+    pub fn turnaround(&self) -> Option<f64> {
+        self.turnaround
+    }
+
+    /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
+    /// request really costs this device.
+    fn replan_with_turnaround(&mut self, link: &Link) {
+        if let (Some(t), Some(ta)) = (link.timing(), self.turnaround) {
+            self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
+        }
     }
 }

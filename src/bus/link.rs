@@ -38,6 +38,9 @@ pub enum LinkError {
     Io(#[from] io::Error),
     #[error("answer does not match the request: {0}")]
     Mismatch(String),
+    /// Another unit's answer (late, to an earlier request) arrived in this transaction.
+    #[error("stale answer from another unit: {0}")]
+    Stale(String),
     /// Bytes came back but never a valid frame: CRC errors, a frame cut short. The device is
     /// there; the line is noisy.
     #[error("garbled answer ({0} bytes, no valid frame) within {1:?}")]
@@ -204,7 +207,25 @@ impl Link {
         LinkError::Mismatch(message)
     }
 
+    /// One transaction. An answer from another unit (a late answer to an earlier request that
+    /// arrived during this one) is dropped and the request sent once more: the unit asked is not
+    /// at fault, and its own answer may be right behind.
     async fn call(
+        &mut self,
+        unit: u8,
+        req: Request<'static>,
+        timeout: Duration,
+    ) -> Answer<Response> {
+        match self.call_once(unit, req.clone(), timeout).await {
+            Err(LinkError::Stale(m)) => {
+                tracing::debug!(unit, "stale answer dropped ({m}); asking again");
+                self.call_once(unit, req, timeout).await
+            }
+            other => other,
+        }
+    }
+
+    async fn call_once(
         &mut self,
         unit: u8,
         req: Request<'static>,
@@ -246,6 +267,13 @@ impl Link {
                 self.counters.io_errors += 1;
                 self.close();
                 Err(LinkError::Io(e))
+            }
+            Ok(Err(tokio_modbus::Error::Protocol(
+                e @ tokio_modbus::ProtocolError::HeaderMismatch { .. },
+            ))) => {
+                self.counters.mismatches += 1;
+                self.ctx = None;
+                Err(LinkError::Stale(e.to_string()))
             }
             Ok(Err(tokio_modbus::Error::Protocol(e))) => Err(self.mismatch(e.to_string())),
             Ok(Ok(Err(exception))) => {

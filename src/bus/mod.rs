@@ -25,7 +25,7 @@ use crate::reading::Output;
 use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
-use link::Link;
+use link::{Link, WireCounters};
 use schedule::{Slot, earliest};
 
 /// A checked command for a device on this bus, and where its outcome goes.
@@ -105,6 +105,7 @@ impl BusTask {
         let mut stats_at = start + self.stats_interval;
         let mut stats_since = start;
         let mut busy_at_stats = Duration::ZERO;
+        let mut counters_at_stats = link::WireCounters::default();
         let mut line_down = false;
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
@@ -152,7 +153,15 @@ impl BusTask {
             }
             if now >= stats_at {
                 let wall = now - stats_since;
-                let stats = stats_json(&link, &devices, &slots, wall, link.busy - busy_at_stats);
+                let stats = stats_json(
+                    &link,
+                    &counters_at_stats,
+                    &devices,
+                    &slots,
+                    wall,
+                    link.busy - busy_at_stats,
+                );
+                counters_at_stats = link.counters;
                 tracing::info!(bus = %name, %stats, "bus stats");
                 let _ = self.out.send(Output::BusStats {
                     bus: name.clone(),
@@ -304,8 +313,10 @@ fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
     Some(sorted[idx])
 }
 
+/// Bus health since the last report (`since`: the counters then).
 fn stats_json(
     link: &Link,
+    since: &WireCounters,
     devices: &[DeviceRt],
     slots: &[Slot],
     wall: Duration,
@@ -320,7 +331,10 @@ fn stats_json(
             d.name.to_string(),
             serde_json::json!({
                 "online": d.online,
+                "poll_ms": d.config.poll.as_secs_f64() * 1000.0,
+                "achieved_poll_ms": d.achieved_interval.map(|v| v * 1000.0),
                 "missed": s.missed,
+                "turnaround_ms": d.turnaround().map(|v| v * 1000.0),
                 "latency_p50_ms": percentile(&lat, 0.5).map(|v| v * 1000.0),
                 "latency_p99_ms": percentile(&lat, 0.99).map(|v| v * 1000.0),
                 "last_error": d.last_error,
@@ -330,6 +344,7 @@ fn stats_json(
     serde_json::json!({
         "utilisation": busy.as_secs_f64() / wall.as_secs_f64().max(1e-9),
         "transactions": c.transactions,
+        "transactions_per_s": (c.transactions - since.transactions) as f64 / wall.as_secs_f64().max(1e-9),
         "timeouts": c.timeouts,
         "garbled": c.garbled,
         "stale_dropped": c.mismatches,

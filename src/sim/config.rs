@@ -41,6 +41,9 @@ pub struct SimDeviceConfig {
     /// Answer nonsense in well-formed frames.
     #[serde(default)]
     pub nonsense: bool,
+    /// Answer this late, e.g. "150ms".
+    #[serde(default, with = "humantime_serde")]
+    pub answer_delay: Option<std::time::Duration>,
     #[serde(default)]
     pub channels: BTreeMap<String, SimChannelConfig>,
 }

@@ -104,6 +104,7 @@ impl Plant {
                 }
                 m.silent = d.silent;
                 m.nonsense = d.nonsense;
+                m.answer_delay = d.answer_delay.unwrap_or_default();
                 if modules.insert(d.unit, m).is_some() {
                     return Err(bus_err(format!("unit {} used twice", d.unit)));
                 }

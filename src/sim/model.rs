@@ -79,6 +79,9 @@ pub struct SimModule {
     plain: BTreeMap<u16, u16>,
     /// Silent modules do not answer at all.
     pub silent: bool,
+    /// Answers come this late (a slow module, or one whose answer outlives the gateway's
+    /// timeout and arrives while the gateway already talks to the next module).
+    pub answer_delay: std::time::Duration,
     /// A module answering nonsense in well-formed frames (valid CRC): wrong register counts,
     /// answers to another function, unknown exception codes.
     pub nonsense: bool,
@@ -160,6 +163,7 @@ impl SimModule {
             plain,
             silent: false,
             nonsense: false,
+            answer_delay: std::time::Duration::ZERO,
             glitch_zero: Vec::new(),
             writes: 0,
             last_write: None,

@@ -1,6 +1,6 @@
 //! The Modbus server shell around the simulated modules.
 
-use std::future::{Ready, ready};
+use std::future::ready;
 use std::io;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -26,7 +26,22 @@ impl SimService {
         SimService { modules, start }
     }
 
-    fn answer(&self, req: SlaveRequest<'static>) -> Result<Option<Response>, ExceptionCode> {
+    /// The answer and how long the module takes to give it.
+    fn answer(
+        &self,
+        req: SlaveRequest<'static>,
+    ) -> (Result<Option<Response>, ExceptionCode>, std::time::Duration) {
+        let delay = self
+            .modules
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&req.slave)
+            .map(|m| m.answer_delay)
+            .unwrap_or_default();
+        (self.answer_now(req), delay)
+    }
+
+    fn answer_now(&self, req: SlaveRequest<'static>) -> Result<Option<Response>, ExceptionCode> {
         let now = self.start.elapsed().as_secs_f64();
         let mut modules = self.modules.lock().unwrap_or_else(|e| e.into_inner());
         let Some(m) = modules.get_mut(&req.slave) else {
@@ -84,10 +99,19 @@ impl Service for SimService {
     type Request = SlaveRequest<'static>;
     type Response = Option<Response>;
     type Exception = ExceptionCode;
-    type Future = Ready<Result<Option<Response>, ExceptionCode>>;
+    type Future = std::pin::Pin<
+        Box<dyn std::future::Future<Output = Result<Option<Response>, ExceptionCode>> + Send>,
+    >;
 
     fn call(&self, req: Self::Request) -> Self::Future {
-        ready(self.answer(req))
+        let (answer, delay) = self.answer(req);
+        if delay.is_zero() {
+            return Box::pin(ready(answer));
+        }
+        Box::pin(async move {
+            tokio::time::sleep(delay).await;
+            answer
+        })
     }
 }
 

@@ -149,6 +149,9 @@ async fn clear_and_preset_reach_every_seed_model() {
         .await;
     assert_eq!(r["ok"], true, "{r}");
     assert_eq!(rig.count(2, "enc2"), 2_147_483_647);
+    let r = rig.command("ibf/enc2/cmd", json!({"op":"clear"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(rig.count(2, "enc2"), 0);
 
     // WJ157 in counter mode.
     let r = rig
@@ -162,6 +165,11 @@ async fn clear_and_preset_reach_every_seed_model() {
             (4_000_000_000u32 >> 16) as u16
         ]
     );
+    let r = rig.command("wj/a0/cmd", json!({"op":"clear"})).await;
+    assert_eq!(r["ok"], true, "{r}");
+    assert_eq!(rig.count(3, "a0"), 0);
+    rig.command("wj/a0/cmd", json!({"op":"preset","value":5}))
+        .await;
     let r = rig.command("wj/cmd", json!({"op":"clear_all"})).await;
     assert_eq!(r["ok"], true, "{r}");
     assert_eq!(rig.count(3, "a0"), 0);

@@ -403,3 +403,48 @@ async fn a_module_answering_nonsense_is_refused_without_a_panic_or_a_wrong_value
     let (status, _) = gw.terminate();
     assert!(status.success(), "no panic: {status:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_answer_is_never_taken_for_the_next_modules() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.slow]\nunit = 1\nmodel = \"yl67\"\nanswer_delay = \"180ms\"\nchannels.enc0 = { count = 111111 }\n\
+         [buses.line1.devices.fast]\nunit = 2\nmodel = \"yl67\"\nchannels.enc0 = { count = 222222 }\n",
+    )
+    .await;
+    let dir = temp_dir("late");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices = [
+        ("line1", "slow", 1, "yl67", "100ms"),
+        ("line1", "fast", 2, "yl67", "100ms"),
+    ];
+    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
+    let gw = Gateway::start(&config);
+    tokio::time::sleep(Duration::from_secs(5)).await;
+    let fast = readings(&sub, "pulsegate/test/fast/enc0");
+    assert!(
+        fast.len() > 10,
+        "the module behind the slow one is polled: {}",
+        fast.len()
+    );
+    assert!(
+        fast.iter().all(|r| r["count"] == 222222),
+        "a late answer was bound to the wrong module"
+    );
+    assert!(
+        sub.on("pulsegate/test/slow/enc0").is_empty(),
+        "answers after the timeout are not readings"
+    );
+    assert!(
+        sub.wait_for("pulsegate/test/slow/status", Duration::from_secs(1), |m| m
+            .payload
+            == "offline")
+            .await
+            .is_some()
+    );
+    let log = gw.log_text();
+    assert!(
+        log.contains("no answer within") || log.contains("does not match"),
+        "{log}"
+    );
+}

@@ -249,3 +249,40 @@ poll = "500ms"
     );
     assert!(text.contains("ms on the line"), "{text}");
 }
+
+#[test]
+fn the_demo_shows_live_readings_of_every_model() {
+    let broker = Broker::start();
+    let out = std::process::Command::new(bin())
+        .args([
+            "demo",
+            "--mqtt",
+            &format!("127.0.0.1:{}", broker.port),
+            "--duration",
+            "5s",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    // The last table drawn: rows for the YL67, IBF67, both WJ157s and the ZH-YX1600 on TCP.
+    let last = text.rsplit("pulsegate demo: readings").next().unwrap();
+    for row in [
+        "press1/enc0",
+        "press1/a2",
+        "spindle/enc0",
+        "conveyor/enc3",
+        "bottles/a0",
+        "doors/di1",
+    ] {
+        assert!(last.contains(row), "no {row} in the live table:\n{last}");
+    }
+    assert!(
+        last.contains("press1/status=online") && last.contains("doors/status=online"),
+        "{last}"
+    );
+}
