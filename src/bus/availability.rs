@@ -44,8 +44,14 @@ pub(super) fn failed(
         tracing::warn!(bus = bus_name, device = %d.name, unit = d.unit, "{message}");
         d.last_error = Some(message);
     }
+    if e.device_answered() {
+        // It is there (an exception, a garbled answer on a noisy line): not a step towards
+        // offline.
+        d.failures = 0;
+        return None;
+    }
     d.failures += 1;
-    if d.failures < bus.offline_after || e.device_answered() {
+    if d.failures < bus.offline_after {
         return None;
     }
     if d.online != Some(false) {

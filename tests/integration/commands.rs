@@ -464,3 +464,89 @@ async fn ten_thousand_fuzzed_payloads_cause_no_write_and_no_crash() {
         "still polling"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn commands_to_a_disabled_or_offline_device_are_refused_without_a_write() {
+    let broker = Broker::start();
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("cmd-refused");
+    let sub = Subscriber::start(broker.port, "#").await;
+    let devices = [
+        ("line1", "yl", 1, "yl67", "200ms"),
+        ("line1", "wj", 3, "wj157", "200ms"),
+    ];
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, "").replace(
+        "model = \"yl67\"\npoll = \"200ms\"\n",
+        "model = \"yl67\"\npoll = \"200ms\"\ncommands = false\n",
+    );
+    assert!(text.contains("commands = false"));
+    let config = write_config(&dir, &text);
+    let _gw = Gateway::start(&config);
+    for d in ["yl", "wj"] {
+        let t = format!("pulsegate/test/{d}/status");
+        assert!(
+            sub.wait_for(&t, Duration::from_secs(5), |m| m.payload == "online")
+                .await
+                .is_some()
+        );
+    }
+    sub.client
+        .publish(
+            "pulsegate/test/yl/enc0/cmd",
+            QoS::AtLeastOnce,
+            false,
+            r#"{"op":"clear","id":"d1"}"#,
+        )
+        .await
+        .unwrap();
+    let r = sub
+        .wait_for(
+            "pulsegate/test/yl/enc0/cmd/result",
+            Duration::from_secs(3),
+            |_| true,
+        )
+        .await
+        .expect("result");
+    assert_eq!(r.json()["error"], "disabled", "{}", r.payload);
+
+    // The WJ157 stops answering: a command waits for it at most its 10 s expiry.
+    plant
+        .with_module("line1", 3, |m, _| m.silent = true)
+        .unwrap();
+    assert!(
+        sub.wait_for("pulsegate/test/wj/status", Duration::from_secs(5), |m| m
+            .payload
+            == "offline")
+            .await
+            .is_some()
+    );
+    let sent = Instant::now();
+    sub.client
+        .publish(
+            "pulsegate/test/wj/a0/cmd",
+            QoS::AtLeastOnce,
+            false,
+            r#"{"op":"clear","id":"o1"}"#,
+        )
+        .await
+        .unwrap();
+    let r = sub
+        .wait_for(
+            "pulsegate/test/wj/a0/cmd/result",
+            Duration::from_secs(15),
+            |_| true,
+        )
+        .await
+        .expect("result");
+    assert_eq!(r.json()["error"], "offline", "{}", r.payload);
+    let waited = r.at - sent;
+    assert!(
+        waited >= Duration::from_secs(9) && waited < Duration::from_secs(13),
+        "waited {waited:?}"
+    );
+    let writes: u64 = [1u8, 3]
+        .iter()
+        .map(|u| plant.with_module("line1", *u, |m, _| m.writes).unwrap())
+        .sum();
+    assert_eq!(writes, 0, "no write");
+}

@@ -314,8 +314,9 @@ channels.enc1 = { rate = 120.0 }
     let stopped_at = plant.now();
     for (dev, unit, ch, rate) in channels {
         let topic = format!("pulsegate/test/{dev}/{ch}");
+        // At 5% lost bytes most frames break: a good one may take a while.
         let last = sub
-            .wait_for(&topic, Duration::from_secs(60), |m| {
+            .wait_for(&topic, Duration::from_secs(180), |m| {
                 m.at > stopped + Duration::from_millis(300)
             })
             .await
