@@ -211,21 +211,6 @@ impl Profile {
         out
     }
 
-    /// The mode value of each group that selects the given channel kind, for the simulator.
-    pub fn mode_value_for(&self, group: usize, kind: ChannelKind) -> Option<u16> {
-        self.groups.get(group).and_then(|g| {
-            g.modes
-                .iter()
-                .find(|m| m.channels.iter().any(|c| c.kind == kind))
-                .map(|m| m.value)
-        })
-    }
-
-    /// Number of 16-bit registers read in one request at most (Modbus limit).
-    pub fn max_read(&self) -> u16 {
-        125
-    }
-
     fn check(&self) -> Result<(), String> {
         if self.model.is_empty() {
             return Err("model name is empty".into());
@@ -238,29 +223,22 @@ impl Profile {
                 return Err(format!("group {} has no modes", g.name));
             }
         }
-        // Within any one mode combination channel names must be unique; checking every mode of
-        // every instance together is stricter but catches template slips.
-        let modes: Vec<u16> = self
-            .mode_registers()
-            .iter()
-            .map(|r| self.groups[r.group].modes[0].value)
-            .collect();
-        for combo in 0..self.groups.iter().map(|g| g.modes.len()).max().unwrap_or(1) {
+        // Channel names must be unique whatever the modes: check with every group in its k-th
+        // mode (or its last, for groups with fewer), for each k.
+        let most_modes = self.groups.iter().map(|g| g.modes.len()).max().unwrap_or(1);
+        for k in 0..most_modes {
             let modes: Vec<u16> = self
                 .mode_registers()
                 .iter()
-                .zip(&modes)
-                .map(|(r, &first)| {
-                    self.groups[r.group]
-                        .modes
-                        .get(combo)
-                        .map_or(first, |m| m.value)
+                .map(|r| {
+                    let g = &self.groups[r.group];
+                    g.modes[k.min(g.modes.len() - 1)].value
                 })
                 .collect();
             let channels = self.channels(&modes).map_err(|e| e.to_string())?;
-            let mut seen = BTreeMap::new();
+            let mut seen = std::collections::BTreeSet::new();
             for ch in &channels {
-                if seen.insert(ch.name.clone(), ()).is_some() {
+                if !seen.insert(ch.name.clone()) {
                     return Err(format!("channel name {} appears twice", ch.name));
                 }
                 if !crate::config::is_topic_safe(&ch.name) {
