@@ -40,7 +40,7 @@ pub struct CounterSpec {
 
 impl CounterSpec {
     /// Largest jump that `elapsed_ms` can explain, with room for timing jitter.
-    fn plausible(&self, elapsed_ms: u64) -> i64 {
+    pub fn plausible(&self, elapsed_ms: u64) -> i64 {
         let secs = elapsed_ms.max(1) as f64 / 1000.0;
         (self.max_rate_hz * secs * 1.25 + 16.0) as i64
     }

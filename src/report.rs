@@ -3,8 +3,8 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::{Config, Link, Parity};
-use crate::plan::{LineTiming, Wire, line_time, plan_reads};
+use crate::config::{Config, Link};
+use crate::plan::{Wire, line_time, plan_reads};
 use crate::profile::Register;
 
 /// Assumed device turnaround when estimating line time (the planner measures it at run time).
@@ -16,19 +16,7 @@ const TURNAROUND: Duration = Duration::from_millis(2);
 pub fn poll_plan(config: &Config) -> String {
     let mut out = String::new();
     for bus in &config.buses {
-        let timing = match &bus.link {
-            Link::Rtu {
-                baud,
-                parity,
-                stop_bits,
-                ..
-            } => Some(LineTiming {
-                baud: *baud,
-                bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
-                guard: bus.guard,
-            }),
-            Link::Tcp { .. } => None,
-        };
+        let timing = bus.line_timing();
         let link = match &bus.link {
             Link::Rtu { port, baud, .. } => format!("RTU {} at {baud} baud", port.display()),
             Link::Tcp { host, port } => format!("TCP {host}:{port}"),

@@ -59,6 +59,29 @@ pub(super) struct ChannelRt {
     pub(super) ppr: Option<f64>,
 }
 
+impl ChannelRt {
+    /// This channel's reading of a count that arrived at `at`.
+    pub(super) fn reading(
+        &self,
+        device: &Arc<str>,
+        at: SystemTime,
+        count: i64,
+        freq_hz: Option<f64>,
+        rpm: Option<f64>,
+        update: crate::counter::Update,
+    ) -> Reading {
+        Reading {
+            device: device.clone(),
+            channel: self.name.clone(),
+            ts: at,
+            count,
+            freq_hz,
+            rpm,
+            update,
+        }
+    }
+}
+
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
     blocks: Vec<(Block, Vec<u16>, SystemTime)>,
@@ -99,6 +122,9 @@ pub struct DeviceRt {
     pub last_error: Option<String>,
     /// Poll latencies (seconds), most recent last, for p50/p99.
     pub latencies: std::collections::VecDeque<f64>,
+    /// The last plan: registers, holes known, wire prices, and the reads.
+    #[allow(clippy::type_complexity)]
+    plan_memo: Option<(Vec<Register>, usize, Wire, Vec<Block>)>,
     /// Measured turnaround (seconds, moving average), RTU only.
     turnaround: Option<f64>,
     /// Time between good polls (seconds, moving average), against the configured interval.
@@ -137,6 +163,7 @@ impl DeviceRt {
             backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
             last_error: None,
             latencies: std::collections::VecDeque::new(),
+            plan_memo: None,
             turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
@@ -225,15 +252,7 @@ impl DeviceRt {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
-            readings.push(Reading {
-                device: self.name.clone(),
-                channel: ch.name.clone(),
-                ts: at,
-                count,
-                freq_hz,
-                rpm,
-                update,
-            });
+            readings.push(ch.reading(&self.name, at, count, freq_hz, rpm, update));
         }
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
@@ -342,7 +361,7 @@ impl DeviceRt {
         regs: &[Register],
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Snapshot, PollError> {
-        let mut blocks = plan_reads(regs, &self.holes, &self.wire);
+        let mut blocks = self.plan(regs);
         let mut out = Vec::with_capacity(blocks.len());
         let mut i = 0;
         while i < blocks.len() {
@@ -380,6 +399,21 @@ impl DeviceRt {
             }
         }
         Ok(Snapshot { blocks: out })
+    }
+
+    /// The reads for `regs`: planned once and reused while the registers, the holes and the
+    /// wire's prices stay the same (the count poll asks for the same registers every time).
+    fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
+        if let Some((r, holes, wire, blocks)) = &self.plan_memo
+            && r.as_slice() == regs
+            && *holes == self.holes.len()
+            && *wire == self.wire
+        {
+            return blocks.clone();
+        }
+        let blocks = plan_reads(regs, &self.holes, &self.wire);
+        self.plan_memo = Some((regs.to_vec(), self.holes.len(), self.wire, blocks.clone()));
+        blocks
     }
 
     /// The answer timeout plus the time the request and answer take on the line.

@@ -83,15 +83,7 @@ impl DeviceRt {
                 let Some(update) = ch.counter.update(count, unix_ms(at)) else {
                     continue;
                 };
-                readings.push(Reading {
-                    device: self.name.clone(),
-                    channel: ch.name.clone(),
-                    ts: at,
-                    count,
-                    freq_hz: None,
-                    rpm: None,
-                    update,
-                });
+                readings.push(ch.reading(&self.name, at, count, None, None, update));
             }
         }
         // 2. Write.
@@ -139,21 +131,12 @@ impl DeviceRt {
             };
             let got = decode(w, ch.spec.count.ty, order).as_i64();
             // Pulses keep coming while we write: allow what the input can count meanwhile.
-            let slack = (ch.counter.spec.max_rate_hz * (elapsed_ms.max(1) as f64 / 1000.0) * 1.25
-                + 16.0) as i64;
+            let slack = ch.counter.spec.plausible(elapsed_ms);
             if (got - expected).abs() > slack {
                 mismatch.get_or_insert(CommandError::ReadBack { expected, got });
             }
             let update = ch.counter.rebase(got, unix_ms(at), event);
-            readings.push(Reading {
-                device: self.name.clone(),
-                channel: ch.name.clone(),
-                ts: at,
-                count: got,
-                freq_hz: None,
-                rpm: None,
-                update,
-            });
+            readings.push(ch.reading(&self.name, at, got, None, None, update));
             single = Some(got);
         }
         match mismatch {

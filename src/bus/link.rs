@@ -94,19 +94,7 @@ pub struct Link {
 impl Link {
     /// A link for `config`; nothing is opened until the first transaction.
     pub fn new(config: LinkConfig, guard: Duration) -> Link {
-        let timing = match &config {
-            LinkConfig::Rtu {
-                baud,
-                parity,
-                stop_bits,
-                ..
-            } => Some(LineTiming {
-                baud: *baud,
-                bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
-                guard,
-            }),
-            LinkConfig::Tcp { .. } => None,
-        };
+        let timing = crate::config::line_timing(&config, guard);
         Link {
             config,
             timing,

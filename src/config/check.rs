@@ -126,6 +126,11 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
     g
 }
 
+/// A password read from a file: the line ending is not part of it.
+fn secret(text: String) -> super::Secret {
+    super::Secret(text.trim_end_matches(['\n', '\r']).to_string())
+}
+
 fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     let mut m = Mqtt {
         host: "127.0.0.1".into(),
@@ -157,7 +162,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     m.password = t.opt::<String>("password", errs).map(super::Secret);
     if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
         match std::fs::read_to_string(&file) {
-            Ok(p) => m.password = Some(super::Secret(p.trim_end_matches(['\n', '\r']).to_string())),
+            Ok(p) => m.password = Some(secret(p)),
             Err(e) => errs.push(
                 &join(&t.path, "password_file"),
                 t.origin(),
@@ -169,7 +174,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         // systemd's LoadCredential=mqtt-password:… puts it here for this service only.
         if let Some(dir) = std::env::var_os("CREDENTIALS_DIRECTORY") {
             if let Ok(p) = std::fs::read_to_string(Path::new(&dir).join("mqtt-password")) {
-                m.password = Some(super::Secret(p.trim_end_matches(['\n', '\r']).to_string()));
+                m.password = Some(secret(p));
             }
         }
     }

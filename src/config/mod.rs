@@ -151,6 +151,31 @@ pub enum Link {
     Tcp { host: String, port: u16 },
 }
 
+impl Bus {
+    /// Character timing of the bus's serial line; `None` for Modbus TCP.
+    pub fn line_timing(&self) -> Option<crate::plan::LineTiming> {
+        line_timing(&self.link, self.guard)
+    }
+}
+
+/// Character timing of a serial link with `guard` after the silent interval: start bit, 8 data
+/// bits, parity if any, stop bits. `None` for Modbus TCP.
+pub fn line_timing(link: &Link, guard: Duration) -> Option<crate::plan::LineTiming> {
+    match link {
+        Link::Rtu {
+            baud,
+            parity,
+            stop_bits,
+            ..
+        } => Some(crate::plan::LineTiming {
+            baud: *baud,
+            bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
+            guard,
+        }),
+        Link::Tcp { .. } => None,
+    }
+}
+
 /// Serial parity.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -50,8 +50,7 @@ impl Rig {
             ("line1", "wj", 3, "wj157", "200ms"),
             ("line1", "zh", 4, "zh-yx1600", "200ms"),
         ];
-        let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
-        let gateway = Gateway::start(&config);
+        let gateway = start_gateway(&plant, broker.port, &dir, &devices, "");
         for d in ["yl", "ibf", "wj", "zh"] {
             let t = format!("pulsegate/test/{d}/status");
             assert!(
@@ -286,8 +285,7 @@ async fn a_retained_clear_waiting_on_the_broker_does_nothing_at_start() {
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
     let devices = [("line1", "yl", 1, "yl67", "200ms")];
-    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
-    let _gw = Gateway::start(&config);
+    let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
     assert!(
         sub.wait_for("pulsegate/test/yl/enc0", Duration::from_secs(3), |_| true)
             .await

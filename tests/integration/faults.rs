@@ -83,8 +83,7 @@ async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
     }
     let plant = plant(&plant_toml).await;
     let sub = Subscriber::start_persistent(port, "pulsegate/test/#", "outage-consumer").await;
-    let config = write_config(&dir, &gateway_toml(&plant, port, &dir, &devices, ""));
-    let gw = Gateway::start(&config);
+    let gw = start_gateway(&plant, port, &dir, &devices, "");
     for n in &names {
         let t = format!("pulsegate/test/{n}/status");
         assert!(
@@ -141,17 +140,13 @@ async fn sigterm_finishes_saves_state_says_offline_and_exits_0_within_5s() {
     .await;
     let dir = temp_dir("sigterm");
     let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
-    let config = write_config(
+    let gw = start_gateway(
+        &plant,
+        broker.port,
         &dir,
-        &gateway_toml(
-            &plant,
-            broker.port,
-            &dir,
-            &[("line1", "d", 1, "yl67", "100ms")],
-            "",
-        ),
+        &[("line1", "d", 1, "yl67", "100ms")],
+        "",
     );
-    let gw = Gateway::start(&config);
     assert!(
         sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(3), |_| true)
             .await
@@ -193,17 +188,13 @@ async fn an_adapter_unplugged_and_plugged_back_resumes_polling_within_5s() {
     ))
     .await;
     let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
-    let config = write_config(
+    let gw = start_gateway(
+        &plant,
+        broker.port,
         &dir,
-        &gateway_toml(
-            &plant,
-            broker.port,
-            &dir,
-            &[("line1", "d", 1, "yl67", "200ms")],
-            "",
-        ),
+        &[("line1", "d", 1, "yl67", "200ms")],
+        "",
     );
-    let gw = Gateway::start(&config);
     assert!(
         sub.wait_for("pulsegate/test/d/status", Duration::from_secs(3), |m| m
             .payload
@@ -286,17 +277,13 @@ channels.enc1 = { rate = 120.0 }
         ("line1", "b", 2, "wj157", "200ms"),
         ("line1", "c", 3, "yl67", "200ms"),
     ];
-    let config = write_config(
+    let _gw = start_gateway(
+        &plant,
+        broker.port,
         &dir,
-        &gateway_toml(
-            &plant,
-            broker.port,
-            &dir,
-            &devices,
-            "[buses.line1.devices.a.channels.enc0]\nmax_rate_hz = 1000\n",
-        ),
+        &devices,
+        "[buses.line1.devices.a.channels.enc0]\nmax_rate_hz = 1000\n",
     );
-    let _gw = Gateway::start(&config);
     tokio::time::sleep(soak()).await;
 
     let channels = [
@@ -383,8 +370,7 @@ async fn a_module_answering_nonsense_is_refused_without_a_panic_or_a_wrong_value
         ("line1", "a", 1, "yl67", "100ms"),
         ("line1", "b", 2, "yl67", "100ms"),
     ];
-    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
-    let gw = Gateway::start(&config);
+    let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
     tokio::time::sleep(Duration::from_secs(3)).await;
     assert!(
         sub.on("pulsegate/test/a/enc0").len() > 10,
@@ -419,8 +405,7 @@ async fn a_late_answer_is_never_taken_for_the_next_modules() {
         ("line1", "slow", 1, "yl67", "100ms"),
         ("line1", "fast", 2, "yl67", "100ms"),
     ];
-    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
-    let gw = Gateway::start(&config);
+    let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
     tokio::time::sleep(Duration::from_secs(5)).await;
     let fast = readings(&sub, "pulsegate/test/fast/enc0");
     assert!(

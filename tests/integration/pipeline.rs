@@ -130,8 +130,7 @@ model = "zh-yx1600"
         ("line1", "b", 2, "wj157", "200ms"),
         ("line1", "c", 3, "zh-yx1600", "200ms"),
     ];
-    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
-    let _gw = Gateway::start(&config);
+    let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
     for d in ["a", "b", "c"] {
         let topic = format!("pulsegate/test/{d}/status");
         assert!(

@@ -385,3 +385,17 @@ pub fn write_config(dir: &Path, text: &str) -> PathBuf {
 pub fn readings(sub: &Subscriber, topic: &str) -> Vec<serde_json::Value> {
     sub.on(topic).iter().map(Message::json).collect()
 }
+
+/// Writes the gateway config for `plant` (as [`gateway_toml`]) to `dir` and starts the gateway.
+pub fn start_gateway(
+    plant: &Plant,
+    broker_port: u16,
+    dir: &Path,
+    devices: &[(&str, &str, u8, &str, &str)],
+    extra: &str,
+) -> Gateway {
+    Gateway::start(&write_config(
+        dir,
+        &gateway_toml(plant, broker_port, dir, devices, extra),
+    ))
+}
