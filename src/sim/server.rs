@@ -118,9 +118,9 @@ impl Service for SimService {
 /// Marks a descriptor close-on-exec: a pseudo-terminal end inherited by a child process (the
 /// gateway started by a test) would keep the line up after the simulator drops it.
 pub fn private(port: TTYPort) -> TTYPort {
-    use nix::fcntl::{FcntlArg, FdFlag, fcntl};
     use std::os::fd::AsRawFd;
-    let _ = fcntl(port.as_raw_fd(), FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC));
+    // SAFETY: F_SETFD on a descriptor `port` owns and keeps open; no memory is passed.
+    let _ = unsafe { libc::fcntl(port.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
     port
 }
 
