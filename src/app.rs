@@ -12,6 +12,7 @@ use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
 use crate::health::Health;
+use crate::metrics::Metrics;
 use crate::reading::Output;
 
 /// A bus task and what it takes to stop it or talk to it.
@@ -34,10 +35,12 @@ pub async fn run_with_reloads(
     let (out_tx, out_rx) = unbounded_channel();
     let (incoming_tx, incoming_rx) = unbounded_channel();
     let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
+    let metrics = Metrics::new();
+    let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
     for bus in &config.buses {
-        let r = start_bus(bus, &config, &health, &out_tx, &shutdown);
+        let r = start_bus(bus, &config, &health, &metrics, &out_tx, &shutdown);
         running.insert(bus.name.clone(), r);
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
@@ -73,7 +76,7 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
-                apply(&mut current, new, &mut running, &health, &out_tx, &shutdown).await;
+                apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
             }
         }
@@ -89,6 +92,35 @@ pub async fn run_with_reloads(
         tracing::error!("MQTT task failed: {e}");
     }
     let _ = supervisor.await;
+    if let Some(e) = endpoint {
+        let _ = e.await;
+    }
+}
+
+/// Serves `/metrics` and `/healthz` when `[metrics]` is configured. A port that cannot be bound
+/// is logged and the gateway runs on without the endpoint: polling matters more.
+async fn start_metrics(
+    config: &Config,
+    metrics: &Metrics,
+    health: &Arc<Health>,
+    shutdown: &CancellationToken,
+) -> Option<JoinHandle<()>> {
+    let listen = config.metrics.as_ref()?.listen;
+    if !listen.ip().is_loopback() {
+        tracing::warn!(%listen, "metrics endpoint is not on loopback: keep it behind a firewall");
+    }
+    match crate::metrics::server::bind(listen).await {
+        Ok(l) => {
+            tracing::info!(%listen, "metrics endpoint: /metrics, /healthz");
+            let serve =
+                crate::metrics::server::serve(l, metrics.clone(), health.clone(), shutdown.clone());
+            Some(tokio::spawn(serve))
+        }
+        Err(e) => {
+            tracing::error!("{e}; running without it");
+            None
+        }
+    }
 }
 
 /// Runs the gateway until `shutdown` (no reloads).
@@ -101,13 +133,15 @@ fn start_bus(
     bus: &Bus,
     config: &Config,
     health: &Health,
+    metrics: &Metrics,
     out: &UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) -> Running {
     let (cmd_tx, cmd_rx) = unbounded_channel();
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
-    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart);
+    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
+        .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
         task: tokio::spawn(task.run(stop.clone())),
@@ -128,6 +162,7 @@ async fn apply(
     new: Config,
     running: &mut BTreeMap<String, Running>,
     health: &Health,
+    metrics: &Metrics,
     out: &UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) {
@@ -158,7 +193,7 @@ async fn apply(
             cfg.gateway = current.gateway.clone();
             running.insert(
                 bus.name.clone(),
-                start_bus(bus, &cfg, health, out, shutdown),
+                start_bus(bus, &cfg, health, metrics, out, shutdown),
             );
             tracing::info!(bus = %bus.name, "bus started for the new config");
         }

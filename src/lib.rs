@@ -20,6 +20,7 @@ pub mod decode;
 pub mod demo;
 pub mod dispatch;
 pub mod health;
+pub mod metrics;
 pub mod plan;
 pub mod profile;
 pub mod publish;

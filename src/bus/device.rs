@@ -13,6 +13,7 @@ use super::schedule::Backoff;
 use crate::config::{Bus, Device};
 use crate::counter::{Counter, CounterSpec, CounterState};
 use crate::decode::decode;
+use crate::metrics::DeviceMetrics;
 use crate::plan::{Block, Wire, plan_reads};
 use crate::profile::{ChannelSpec, Profile, Register, ValueType};
 use crate::reading::{Reading, unix_ms};
@@ -130,6 +131,8 @@ pub struct DeviceRt {
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
+    /// This device's Prometheus handles.
+    pub metrics: DeviceMetrics,
 }
 
 impl DeviceRt {
@@ -139,6 +142,7 @@ impl DeviceRt {
         wire: Wire,
         saved: &BTreeMap<String, CounterState>,
         holes: Vec<Range<u16>>,
+        metrics: DeviceMetrics,
     ) -> DeviceRt {
         let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
@@ -167,6 +171,7 @@ impl DeviceRt {
             turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
+            metrics,
             config: config.clone(),
         }
     }
@@ -252,7 +257,10 @@ impl DeviceRt {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
-            readings.push(ch.reading(&self.name, at, count, freq_hz, rpm, update));
+            let reading = ch.reading(&self.name, at, count, freq_hz, rpm, update);
+            let encoder = ch.spec.kind == crate::profile::ChannelKind::Encoder;
+            self.metrics.reading(&reading, encoder);
+            readings.push(reading);
         }
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
@@ -428,6 +436,7 @@ impl DeviceRt {
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
     /// the time the request and answer of `len` registers take on the line.
     fn record_latency(&mut self, d: Duration, link: &Link, len: u16) {
+        self.metrics.latency(d);
         if self.latencies.len() >= 256 {
             self.latencies.pop_front();
         }

@@ -20,6 +20,7 @@ use tokio_util::sync::CancellationToken;
 use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
+use crate::metrics::BusMetrics;
 use crate::plan::Wire;
 use crate::reading::Output;
 use crate::state::{BusState, bus_path};
@@ -43,6 +44,7 @@ pub struct BusTask {
     out: UnboundedSender<Output>,
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
+    metrics: BusMetrics,
 }
 
 impl BusTask {
@@ -61,7 +63,14 @@ impl BusTask {
             out,
             commands,
             heart,
+            metrics: BusMetrics::default(),
         }
+    }
+
+    /// Records into the gateway's metrics (without: into a registry nobody serves).
+    pub fn with_metrics(mut self, metrics: BusMetrics) -> BusTask {
+        self.metrics = metrics;
+        self
     }
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
@@ -91,6 +100,7 @@ impl BusTask {
                     wire,
                     &saved.channels,
                     saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
+                    self.metrics.device(&d.name),
                 )
             })
             .collect();
@@ -163,6 +173,8 @@ impl BusTask {
                 );
                 counters_at_stats = link.counters;
                 tracing::info!(bus = %name, %stats, "bus stats");
+                self.metrics
+                    .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
                 let _ = self.out.send(Output::BusStats {
                     bus: name.clone(),
                     stats,
@@ -176,7 +188,10 @@ impl BusTask {
             }
             let d = &mut devices[i];
             let commands = &self.commands;
+            let before = link.counters;
             let result = d.poll(&mut link, &|| !commands.is_empty()).await;
+            d.metrics.wire(&before, &link.counters);
+            self.metrics.wire(&link.counters, link.busy);
             let now = Instant::now();
             match result {
                 Err(e) if e.is_preempted() => continue,
@@ -204,6 +219,7 @@ impl BusTask {
                     self.heart.set_up(!line_fault);
                     if line_fault && !std::mem::replace(&mut line_down, true) {
                         tracing::error!(bus = %name, "line fault: {e}");
+                        self.metrics.line_fault();
                     }
                     match availability::failed(d, &e, bus, line_fault, &name, &self.out) {
                         Some(wait) => slots[i].defer_to(now + wait),
@@ -211,6 +227,7 @@ impl BusTask {
                     }
                 }
             }
+            devices[i].metrics.up(devices[i].online);
         }
         let state = snapshot(&devices);
         let path = self.state_path.clone();
@@ -257,7 +274,9 @@ async fn run_commands(
             continue;
         };
         if d.online == Some(true) && d.discovered() {
+            let before = link.counters;
             let executed = d.execute(link, &c.request).await;
+            d.metrics.wire(&before, &link.counters);
             for r in executed.readings {
                 let _ = out.send(Output::Reading(r));
             }

@@ -32,6 +32,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
 
     let gateway = gateway(root.table("gateway", errs), &config_dir, errs);
     let mqtt = mqtt(root.table("mqtt", errs), &gateway.id, errs);
+    let metrics = super::metrics::check(root.table("metrics", errs), errs);
 
     let profiles = match Profiles::with_dir(&gateway.profile_dir) {
         Ok(p) => p,
@@ -73,6 +74,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         source: path.to_path_buf(),
         gateway,
         mqtt,
+        metrics,
         buses,
     })
 }

@@ -5,6 +5,7 @@
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
 mod check;
+mod metrics;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -16,6 +17,7 @@ use std::time::Duration;
 use crate::profile::Profile;
 
 pub use check::from_tree;
+pub use metrics::Metrics as MetricsEndpoint;
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
@@ -62,6 +64,8 @@ pub struct Config {
     pub source: PathBuf,
     pub gateway: Gateway,
     pub mqtt: Mqtt,
+    /// `[metrics]`: the Prometheus endpoint, when configured.
+    pub metrics: Option<MetricsEndpoint>,
     /// Buses sorted by name.
     pub buses: Vec<Bus>,
 }

@@ -165,7 +165,8 @@ impl Spool {
         self.len() == 0
     }
 
-    fn total_bytes(&self) -> u64 {
+    /// Bytes the waiting messages take (memory and disk).
+    pub fn total_bytes(&self) -> u64 {
         self.mem_bytes + self.segments.iter().map(|s| s.bytes).sum::<u64>()
     }
 
