@@ -53,6 +53,7 @@ pub async fn run_with_reloads(
     let mqtt_shutdown = shutdown.clone();
     let mqtt_heart = health.heart("mqtt");
     let mqtt_health = health.clone();
+    let mqtt_metrics = metrics.clone();
     let mqtt = tokio::spawn(async move {
         crate::publish::mqtt::run(
             mqtt_config,
@@ -62,6 +63,7 @@ pub async fn run_with_reloads(
             incoming_tx,
             mqtt_heart,
             mqtt_health,
+            mqtt_metrics,
             mqtt_shutdown,
         )
         .await

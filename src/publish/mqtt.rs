@@ -178,6 +178,7 @@ pub async fn run(
     incoming: UnboundedSender<Incoming>,
     heart: Heart,
     health: std::sync::Arc<crate::health::Health>,
+    metrics: crate::metrics::Metrics,
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&config.topic_root);
@@ -247,7 +248,9 @@ pub async fn run(
         let out = tokio::select! {
             out = output.recv() => out,
             _ = beat.tick() => {
-                heart.set_up(lock(&shared).connected);
+                let s = lock(&shared);
+                heart.set_up(s.connected);
+                metrics.mqtt(s.connected, s.spool.len(), s.spool.total_bytes(), s.spool.dropped);
                 continue;
             }
             _ = flush.tick() => {
@@ -290,6 +293,7 @@ pub async fn run(
                 correlation,
                 payload,
             } => {
+                metrics.command_result(&payload);
                 let mut s = lock(&shared);
                 for (i, t) in to.into_iter().enumerate() {
                     // The MQTT v5 response topic (after the result topic) gets the request's
