@@ -33,7 +33,7 @@ pub async fn run_with_reloads(
 ) {
     let health = Arc::new(Health::default());
     let (out_tx, out_rx) = unbounded_channel();
-    let (incoming_tx, incoming_rx) = unbounded_channel();
+    let (incoming_tx, incoming_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
     let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
     let metrics = Metrics::new();
     let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
@@ -54,6 +54,10 @@ pub async fn run_with_reloads(
     let mqtt_heart = health.heart("mqtt");
     let mqtt_health = health.clone();
     let mqtt_metrics = metrics.clone();
+    let boot_dir = config.gateway.state_dir.clone();
+    let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
+        .await
+        .unwrap_or_default();
     let mqtt = tokio::spawn(async move {
         crate::publish::mqtt::run(
             mqtt_config,
@@ -63,6 +67,7 @@ pub async fn run_with_reloads(
             incoming_tx,
             mqtt_heart,
             mqtt_health,
+            boot,
             mqtt_metrics,
             mqtt_shutdown,
         )

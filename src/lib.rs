@@ -11,7 +11,9 @@
 //!
 //! [`sim`] is a simulated plant of every supported model, served over real Modbus.
 
+pub mod admission;
 pub mod app;
+pub mod boot;
 pub mod bus;
 pub mod command;
 pub mod config;

@@ -181,6 +181,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             on_signals(shutdown.clone())?;
             let reloads = on_hangup(path)?;
             tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
+            if let Some(host) = &config.gateway.id_from_hostname {
+                tracing::warn!(hostname = %host, gateway = %config.gateway.id, "gateway.id is not set: using one derived from the hostname; set gateway.id to make it explicit");
+            }
             pulsegate::app::run_with_reloads(config, shutdown, reloads).await;
             Ok(ExitCode::SUCCESS)
         }

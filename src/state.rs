@@ -43,6 +43,12 @@ pub enum StateError {
     },
 }
 
+/// Makes a create, rename or delete in `dir` durable: without it a power cut can undo the
+/// directory entry even though the file's data was synced.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    std::fs::File::open(dir)?.sync_all()
+}
+
 /// The key of a channel's state.
 pub fn channel_key(unit: u8, model: &str, channel: &str) -> String {
     format!("{unit}/{model}/{channel}")

@@ -10,6 +10,9 @@ use super::walk::{Errors, Table, join};
 use super::{Bus, ChannelConfig, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
+/// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
+pub const MAX_SPOOL_MB: u64 = 1 << 20;
+
 /// Baud rates the seed modules can be set to (their baud-code tables).
 pub const BAUDS: [u32; 7] = [2400, 4800, 9600, 19200, 38400, 57600, 115200];
 
@@ -79,25 +82,48 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     })
 }
 
-fn host_name() -> String {
+/// The machine's hostname as the kernel has it.
+pub fn host_name_raw() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .or_else(|_| std::fs::read_to_string("/etc/hostname"))
         .map(|s| s.trim().to_string())
-        .ok()
-        .filter(|s| super::is_topic_safe(s))
-        .unwrap_or_else(|| "pulsegate".to_string())
+        .unwrap_or_default()
+}
+
+/// The gateway id derived from a hostname: characters a topic level cannot hold (the dots of an
+/// FQDN) become '-'. `None` when nothing usable is left: then the id must be configured, never
+/// silently replaced by a shared default (two gateways with one id take each other's commands).
+pub fn id_from_host(host: &str) -> Option<String> {
+    let id: String = host
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    let id = id.trim_matches('-').to_string();
+    super::is_topic_safe(&id).then_some(id)
 }
 
 fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Gateway {
+    let host = host_name_raw();
     let mut g = Gateway {
-        id: host_name(),
+        id: id_from_host(&host).unwrap_or_default(),
+        id_from_hostname: Some(host),
         state_dir: PathBuf::from("/var/lib/pulsegate"),
         state_flush: Duration::from_secs(5),
         stats_interval: Duration::from_secs(60),
         profile_dir: config_dir.join("profiles"),
     };
-    let Some(mut t) = table else { return g };
+    let Some(mut t) = table else {
+        refuse_unusable_host(&g, errs);
+        return g;
+    };
     if let Some(id) = t.opt::<String>("id", errs) {
+        g.id_from_hostname = None;
         if super::is_topic_safe(&id) {
             g.id = id;
         } else {
@@ -125,7 +151,22 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
         };
     }
     t.finish(errs);
+    refuse_unusable_host(&g, errs);
     g
+}
+
+fn refuse_unusable_host(g: &Gateway, errs: &mut Errors) {
+    if let Some(host) = &g.id_from_hostname
+        && g.id.is_empty()
+    {
+        errs.push(
+            "gateway.id",
+            None,
+            format!(
+                "not set, and the hostname {host:?} cannot be made a topic level: set gateway.id"
+            ),
+        );
+    }
 }
 
 /// A password read from a file: the line ending is not part of it.
@@ -146,6 +187,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         retain: false,
         topic_root: format!("pulsegate/{gateway_id}"),
         spool_bytes: 64 << 20,
+        commands: true,
     };
     let Some(mut t) = table else { return m };
     if let Some(v) = t.opt("host", errs) {
@@ -181,6 +223,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         }
     }
     if let Some(mut tt) = t.table("tls", errs) {
+        let tt_path = tt.path.clone();
         let ca_file = tt.req::<PathBuf>("ca_file", errs);
         let cert_file = tt.opt::<PathBuf>("cert_file", errs);
         let key_file = tt.opt::<PathBuf>("key_file", errs);
@@ -212,13 +255,23 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             cert_file,
             key_file,
         });
+        // Built here exactly as `run` builds it, so `check` (run as the service user) reports
+        // a file the service could not read, and the gateway never starts without TLS.
+        let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
+        if let Some(tls) = &m.tls
+            && files_exist
+            && let Err(e) = crate::publish::tls::client_config(tls)
+        {
+            errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
+        }
     }
     if let Some(v) = t.duration("keep_alive", errs) {
-        if v < Duration::from_secs(5) {
+        // MQTT carries it in 16 bits of seconds.
+        if v < Duration::from_secs(5) || v > Duration::from_secs(u64::from(u16::MAX)) {
             errs.push(
                 &join(&t.path, "keep_alive"),
                 t.origin(),
-                "must be at least 5s",
+                "must be between 5s and 65535s (18h 12m 15s)",
             );
         }
         m.keep_alive = v;
@@ -232,11 +285,18 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     if let Some(v) = t.opt("retain", errs) {
         m.retain = v;
     }
+    if let Some(v) = t.opt("commands", errs) {
+        m.commands = v;
+    }
     if let Some(mb) = t.int::<u64>("spool_mb", errs) {
-        if mb == 0 {
-            errs.push(&join(&t.path, "spool_mb"), t.origin(), "must be at least 1");
+        if !(1..=MAX_SPOOL_MB).contains(&mb) {
+            errs.push(
+                &join(&t.path, "spool_mb"),
+                t.origin(),
+                format!("must be 1..{MAX_SPOOL_MB}"),
+            );
         }
-        m.spool_bytes = mb << 20;
+        m.spool_bytes = mb.min(MAX_SPOOL_MB) << 20;
     }
     if let Some(v) = t.opt::<String>("topic_root", errs) {
         let ok = !v.is_empty()

@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use crate::profile::Profile;
 
-pub use check::from_tree;
+pub use check::{from_tree, host_name_raw, id_from_host};
 pub use metrics::Metrics as MetricsEndpoint;
 
 /// Default configuration file.
@@ -74,6 +74,9 @@ pub struct Config {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gateway {
     pub id: String,
+    /// The hostname the id was derived from, when `gateway.id` is not set (logged at start so
+    /// the derived id is never a surprise).
+    pub id_from_hostname: Option<String>,
     pub state_dir: PathBuf,
     /// How often counter state is written to disk (it is also written at shutdown).
     pub state_flush: Duration,
@@ -120,6 +123,9 @@ pub struct Mqtt {
     pub topic_root: String,
     /// Bound of the store-and-forward spool (memory and disk), in bytes.
     pub spool_bytes: u64,
+    /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
+    /// MQTT whatever the devices say).
+    pub commands: bool,
 }
 
 /// `[buses.<name>]`

@@ -3,4 +3,5 @@
 pub mod mqtt;
 pub mod payload;
 pub mod spool;
+pub mod tls;
 pub mod topics;

@@ -22,6 +22,11 @@ impl Topics {
         format!("{}/status", self.root)
     }
 
+    /// `<root>/gateway`: the retained boot marker of the gateway publishing under this root.
+    pub fn gateway_marker(&self) -> String {
+        format!("{}/gateway", self.root)
+    }
+
     /// `<root>/<device>/status`: retained online/offline of a device.
     pub fn device_status(&self, device: &str) -> String {
         format!("{}/{device}/status", self.root)

@@ -5,6 +5,7 @@ mod commands;
 mod config_cases;
 mod counters;
 mod faults;
+mod hostile;
 mod metrics;
 mod pipeline;
 mod service;

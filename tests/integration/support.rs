@@ -48,7 +48,9 @@ impl Broker {
     }
 
     pub fn start_on(port: u16) -> Broker {
-        Self::start_with(port, "persistence false\n")
+        // No per-client queue limit: a flood test must not lose messages in the broker on
+        // their way to a slower test subscriber (Mosquitto's default drops beyond 1000).
+        Self::start_with(port, "persistence false\nmax_queued_messages 0\n")
     }
 
     /// A broker that keeps sessions across its own restarts (saved at SIGTERM), and queues
@@ -181,6 +183,9 @@ impl Subscriber {
             options.set_credentials(u, p);
         }
         options.set_keep_alive(Duration::from_secs(30));
+        // Tests send hostile commands larger than rumqttc's 10 KiB default; the recorder must
+        // not be the one disconnected by them.
+        options.set_max_packet_size(Some(1 << 20));
         if persistent_id.is_some() {
             options.set_clean_start(false);
             options.set_session_expiry_interval(Some(3600));
