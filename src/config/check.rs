@@ -188,8 +188,20 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         topic_root: format!("pulsegate/{gateway_id}"),
         spool_bytes: 64 << 20,
         commands: true,
+        protocol: super::MqttProtocol::V5,
     };
     let Some(mut t) = table else { return m };
+    if let Some(v) = t.opt::<String>("protocol", errs) {
+        match v.as_str() {
+            "5" => m.protocol = super::MqttProtocol::V5,
+            "3.1.1" => m.protocol = super::MqttProtocol::V311,
+            _ => errs.push(
+                &join(&t.path, "protocol"),
+                t.origin(),
+                format!("unknown MQTT protocol {v:?}: \"5\" or \"3.1.1\""),
+            ),
+        }
+    }
     if let Some(v) = t.opt("host", errs) {
         m.host = v;
     }

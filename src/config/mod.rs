@@ -126,6 +126,18 @@ pub struct Mqtt {
     /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
     /// MQTT whatever the devices say).
     pub commands: bool,
+    /// `mqtt.protocol`: "5" (default) or "3.1.1".
+    pub protocol: MqttProtocol,
+}
+
+/// The MQTT protocol version spoken to the broker.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum MqttProtocol {
+    #[default]
+    V5,
+    /// For brokers that refuse v5 (Azure IoT Hub, older Mosquitto, some embedded brokers): no
+    /// response topic or correlation data; everything else works the same.
+    V311,
 }
 
 /// `[buses.<name>]`

@@ -2,6 +2,7 @@
 
 pub mod mqtt;
 pub mod payload;
+pub mod session;
 pub mod spool;
 pub mod tls;
 pub mod topics;

@@ -1,4 +1,4 @@
-//! The MQTT shell (rumqttc, MQTT v5).
+//! The MQTT shell (rumqttc; MQTT 5 or 3.1.1 through [`super::session`]).
 //!
 //! Every message goes through the [`Spool`] and leaves it only when the broker acknowledges it.
 //! rumqttc forgets unacknowledged messages when it reconnects with a clean session, so it is
@@ -22,16 +22,12 @@ use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use rumqttc::v5::mqttbytes::QoS;
-use rumqttc::v5::mqttbytes::v5::{
-    DisconnectReasonCode, Filter, LastWill, Packet, PublishProperties, RetainForwardRule,
-};
-use rumqttc::v5::{AsyncClient, ConnectionError, Event, EventLoop, MqttOptions, StateError};
 use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver};
 use tokio_util::sync::CancellationToken;
 
 use super::payload;
+use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
 use super::spool::Spool;
 use super::topics::Topics;
 use crate::config::Mqtt;
@@ -68,14 +64,6 @@ pub fn unsendable(
     }
 }
 
-fn qos(level: u8) -> QoS {
-    match level {
-        0 => QoS::AtMostOnce,
-        2 => QoS::ExactlyOnce,
-        _ => QoS::AtLeastOnce,
-    }
-}
-
 /// A message handed to rumqttc, waiting for its acknowledgement.
 #[derive(Debug, Clone, Copy)]
 struct InFlight {
@@ -95,7 +83,7 @@ struct Shared {
     progress: std::time::Instant,
     /// Publishes outside the spool (gateway status) whose send event is still to come.
     direct: usize,
-    client: AsyncClient,
+    client: Client,
     topics: Topics,
 }
 
@@ -147,26 +135,15 @@ impl Shared {
         let Some(e) = self.spool.get(i) else {
             return true;
         };
-        let sent = match &e.correlation {
-            Some(c) => {
-                let props = PublishProperties {
-                    correlation_data: Some(c.clone().into()),
-                    ..Default::default()
-                };
-                self.client.try_publish_with_properties(
-                    e.topic.clone(),
-                    qos(e.qos),
-                    e.retain,
-                    e.payload.clone(),
-                    props,
-                )
-            }
-            None => {
-                self.client
-                    .try_publish(e.topic.clone(), qos(e.qos), e.retain, e.payload.clone())
-            }
-        };
-        sent.is_ok()
+        self.client
+            .publish(
+                e.topic.clone(),
+                e.qos,
+                e.retain,
+                e.payload.clone(),
+                e.correlation.as_deref(),
+            )
+            .is_ok()
     }
 
     /// Messages are in flight and the broker has acknowledged nothing for `limit`: the
@@ -226,30 +203,28 @@ fn lock(shared: &Mutex<Shared>) -> MutexGuard<'_, Shared> {
 
 /// The client options of this gateway: a fresh client is built from them after every failure.
 /// TLS that cannot be set up is an error: the gateway never falls back to plaintext.
-pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<MqttOptions, super::tls::TlsError> {
-    let mut options = MqttOptions::new(config.client_id.clone(), config.host.clone(), config.port);
-    options.set_keep_alive(config.keep_alive);
-    options.set_max_packet_size(Some(MAX_PACKET));
-    options.set_last_will(LastWill::new(
-        topics.gateway_status(),
-        "offline",
-        QoS::AtLeastOnce,
-        true,
-        None,
-    ));
-    if let Some(user) = &config.username {
-        let password = config
-            .password
-            .as_ref()
-            .map(|p| p.0.clone())
-            .unwrap_or_default();
-        options.set_credentials(user.clone(), password);
-    }
-    if let Some(tls) = &config.tls {
-        let tls = super::tls::client_config(tls)?;
-        options.set_transport(Transport::tls_with_config(TlsConfiguration::Rustls(tls)));
-    }
-    Ok(options)
+pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::tls::TlsError> {
+    let login = config.username.as_ref().map(|user| {
+        let password = config.password.as_ref().map(|p| p.0.clone());
+        (user.clone(), password.unwrap_or_default())
+    });
+    let transport = match &config.tls {
+        Some(tls) => Some(Transport::tls_with_config(TlsConfiguration::Rustls(
+            super::tls::client_config(tls)?,
+        ))),
+        None => None,
+    };
+    Ok(Options::new(Settings {
+        protocol: config.protocol,
+        client_id: &config.client_id,
+        host: &config.host,
+        port: config.port,
+        keep_alive: config.keep_alive,
+        max_incoming: MAX_PACKET,
+        will: (topics.gateway_status(), "offline"),
+        login,
+        transport,
+    }))
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -279,7 +254,7 @@ pub async fn run(
             return;
         }
     };
-    let (client, eventloop) = AsyncClient::new(options.clone(), WINDOW + 64);
+    let (client, eventloop) = options.connect(WINDOW + 64);
     let spool = match Spool::open(spool_dir, config.spool_bytes) {
         Ok(s) => s,
         Err(e) => {
@@ -425,10 +400,9 @@ pub async fn run(
         }
         if s.connected {
             s.direct += 1;
-            let _ =
-                s.client
-                    .try_publish(s.topics.gateway_status(), QoS::AtLeastOnce, true, "offline");
-            let _ = s.client.try_disconnect();
+            let status = s.topics.gateway_status();
+            let _ = s.client.publish(status, 1, true, "offline".into(), None);
+            let _ = s.client.disconnect();
         }
     }
     if tokio::time::timeout(Duration::from_secs(1), events)
@@ -439,41 +413,19 @@ pub async fn run(
     }
 }
 
-fn command_filter(topics: &Topics, tail: &str) -> Filter {
-    let mut f = Filter::new(format!("{}/{tail}", topics.root()), QoS::AtLeastOnce);
-    f.retain_forward_rule = RetainForwardRule::Never;
-    f
+fn command_filter(topics: &Topics, tail: &str) -> String {
+    format!("{}/{tail}", topics.root())
 }
 
 /// What the event loop needs to build a fresh client.
 struct Connection {
-    options: MqttOptions,
+    options: Options,
     broker: String,
     client_id: String,
     /// Subscribe to command topics (`mqtt.commands`).
     commands: bool,
     /// This run's boot id, published retained on `<root>/gateway`.
     boot: crate::boot::Boot,
-}
-
-/// How the connection failed, for the log and the pause before the next attempt.
-fn classify(e: &ConnectionError) -> Failure {
-    match e {
-        ConnectionError::MqttState(StateError::ServerDisconnect {
-            reason_code: DisconnectReasonCode::SessionTakenOver,
-            ..
-        }) => Failure::TakenOver,
-        ConnectionError::ConnectionRefused(_) => Failure::Refused,
-        _ => Failure::Other,
-    }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Failure {
-    /// Another client connected with our client id.
-    TakenOver,
-    Refused,
-    Other,
 }
 
 /// Drives the connection; logs once per state change; after any failure builds a fresh client
@@ -494,58 +446,49 @@ async fn drive(
     loop {
         let event = tokio::select! {
             e = eventloop.poll() => e,
-            () = rebuild.notified() => Err(ConnectionError::MqttState(StateError::ConnectionAborted)),
+            () = rebuild.notified() => Err(Failure::Other("no acknowledgement: connection stalled".into())),
             () = stop.cancelled() => return,
         };
         match event {
-            Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+            Ok(Event::ConnAck { max_packet }) => {
                 if up != Some(true) {
                     tracing::info!(broker = %link.broker, "connected to MQTT broker");
                 }
                 up = Some(true);
                 let mut s = lock(&shared);
                 s.connected = true;
-                s.broker_max = ack.properties.and_then(|p| p.max_packet_size);
+                s.broker_max = max_packet;
                 s.progress = std::time::Instant::now();
                 s.spool.set_spilling(false);
                 // Say we are here before the backlog; restore subscriptions (clean session).
                 // The boot marker: subscribe first, so the retained one of another gateway
                 // arrives before ours replaces it.
                 let marker = s.topics.gateway_marker();
-                if let Err(e) = s.client.try_subscribe(marker.clone(), QoS::AtLeastOnce) {
+                if let Err(e) = s.client.subscribe(marker.clone()) {
                     tracing::error!("cannot subscribe to {marker}: {e}");
                 }
                 s.direct += 2;
-                let _ = s.client.try_publish(
-                    marker,
-                    QoS::AtLeastOnce,
-                    true,
-                    link.boot.marker(&link.client_id),
-                );
-                let _ = s.client.try_publish(
-                    s.topics.gateway_status(),
-                    QoS::AtLeastOnce,
-                    true,
-                    "online",
-                );
+                let boot = link.boot.marker(&link.client_id);
+                let _ = s.client.publish(marker, 1, true, boot.into(), None);
+                let status = s.topics.gateway_status();
+                let _ = s.client.publish(status, 1, true, "online".into(), None);
                 if link.commands {
                     let filters = [
                         command_filter(&s.topics, "+/+/cmd"),
                         command_filter(&s.topics, "+/cmd"),
                     ];
-                    if let Err(e) = s.client.try_subscribe_many(filters) {
+                    if let Err(e) = s.client.subscribe_commands(&filters) {
                         tracing::error!("cannot subscribe to command topics: {e}");
                     }
                 }
                 s.pump();
             }
-            Ok(Event::Outgoing(rumqttc::Outgoing::Publish(pkid))) => lock(&shared).sent(pkid),
-            Ok(Event::Incoming(Packet::PubAck(ack))) => {
+            Ok(Event::Sent(pkid)) => lock(&shared).sent(pkid),
+            Ok(Event::Acked(pkid)) => {
                 pause = Duration::from_secs(1);
-                lock(&shared).acked(ack.pkid)
+                lock(&shared).acked(pkid)
             }
-            Ok(Event::Incoming(Packet::PubComp(comp))) => lock(&shared).acked(comp.pkid),
-            Ok(Event::Incoming(Packet::Publish(p)))
+            Ok(Event::Received(p))
                 if *p.topic == *lock(&shared).topics.gateway_marker().as_bytes() =>
             {
                 if let Some(other) = link.boot.foreign(&p.payload) {
@@ -555,25 +498,23 @@ async fn drive(
                     }
                 }
             }
-            Ok(Event::Incoming(Packet::Publish(p))) => {
-                let props = p.properties.unwrap_or_default();
+            Ok(Event::Received(p)) => {
                 let msg = Incoming {
                     topic: String::from_utf8_lossy(&p.topic).into_owned(),
                     payload: p.payload,
                     retain: p.retain,
-                    response_topic: props.response_topic,
-                    correlation: props.correlation_data,
+                    response_topic: p.response_topic,
+                    correlation: p.correlation,
                 };
                 if incoming.send(msg).await.is_err() {
                     tracing::debug!("command router gone");
                 }
             }
-            Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) => return,
-            Ok(_) => {}
-            Err(ConnectionError::RequestsDone) => return,
+            Ok(Event::Disconnected) => return,
+            Ok(Event::Other) => {}
+            Err(Failure::RequestsDone) => return,
             Err(e) => {
-                let failure = classify(&e);
-                if failure == Failure::TakenOver {
+                if matches!(e, Failure::TakenOver) {
                     takeovers += 1;
                     let (log, _) = takeover_log.allow(std::time::Instant::now());
                     if log {
@@ -593,7 +534,7 @@ async fn drive(
                     // order, on the fresh connection.
                     s.inflight.clear();
                     s.direct = 0;
-                    let (client, fresh) = AsyncClient::new(link.options.clone(), WINDOW + 64);
+                    let (client, fresh) = link.options.connect(WINDOW + 64);
                     s.client = client;
                     eventloop = fresh;
                 }

@@ -8,5 +8,6 @@ mod faults;
 mod hostile;
 mod metrics;
 mod pipeline;
+mod protocol;
 mod service;
 mod support;
