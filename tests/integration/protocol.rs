@@ -220,3 +220,23 @@ async fn the_3_1_1_listener_refuses_mqtt_5_and_passes_3_1_1() {
         "an MQTT 3.1.1 client must get through: {v311:?}"
     );
 }
+
+#[test]
+fn an_unknown_mqtt_protocol_is_a_config_error_naming_the_choices() {
+    let dir = crate::support::temp_dir("protocol-bad");
+    let config = write_config(
+        &dir,
+        "[mqtt]\nprotocol = \"3.1\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n",
+    );
+    let out = std::process::Command::new(crate::support::bin())
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("mqtt.protocol") && err.contains("\"5\" or \"3.1.1\""),
+        "{err}"
+    );
+}
