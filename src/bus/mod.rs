@@ -110,6 +110,9 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
         let mut pending: Vec<BusCommand> = Vec::new();
+        // Polls due when the last command ended: they go before the next command, so a burst
+        // of commands slows commands, never polling (each poll waits for at most one command).
+        let mut owed: Option<Instant> = None;
         let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
             self.heart.beat();
@@ -121,7 +124,14 @@ impl BusTask {
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
-            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
+            if !poll_owed {
+                owed = None;
+                if run_one_command(&mut pending, &mut devices, &mut link, &self.out).await {
+                    owed = Some(Instant::now());
+                    continue;
+                }
+            }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
             let wake = slots[i]
@@ -133,7 +143,7 @@ impl BusTask {
             tokio::select! {
                 biased;
                 () = shutdown.cancelled() => break,
-                Some(c) = self.commands.recv() => {
+                Some(c) = self.commands.recv(), if !poll_owed => {
                     pending.push(c);
                     continue;
                 }
@@ -176,7 +186,10 @@ impl BusTask {
             }
             let d = &mut devices[i];
             let commands = &self.commands;
-            let result = d.poll(&mut link, &|| !commands.is_empty()).await;
+            // A poll owed after a command runs to its end; otherwise it gives way to a command.
+            let result = d
+                .poll(&mut link, &|| !poll_owed && !commands.is_empty())
+                .await;
             let now = Instant::now();
             match result {
                 Err(e) if e.is_preempted() => continue,
@@ -239,16 +252,18 @@ fn stall_hook(bus: &str) -> Option<Duration> {
     (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
-/// Carries out the pending commands whose device can take them; answers expired ones with
-/// `offline`; keeps the rest waiting for their device.
-async fn run_commands(
+/// Carries out the first pending command whose device can take it (one command, so polls get
+/// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
+/// their device. Returns whether a command went on the line.
+async fn run_one_command(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
     out: &UnboundedSender<Output>,
-) {
+) -> bool {
     let now = Instant::now();
     let mut waiting = Vec::new();
+    let mut ran = false;
     for c in pending.drain(..) {
         let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
             let _ = c
@@ -256,7 +271,8 @@ async fn run_commands(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if d.online == Some(true) && d.discovered() {
+        if !ran && d.online == Some(true) && d.discovered() {
+            ran = true;
             let executed = d.execute(link, &c.request).await;
             for r in executed.readings {
                 let _ = out.send(Output::Reading(r));
@@ -276,6 +292,7 @@ async fn run_commands(
         }
     }
     *pending = waiting;
+    ran
 }
 
 fn snapshot(devices: &[DeviceRt]) -> BusState {

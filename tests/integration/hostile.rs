@@ -192,3 +192,275 @@ async fn a_second_gateway_with_the_same_id_is_detected_and_logged() {
         a.log_text()
     );
 }
+
+/// Resident memory of a process, in kB (from /proc).
+pub fn rss_kb(pid: i32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// A gateway started with a systemd notify socket and a 2 s watchdog.
+struct Notified {
+    child: std::process::Child,
+    log: std::path::PathBuf,
+}
+
+impl Notified {
+    fn start(config: &std::path::Path, sock: &std::path::Path) -> Notified {
+        let log = config.with_extension("log");
+        let child = std::process::Command::new(bin())
+            .args(["run", "--config"])
+            .arg(config)
+            .env("NOTIFY_SOCKET", sock)
+            .env("WATCHDOG_USEC", "2000000")
+            .env("RUST_LOG", "info")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Notified { child, log }
+    }
+    fn pid(&self) -> i32 {
+        self.child.id() as i32
+    }
+    fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Notified {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Watchdog pings the gateway sent, with their arrival times, gathered in the background.
+fn watch_pings(
+    sock: std::os::unix::net::UnixDatagram,
+) -> std::sync::Arc<std::sync::Mutex<Vec<Instant>>> {
+    let pings = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let sink = pings.clone();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        sock.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        loop {
+            match sock.recv(&mut buf) {
+                Ok(n) => {
+                    if String::from_utf8_lossy(&buf[..n]).contains("WATCHDOG=1") {
+                        sink.lock().unwrap().push(Instant::now());
+                    }
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                Err(_) => return,
+            }
+            if std::sync::Arc::strong_count(&sink) == 1 {
+                return;
+            }
+        }
+    });
+    pings
+}
+
+const FLOOD_PLANT: &str = r#"
+[buses.line1]
+line = { baud = 9600, turnaround = "2ms" }
+[buses.line1.devices.target]
+unit = 1
+model = "yl67"
+channels.enc0 = { rate = 100.0 }
+[buses.line1.devices.n2]
+unit = 2
+model = "wj157"
+channels.enc0 = { rate = 50.0 }
+[buses.line1.devices.n3]
+unit = 3
+model = "wj157"
+channels.enc0 = { rate = 50.0 }
+"#;
+
+/// 1000 commands in one second to one module at 9600 baud: the other devices keep at least 90%
+/// of their poll rate, every command gets a result (most `busy`), memory stays bounded and the
+/// watchdog keeps being fed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_thousand_commands_in_a_second_do_not_starve_the_other_devices() {
+    let broker = Broker::start();
+    let plant = plant(FLOOD_PLANT).await;
+    let dir = temp_dir("hostile-flood");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices = [
+        ("line1", "target", 1, "yl67", "500ms"),
+        ("line1", "n2", 2, "wj157", "500ms"),
+        ("line1", "n3", 3, "wj157", "500ms"),
+    ];
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, "")
+        .replace("baud = 115200", "baud = 9600")
+        .replace("timeout = \"100ms\"", "timeout = \"200ms\"");
+    let config = write_config(&dir, &text);
+    let sock_path = dir.join("notify.sock");
+    let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
+    let pings = watch_pings(sock);
+    let gw = Notified::start(&config, &sock_path);
+    for d in ["target", "n2", "n3"] {
+        assert!(
+            sub.wait_for(
+                &format!("pulsegate/test/{d}/status"),
+                Duration::from_secs(10),
+                |m| m.payload == "online"
+            )
+            .await
+            .is_some(),
+            "{d} online:\n{}",
+            gw.log_text()
+        );
+    }
+    let neighbours = ["pulsegate/test/n2/enc0", "pulsegate/test/n3/enc0"];
+    let window = Duration::from_secs(6);
+    let t0 = Instant::now();
+    tokio::time::sleep(window).await;
+    let baseline: Vec<usize> = neighbours.iter().map(|t| count_on(&sub, t, t0)).collect();
+    let rss_before = rss_kb(gw.pid());
+
+    let burst = Instant::now();
+    for i in 0..1000 {
+        sub.client
+            .publish(
+                "pulsegate/test/target/enc0/cmd",
+                QoS::AtMostOnce,
+                false,
+                format!(r#"{{"op":"clear","id":"flood-{i}"}}"#),
+            )
+            .await
+            .unwrap();
+        if i % 10 == 9 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+    let mut rss_peak = 0;
+    while burst.elapsed() < window {
+        rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let during: Vec<usize> = neighbours
+        .iter()
+        .map(|t| count_on(&sub, t, burst))
+        .collect();
+    let results = sub.on("pulsegate/test/target/enc0/cmd/result");
+    let ok = results.iter().filter(|m| m.json()["ok"] == true).count();
+    let busy = results
+        .iter()
+        .filter(|m| m.json()["error"] == "busy")
+        .count();
+    println!(
+        "flood: neighbours' readings in {window:?} before {baseline:?}, during {during:?}; results {} ({ok} ok, {busy} busy); RSS {rss_before} kB before, peak {rss_peak} kB",
+        results.len()
+    );
+    for (b, d) in baseline.iter().zip(&during) {
+        assert!(
+            *d as f64 >= 0.9 * *b as f64,
+            "a neighbour kept {d} of {b} polls:\n{}",
+            gw.log_text()
+        );
+    }
+    assert_eq!(results.len(), 1000, "every command answered");
+    assert!(ok >= 1 && busy >= 900, "{ok} ok, {busy} busy");
+    assert!(
+        rss_peak < rss_before + 8 * 1024,
+        "RSS grew from {rss_before} kB to {rss_peak} kB"
+    );
+    let pings = pings.lock().unwrap().clone();
+    let gaps: Vec<Duration> = pings
+        .windows(2)
+        .filter(|w| w[1] > burst)
+        .map(|w| w[1] - w[0])
+        .collect();
+    assert!(
+        gaps.len() >= 10,
+        "the watchdog was fed during the burst: {} pings",
+        gaps.len()
+    );
+    assert!(
+        gaps.iter().all(|g| *g < Duration::from_millis(1500)),
+        "watchdog gaps: {gaps:?}"
+    );
+}
+
+/// 50k commands with distinct 2 KB ids to a device that does not exist: each is answered
+/// `unknown_device` (ids longer than 128 bytes: `too_large`), memory stays bounded.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bounded() {
+    let broker = Broker::start();
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-ghost");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/d/enc0").await;
+    let gw = start_gateway(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "d", 1, "yl67", "100ms")],
+        "",
+    );
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+    let results = Subscriber::start(broker.port, "pulsegate/test/ghost/+/cmd/result").await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let rss_before = rss_kb(gw.pid());
+    let mut rss_peak = rss_before;
+    let pad = "x".repeat(2000);
+    for i in 0..50_000 {
+        results
+            .client
+            .publish(
+                "pulsegate/test/ghost/enc0/cmd",
+                QoS::AtMostOnce,
+                false,
+                format!(r#"{{"op":"clear","id":"{pad}{i}"}}"#),
+            )
+            .await
+            .unwrap();
+        if i % 500 == 499 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+            rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while results.all().len() < 50_000 && Instant::now() < deadline {
+        rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let answered = results.all().len();
+    println!(
+        "ghost flood: {answered} results; RSS {rss_before} kB before, peak {rss_peak} kB, growth {} kB",
+        rss_peak - rss_before
+    );
+    assert_eq!(answered, 50_000, "every command answered");
+    assert!(
+        rss_peak - rss_before <= 16 * 1024,
+        "RSS grew by {} kB",
+        rss_peak - rss_before
+    );
+    let log = gw.log_text();
+    assert!(
+        log.lines()
+            .filter(|l| l.contains("command refused"))
+            .count()
+            <= 40,
+        "refusals are not logged one by one"
+    );
+    let since = Instant::now();
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(3), |m| m.at
+            > since)
+            .await
+            .is_some()
+    );
+}
