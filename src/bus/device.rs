@@ -78,6 +78,7 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            after_seq: None,
         }
     }
 }
