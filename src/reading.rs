@@ -17,6 +17,9 @@ pub struct Reading {
     pub freq_hz: Option<f64>,
     pub rpm: Option<f64>,
     pub update: Update,
+    /// On the first reading after a crash: the seq its delta counts from. Readings of the
+    /// crashed run with a higher seq are superseded (their pulses are in this delta).
+    pub after_seq: Option<u64>,
 }
 
 /// Everything a bus task reports.

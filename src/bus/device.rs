@@ -79,6 +79,7 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            after_seq: None,
         }
     }
 }

@@ -4,7 +4,9 @@
 mod availability;
 mod device;
 mod execute;
+mod ledger;
 pub mod link;
+mod saver;
 pub mod schedule;
 
 use std::collections::BTreeMap;
@@ -78,13 +80,18 @@ impl BusTask {
     pub async fn run(mut self, shutdown: CancellationToken) {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
-        let saved = match BusState::load(&self.state_path) {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::error!(bus = %name, "{e}");
-                BusState::default()
-            }
+        let Some(mut saved) = self.load_state(&name, &shutdown).await else {
+            return;
         };
+        let after_seq = if saved.clean {
+            Default::default()
+        } else {
+            ledger::after_crash(&mut saved.channels)
+        };
+        let mut durable = saver::Durable::new(
+            saver::Saver::new(self.state_path.clone(), name.clone()),
+            after_seq,
+        );
         let mut link = Link::new(bus.link.clone(), bus.guard);
         let wire = match link.timing() {
             Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
@@ -120,6 +127,9 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
         let mut pending: Vec<BusCommand> = Vec::new();
+        // Polls due when the last command ended: they go before the next command, so a burst
+        // of commands slows commands, never polling (each poll waits for at most one command).
+        let mut owed: Option<Instant> = None;
         let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
             self.heart.beat();
@@ -131,7 +141,17 @@ impl BusTask {
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
-            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
+            durable.collect().await;
+            if !poll_owed {
+                owed = None;
+                if let Some(readings) = run_one_command(&mut pending, &mut devices, &mut link).await
+                {
+                    durable.publish(readings, &devices, &self.out).await;
+                    owed = Some(Instant::now());
+                    continue;
+                }
+            }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
             let wake = slots[i]
@@ -143,7 +163,7 @@ impl BusTask {
             tokio::select! {
                 biased;
                 () = shutdown.cancelled() => break,
-                Some(c) = self.commands.recv() => {
+                Some(c) = self.commands.recv(), if !poll_owed => {
                     pending.push(c);
                     continue;
                 }
@@ -151,14 +171,7 @@ impl BusTask {
             }
             let now = Instant::now();
             if now >= flush_at {
-                let state = snapshot(&devices);
-                let path = self.state_path.clone();
-                let bus_name = name.clone();
-                tokio::task::spawn_blocking(move || {
-                    if let Err(e) = state.save(&path) {
-                        tracing::error!(bus = %bus_name, "{e}");
-                    }
-                });
+                durable.saver.start(snapshot(&devices, false));
                 flush_at = now + self.state_flush;
             }
             if now >= stats_at {
@@ -188,8 +201,11 @@ impl BusTask {
             }
             let d = &mut devices[i];
             let commands = &self.commands;
+            // A poll owed after a command runs to its end; otherwise it gives way to a command.
             let before = link.counters;
-            let result = d.poll(&mut link, &|| !commands.is_empty()).await;
+            let result = d
+                .poll(&mut link, &|| !poll_owed && !commands.is_empty())
+                .await;
             d.metrics.wire(&before, &link.counters);
             self.metrics.wire(&link.counters, link.busy);
             let now = Instant::now();
@@ -207,11 +223,8 @@ impl BusTask {
                         }
                     }
                     self.heart.set_up(true);
-                    let d = &mut devices[i];
-                    availability::answered(d, &name, &self.out);
-                    for r in readings {
-                        let _ = self.out.send(Output::Reading(r));
-                    }
+                    availability::answered(&mut devices[i], &name, &self.out);
+                    durable.publish(readings, &devices, &self.out).await;
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -229,12 +242,8 @@ impl BusTask {
             }
             devices[i].metrics.up(devices[i].online);
         }
-        let state = snapshot(&devices);
-        let path = self.state_path.clone();
-        match tokio::task::spawn_blocking(move || state.save(&path)).await {
-            Ok(Err(e)) => tracing::error!(bus = %name, "{e}"),
-            Err(e) => tracing::error!(bus = %name, "state save task failed: {e}"),
-            Ok(Ok(())) => tracing::info!(bus = %name, "state saved"),
+        if durable.finish(&devices).await {
+            tracing::info!(bus = %name, "state saved");
         }
         for d in &devices {
             if d.online == Some(true) {
@@ -248,6 +257,33 @@ impl BusTask {
     }
 }
 
+impl BusTask {
+    /// Loads the bus's state off the runtime thread. A state file that cannot be trusted (moved
+    /// aside, see [`crate::state`]) halts the bus with a clear log and status until shutdown:
+    /// it does not start from zero totals on a guess.
+    async fn load_state(&self, name: &Arc<str>, shutdown: &CancellationToken) -> Option<BusState> {
+        let path = self.state_path.clone();
+        let loaded = tokio::task::spawn_blocking(move || BusState::load(&path)).await;
+        let error = match loaded {
+            Ok(Ok(s)) => return Some(s),
+            Ok(Err(e)) => e.to_string(),
+            Err(e) => format!("state load task failed: {e}"),
+        };
+        tracing::error!(bus = %name, "{error}");
+        tracing::error!(bus = %name, "bus not started: its counter state cannot be trusted");
+        self.heart
+            .set_problem(Some("state file refused, not polling (see the log)".into()));
+        self.heart.set_up(false);
+        loop {
+            self.heart.beat();
+            tokio::select! {
+                () = shutdown.cancelled() => return None,
+                () = tokio::time::sleep(Duration::from_secs(1)) => {}
+            }
+        }
+    }
+}
+
 /// Fault injection for the watchdog test: `PULSEGATE_TEST_STALL_BUS=<bus>:<seconds>` makes that
 /// bus loop stop making progress after so long, as a stuck loop would.
 fn stall_hook(bus: &str) -> Option<Duration> {
@@ -256,16 +292,17 @@ fn stall_hook(bus: &str) -> Option<Duration> {
     (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
-/// Carries out the pending commands whose device can take them; answers expired ones with
-/// `offline`; keeps the rest waiting for their device.
-async fn run_commands(
+/// Carries out the first pending command whose device can take it (one command, so polls get
+/// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
+/// their device. Returns the readings of the command that went on the line, if one did.
+async fn run_one_command(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
-    out: &UnboundedSender<Output>,
-) {
+) -> Option<Vec<crate::reading::Reading>> {
     let now = Instant::now();
     let mut waiting = Vec::new();
+    let mut ran = None;
     for c in pending.drain(..) {
         let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
             let _ = c
@@ -273,13 +310,11 @@ async fn run_commands(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if d.online == Some(true) && d.discovered() {
+        if ran.is_none() && d.online == Some(true) && d.discovered() {
             let before = link.counters;
             let executed = d.execute(link, &c.request).await;
             d.metrics.wire(&before, &link.counters);
-            for r in executed.readings {
-                let _ = out.send(Output::Reading(r));
-            }
+            ran = Some(executed.readings);
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {
@@ -295,10 +330,15 @@ async fn run_commands(
         }
     }
     *pending = waiting;
+    ran
 }
 
-fn snapshot(devices: &[DeviceRt]) -> BusState {
-    let mut s = BusState::default();
+/// The bus's state now; `clean` only for the save after the last reading at shutdown.
+fn snapshot(devices: &[DeviceRt], clean: bool) -> BusState {
+    let mut s = BusState {
+        clean,
+        ..BusState::default()
+    };
     for d in devices {
         s.channels.extend(d.counter_states());
         if !d.holes.is_empty() {

@@ -21,6 +21,8 @@ struct ReadingJson {
     #[serde(skip_serializing_if = "Option::is_none")]
     event: Option<Event>,
     seq: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    after_seq: Option<u64>,
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
@@ -40,6 +42,7 @@ pub fn reading(r: &Reading) -> String {
         rpm: r.rpm.map(round3),
         event: r.update.event,
         seq: r.update.seq,
+        after_seq: r.after_seq,
     };
     serde_json::to_string(&json).expect("reading serializes")
 }
@@ -66,6 +69,7 @@ mod tests {
                 rate_hz: Some(999.9996),
                 event: Some(Event::Rollover),
             },
+            after_seq: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["ts"], "2026-11-21T22:38:43.123Z");
@@ -93,6 +97,7 @@ mod tests {
                 rate_hz: None,
                 event: None,
             },
+            after_seq: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);

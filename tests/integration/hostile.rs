@@ -192,3 +192,437 @@ async fn a_second_gateway_with_the_same_id_is_detected_and_logged() {
         a.log_text()
     );
 }
+
+/// Resident memory of a process, in kB (from /proc).
+pub fn rss_kb(pid: i32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .unwrap_or(0)
+}
+
+/// A gateway started with a systemd notify socket and a 2 s watchdog.
+struct Notified {
+    child: std::process::Child,
+    log: std::path::PathBuf,
+}
+
+impl Notified {
+    fn start(config: &std::path::Path, sock: &std::path::Path) -> Notified {
+        let log = config.with_extension("log");
+        let child = std::process::Command::new(bin())
+            .args(["run", "--config"])
+            .arg(config)
+            .env("NOTIFY_SOCKET", sock)
+            .env("WATCHDOG_USEC", "2000000")
+            .env("RUST_LOG", "info")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        Notified { child, log }
+    }
+    fn pid(&self) -> i32 {
+        self.child.id() as i32
+    }
+    fn log_text(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Notified {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Watchdog pings the gateway sent, with their arrival times, gathered in the background.
+fn watch_pings(
+    sock: std::os::unix::net::UnixDatagram,
+) -> std::sync::Arc<std::sync::Mutex<Vec<Instant>>> {
+    let pings = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+    let sink = pings.clone();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        sock.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        loop {
+            match sock.recv(&mut buf) {
+                Ok(n) => {
+                    if String::from_utf8_lossy(&buf[..n]).contains("WATCHDOG=1") {
+                        sink.lock().unwrap().push(Instant::now());
+                    }
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                Err(_) => return,
+            }
+            if std::sync::Arc::strong_count(&sink) == 1 {
+                return;
+            }
+        }
+    });
+    pings
+}
+
+const FLOOD_PLANT: &str = r#"
+[buses.line1]
+line = { baud = 9600, turnaround = "2ms" }
+[buses.line1.devices.target]
+unit = 1
+model = "yl67"
+channels.enc0 = { rate = 100.0 }
+[buses.line1.devices.n2]
+unit = 2
+model = "wj157"
+channels.enc0 = { rate = 50.0 }
+[buses.line1.devices.n3]
+unit = 3
+model = "wj157"
+channels.enc0 = { rate = 50.0 }
+"#;
+
+/// 1000 commands in one second to one module at 9600 baud: the other devices keep at least 90%
+/// of their poll rate, every command gets a result (most `busy`), memory stays bounded and the
+/// watchdog keeps being fed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_thousand_commands_in_a_second_do_not_starve_the_other_devices() {
+    let broker = Broker::start();
+    let plant = plant(FLOOD_PLANT).await;
+    let dir = temp_dir("hostile-flood");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices = [
+        ("line1", "target", 1, "yl67", "500ms"),
+        ("line1", "n2", 2, "wj157", "500ms"),
+        ("line1", "n3", 3, "wj157", "500ms"),
+    ];
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, "")
+        .replace("baud = 115200", "baud = 9600")
+        .replace("timeout = \"100ms\"", "timeout = \"200ms\"");
+    let config = write_config(&dir, &text);
+    let sock_path = dir.join("notify.sock");
+    let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
+    let pings = watch_pings(sock);
+    let gw = Notified::start(&config, &sock_path);
+    for d in ["target", "n2", "n3"] {
+        assert!(
+            sub.wait_for(
+                &format!("pulsegate/test/{d}/status"),
+                Duration::from_secs(10),
+                |m| m.payload == "online"
+            )
+            .await
+            .is_some(),
+            "{d} online:\n{}",
+            gw.log_text()
+        );
+    }
+    let neighbours = ["pulsegate/test/n2/enc0", "pulsegate/test/n3/enc0"];
+    let window = Duration::from_secs(6);
+    let t0 = Instant::now();
+    tokio::time::sleep(window).await;
+    let baseline: Vec<usize> = neighbours.iter().map(|t| count_on(&sub, t, t0)).collect();
+    let rss_before = rss_kb(gw.pid());
+
+    let burst = Instant::now();
+    for i in 0..1000 {
+        sub.client
+            .publish(
+                "pulsegate/test/target/enc0/cmd",
+                QoS::AtMostOnce,
+                false,
+                format!(r#"{{"op":"clear","id":"flood-{i}"}}"#),
+            )
+            .await
+            .unwrap();
+        if i % 10 == 9 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+    let mut rss_peak = 0;
+    while burst.elapsed() < window {
+        rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let during: Vec<usize> = neighbours
+        .iter()
+        .map(|t| count_on(&sub, t, burst))
+        .collect();
+    let results = sub.on("pulsegate/test/target/enc0/cmd/result");
+    let ok = results.iter().filter(|m| m.json()["ok"] == true).count();
+    let busy = results
+        .iter()
+        .filter(|m| m.json()["error"] == "busy")
+        .count();
+    println!(
+        "flood: neighbours' readings in {window:?} before {baseline:?}, during {during:?}; results {} ({ok} ok, {busy} busy); RSS {rss_before} kB before, peak {rss_peak} kB",
+        results.len()
+    );
+    for (b, d) in baseline.iter().zip(&during) {
+        assert!(
+            *d as f64 >= 0.9 * *b as f64,
+            "a neighbour kept {d} of {b} polls:\n{}",
+            gw.log_text()
+        );
+    }
+    assert_eq!(results.len(), 1000, "every command answered");
+    assert!(ok >= 1 && busy >= 900, "{ok} ok, {busy} busy");
+    assert!(
+        rss_peak < rss_before + 8 * 1024,
+        "RSS grew from {rss_before} kB to {rss_peak} kB"
+    );
+    let pings = pings.lock().unwrap().clone();
+    let gaps: Vec<Duration> = pings
+        .windows(2)
+        .filter(|w| w[1] > burst)
+        .map(|w| w[1] - w[0])
+        .collect();
+    assert!(
+        gaps.len() >= 10,
+        "the watchdog was fed during the burst: {} pings",
+        gaps.len()
+    );
+    assert!(
+        gaps.iter().all(|g| *g < Duration::from_millis(1500)),
+        "watchdog gaps: {gaps:?}"
+    );
+}
+
+/// 50k commands with distinct 2 KB ids to a device that does not exist: each is answered
+/// `unknown_device` (ids longer than 128 bytes: `too_large`), memory stays bounded.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bounded() {
+    let broker = Broker::start();
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-ghost");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/d/enc0").await;
+    let gw = start_gateway(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "d", 1, "yl67", "100ms")],
+        "",
+    );
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+    let results = Subscriber::start(broker.port, "pulsegate/test/ghost/+/cmd/result").await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let rss_before = rss_kb(gw.pid());
+    let mut rss_peak = rss_before;
+    let pad = "x".repeat(2000);
+    for i in 0..50_000 {
+        results
+            .client
+            .publish(
+                "pulsegate/test/ghost/enc0/cmd",
+                QoS::AtMostOnce,
+                false,
+                format!(r#"{{"op":"clear","id":"{pad}{i}"}}"#),
+            )
+            .await
+            .unwrap();
+        if i % 500 == 499 {
+            tokio::time::sleep(Duration::from_millis(5)).await;
+            rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while results.all().len() < 50_000 && Instant::now() < deadline {
+        rss_peak = rss_peak.max(rss_kb(gw.pid()));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let answered = results.all().len();
+    println!(
+        "ghost flood: {answered} results; RSS {rss_before} kB before, peak {rss_peak} kB, growth {} kB",
+        rss_peak - rss_before
+    );
+    assert_eq!(answered, 50_000, "every command answered");
+    assert!(
+        rss_peak - rss_before <= 16 * 1024,
+        "RSS grew by {} kB",
+        rss_peak - rss_before
+    );
+    let log = gw.log_text();
+    assert!(
+        log.lines()
+            .filter(|l| l.contains("command refused"))
+            .count()
+            <= 40,
+        "refusals are not logged one by one"
+    );
+    let since = Instant::now();
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(3), |m| m.at
+            > since)
+            .await
+            .is_some()
+    );
+}
+
+/// What a consumer makes of one channel's readings, in arrival order: exact re-deliveries are
+/// skipped, a reading with `after_seq` supersedes the readings with a higher seq (its delta
+/// holds their pulses). Panics when a seq comes twice with different content. Returns the sum
+/// of the deltas that stand.
+fn consume(readings: &[serde_json::Value]) -> i64 {
+    let mut by_seq: std::collections::BTreeMap<i64, &serde_json::Value> = Default::default();
+    let mut standing: std::collections::BTreeMap<i64, i64> = Default::default();
+    for r in readings {
+        let seq = r["seq"].as_i64().unwrap();
+        if let Some(earlier) = by_seq.get(&seq) {
+            assert_eq!(
+                *earlier, r,
+                "seq {seq} published twice with different content"
+            );
+            continue;
+        }
+        by_seq.insert(seq, r);
+        if let Some(after) = r["after_seq"].as_i64() {
+            standing.retain(|s, _| *s <= after);
+        }
+        standing.insert(seq, r["delta"].as_i64().unwrap());
+    }
+    standing.values().sum()
+}
+
+/// SIGKILL at a random moment, 20 times: no seq is published twice with different content,
+/// and the deltas a consumer keeps (superseded ones dropped by `after_seq`) add up to the
+/// pulses generated, as does `total`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n",
+    )
+    .await;
+    let dir = temp_dir("hostile-kill");
+    let topic = "pulsegate/test/m/a0";
+    let sub = Subscriber::start(broker.port, topic).await;
+    let config = write_config(
+        &dir,
+        &gateway_toml(
+            &plant,
+            broker.port,
+            &dir,
+            &[("line1", "m", 1, "yl67", "50ms")],
+            "",
+        ),
+    );
+    let mut rng = 0x2545_F491_4F6C_DD1Du64 ^ u64::from(std::process::id());
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        rng
+    };
+    for _ in 0..20 {
+        let gw = Gateway::start(&config);
+        tokio::time::sleep(Duration::from_millis(300 + next() % 1700)).await;
+        gw.kill();
+    }
+    let gw = Gateway::start(&config);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    plant
+        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
+        .unwrap();
+    let after = Instant::now() + Duration::from_millis(500);
+    let last = sub
+        .wait_for(topic, Duration::from_secs(5), |m| m.at > after)
+        .await
+        .expect("a reading after the pulses stopped")
+        .json();
+    let (status, _) = gw.terminate();
+    assert!(status.success());
+    let all = readings(&sub, topic);
+    let generated = plant
+        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
+        .unwrap();
+    let first_count = all[0]["count"].as_i64().unwrap();
+    let restarts = all.iter().filter(|r| r["after_seq"].is_i64()).count();
+    println!(
+        "sigkill: {} readings, {restarts} carry after_seq, last seq {}",
+        all.len(),
+        last["seq"]
+    );
+    assert!(
+        restarts >= 15,
+        "most kills left readings to supersede: {restarts}"
+    );
+    assert_eq!(
+        last["total"].as_i64().unwrap(),
+        generated - first_count,
+        "total"
+    );
+    assert_eq!(consume(&all), generated - first_count, "summed deltas");
+}
+
+/// A corrupt state file is moved aside, never overwritten; the bus does not start from zero
+/// totals on its own and the log and status say why; removing the moved-aside file (the
+/// operator's decision) lets it start.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
+    let broker = Broker::start();
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-corrupt");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let state = dir.join("bus-line1.json");
+    std::fs::write(
+        &state,
+        b"{\"version\":1,\"channels\":{\"1/yl67/enc0\":{\"count\":12,",
+    )
+    .unwrap();
+    let devices = [("line1", "d", 1, "yl67", "100ms")];
+    let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let log = gw.log_text();
+    assert!(
+        log.contains("is not valid state") && log.contains("moved aside to"),
+        "{log}"
+    );
+    assert!(log.contains("bus not started"), "{log}");
+    assert!(
+        sub.on("pulsegate/test/d/enc0").is_empty(),
+        "nothing published from zero"
+    );
+    let moved: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| p.to_string_lossy().contains("bus-line1.json.bad-"))
+        .collect();
+    assert_eq!(moved.len(), 1);
+    assert!(
+        std::fs::read(&moved[0])
+            .unwrap()
+            .starts_with(b"{\"version\":1,")
+    );
+    let (status, took) = gw.terminate();
+    assert!(status.success() && took < Duration::from_secs(5));
+    assert!(
+        !state.exists(),
+        "no empty state written over it at shutdown"
+    );
+
+    // Still refused at the next start, until the moved-aside file is dealt with.
+    let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert!(
+        gw.log_text().contains("was moved aside to"),
+        "{}",
+        gw.log_text()
+    );
+    assert!(sub.on("pulsegate/test/d/enc0").is_empty());
+    drop(gw);
+    std::fs::remove_file(&moved[0]).unwrap();
+    let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+}
