@@ -12,6 +12,7 @@ fn reading(device: &str, channel: &str, total: i64, rate: f64) -> Reading {
         count: total,
         freq_hz: None,
         rpm: None,
+        after_seq: None,
         update: Update {
             delta: 0,
             total,
