@@ -172,6 +172,26 @@ channels.enc0 = { rate = -50.0 }
 
     let (status, _) = http_get(port, "/nothing");
     assert_eq!(status, 404);
+    // Hostile clients cost little and break nothing: garbage, an endless header, idle sockets.
+    let junk = |bytes: Vec<u8>| {
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        let _ = s.write_all(&bytes);
+        let mut answer = Vec::new();
+        let _ = s.read_to_end(&mut answer);
+        String::from_utf8_lossy(&answer).into_owned()
+    };
+    assert!(!junk(b"\x00\xff garbage\r\n\r\n".to_vec()).contains(" 200 "));
+    let mut long = b"GET /metrics HTTP/1.1\r\nX: ".to_vec();
+    long.resize(100_000, b'a');
+    assert!(!junk(long).contains(" 200 "));
+    let idle: Vec<_> = (0..20)
+        .map(|_| std::net::TcpStream::connect(("127.0.0.1", port)).unwrap())
+        .collect();
+    drop(idle);
+    let (status, body) = http_get(port, "/metrics");
+    assert_eq!(status, 200, "still serving after hostile clients");
+    assert!(body.contains("pulsegate_build_info"));
     drop(gw);
 }
 
