@@ -35,7 +35,10 @@ pub async fn run_with_reloads(
     let (out_tx, out_rx) = unbounded_channel();
     let (incoming_tx, incoming_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
     let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
-    let metrics = Metrics::new();
+    let metrics = match config.metrics {
+        Some(_) => Metrics::new(),
+        None => Metrics::disabled(),
+    };
     let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();

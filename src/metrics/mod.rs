@@ -6,6 +6,9 @@
 //! each bus task holds the handles of its own bus and devices, so recording costs no lookup.
 //! Counters that the bus already keeps (its [`WireCounters`]) are carried over as differences,
 //! so a restarted bus task (config reload) never makes a counter go backwards.
+//!
+//! Without `[metrics]` the handles are empty: nothing is registered or recorded, so a gateway
+//! of a thousand devices pays no memory for series nobody scrapes.
 
 mod families;
 pub mod server;
@@ -20,20 +23,23 @@ use crate::bus::link::WireCounters;
 use crate::reading::Reading;
 use families::Families;
 
-/// The gateway's metrics: one registry, handed to the buses and the MQTT task.
-#[derive(Clone)]
+/// The gateway's metrics: one registry, handed to the buses and the MQTT task; or nothing.
+#[derive(Clone, Default)]
 pub struct Metrics {
+    inner: Option<Arc<Enabled>>,
+}
+
+struct Enabled {
     registry: Registry,
     families: Arc<Families>,
 }
 
-impl Default for Metrics {
-    fn default() -> Metrics {
-        Metrics::new()
-    }
-}
-
 impl Metrics {
+    /// Metrics that record nothing (no `[metrics]` section).
+    pub fn disabled() -> Metrics {
+        Metrics { inner: None }
+    }
+
     /// A fresh registry with every family registered, the start time and the build info set.
     pub fn new() -> Metrics {
         let registry = Registry::new();
@@ -47,28 +53,36 @@ impl Metrics {
             .build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
-        Metrics { registry, families }
+        Metrics {
+            inner: Some(Arc::new(Enabled { registry, families })),
+        }
     }
 
     /// The handles of one bus.
     pub fn bus(&self, bus: &str) -> BusMetrics {
-        let f = &self.families;
+        let Some(e) = &self.inner else {
+            return BusMetrics { inner: None };
+        };
+        let f = &e.families;
         BusMetrics {
-            families: self.families.clone(),
-            name: bus.to_string(),
-            transactions: f.bus_transactions.with_label_values(&[bus]),
-            reconnects: f.bus_reconnects.with_label_values(&[bus]),
-            line_faults: f.bus_line_faults.with_label_values(&[bus]),
-            busy: f.bus_busy.with_label_values(&[bus]),
-            utilisation: f.bus_utilisation.with_label_values(&[bus]),
-            last: WireCounters::default(),
-            last_busy: Duration::ZERO,
+            inner: Some(BusHandles {
+                families: e.families.clone(),
+                name: bus.to_string(),
+                transactions: f.bus_transactions.with_label_values(&[bus]),
+                reconnects: f.bus_reconnects.with_label_values(&[bus]),
+                line_faults: f.bus_line_faults.with_label_values(&[bus]),
+                busy: f.bus_busy.with_label_values(&[bus]),
+                utilisation: f.bus_utilisation.with_label_values(&[bus]),
+                last: WireCounters::default(),
+                last_busy: Duration::ZERO,
+            }),
         }
     }
 
     /// The MQTT side, sampled by the MQTT task: connected, spool depth, spool drops so far.
     pub fn mqtt(&self, connected: bool, spool_messages: u64, spool_bytes: u64, dropped: u64) {
-        let f = &self.families;
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
         f.mqtt_connected.set(connected as i64);
         f.spool_messages.set(spool_messages as i64);
         f.spool_bytes.set(spool_bytes as i64);
@@ -80,7 +94,8 @@ impl Metrics {
 
     /// A command was answered with `payload` (`{"ok":true,…}` or `{"ok":false,"error":CODE}`).
     pub fn command_result(&self, payload: &serde_json::Value) {
-        let f = &self.families;
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
         f.commands_received.inc();
         if payload.get("ok").and_then(|v| v.as_bool()) != Some(true) {
             let code = payload
@@ -93,15 +108,23 @@ impl Metrics {
 
     /// The exposition in Prometheus's text format (version 0.0.4).
     pub fn encode(&self) -> String {
+        let Some(e) = &self.inner else {
+            return String::new();
+        };
         let mut out = Vec::new();
         // Encoding our own, well-formed families into a Vec cannot fail.
-        let _ = TextEncoder::new().encode(&self.registry.gather(), &mut out);
+        let _ = TextEncoder::new().encode(&e.registry.gather(), &mut out);
         String::from_utf8(out).unwrap_or_default()
     }
 }
 
-/// One bus's handles; owned by its bus task.
+/// One bus's handles (none when metrics are off); owned by its bus task.
+#[derive(Default)]
 pub struct BusMetrics {
+    inner: Option<BusHandles>,
+}
+
+struct BusHandles {
     families: Arc<Families>,
     name: String,
     transactions: IntCounter,
@@ -114,53 +137,56 @@ pub struct BusMetrics {
     last_busy: Duration,
 }
 
-impl Default for BusMetrics {
-    /// Handles in a registry nobody serves (a bus task run without a gateway, in a benchmark).
-    fn default() -> BusMetrics {
-        Metrics::new().bus("")
-    }
-}
-
 impl BusMetrics {
     /// The handles of a device on this bus.
     pub fn device(&self, device: &str) -> DeviceMetrics {
-        let f = &self.families;
-        let l = [self.name.as_str(), device];
+        let Some(b) = &self.inner else {
+            return DeviceMetrics { inner: None };
+        };
+        let f = &b.families;
+        let l = [b.name.as_str(), device];
         DeviceMetrics {
-            families: self.families.clone(),
-            bus: self.name.clone(),
-            device: device.to_string(),
-            up: f.device_up.with_label_values(&l),
-            wrong_model: f.device_wrong_model.with_label_values(&l),
-            transactions: f.device_transactions.with_label_values(&l),
-            timeouts: f.device_timeouts.with_label_values(&l),
-            garbled: f.device_garbled.with_label_values(&l),
-            exceptions: f.device_exceptions.with_label_values(&l),
-            latency: f.device_latency.with_label_values(&l),
-            channels: HashMap::new(),
+            inner: Some(DeviceHandles {
+                families: b.families.clone(),
+                bus: b.name.clone(),
+                device: device.to_string(),
+                up: f.device_up.with_label_values(&l),
+                wrong_model: f.device_wrong_model.with_label_values(&l),
+                transactions: f.device_transactions.with_label_values(&l),
+                timeouts: f.device_timeouts.with_label_values(&l),
+                garbled: f.device_garbled.with_label_values(&l),
+                exceptions: f.device_exceptions.with_label_values(&l),
+                latency: f.device_latency.with_label_values(&l),
+                channels: HashMap::new(),
+            }),
         }
     }
 
     /// Carries the link's cumulative counters and busy time over.
     pub fn wire(&mut self, now: &WireCounters, busy: Duration) {
-        let d = diff(&self.last, now);
-        self.transactions.inc_by(d.transactions);
-        self.reconnects.inc_by(d.reconnects);
-        self.last = *now;
-        if busy > self.last_busy {
-            self.busy.inc_by((busy - self.last_busy).as_secs_f64());
-            self.last_busy = busy;
+        let Some(b) = &mut self.inner else { return };
+        let d = diff(&b.last, now);
+        b.transactions.inc_by(d.transactions);
+        b.reconnects.inc_by(d.reconnects);
+        b.last = *now;
+        if busy > b.last_busy {
+            b.busy.inc_by((busy - b.last_busy).as_secs_f64());
+            b.last_busy = busy;
         }
     }
 
     /// The line failed (adapter gone, port cannot be opened): counted once per fault.
     pub fn line_fault(&self) {
-        self.line_faults.inc();
+        if let Some(b) = &self.inner {
+            b.line_faults.inc();
+        }
     }
 
     /// The share of the last stats interval the line was busy.
     pub fn utilisation(&self, ratio: f64) {
-        self.utilisation.set(ratio);
+        if let Some(b) = &self.inner {
+            b.utilisation.set(ratio);
+        }
     }
 }
 
@@ -185,8 +211,12 @@ struct ChannelMetrics {
     rate: Gauge,
 }
 
-/// One device's handles; owned by its bus task.
+/// One device's handles (none when metrics are off); owned by its bus task.
 pub struct DeviceMetrics {
+    inner: Option<DeviceHandles>,
+}
+
+struct DeviceHandles {
     families: Arc<Families>,
     bus: String,
     device: String,
@@ -203,33 +233,41 @@ pub struct DeviceMetrics {
 impl DeviceMetrics {
     /// The transactions this device took: the link's counters before and after them.
     pub fn wire(&self, before: &WireCounters, after: &WireCounters) {
+        let Some(h) = &self.inner else { return };
         let d = diff(before, after);
-        self.transactions.inc_by(d.transactions);
-        self.timeouts.inc_by(d.timeouts);
-        self.garbled.inc_by(d.garbled);
-        self.exceptions.inc_by(d.exceptions);
+        h.transactions.inc_by(d.transactions);
+        h.timeouts.inc_by(d.timeouts);
+        h.garbled.inc_by(d.garbled);
+        h.exceptions.inc_by(d.exceptions);
     }
 
     /// One transaction's latency (request sent → answer decoded).
     pub fn latency(&self, d: Duration) {
-        self.latency.observe(d.as_secs_f64());
+        if let Some(h) = &self.inner {
+            h.latency.observe(d.as_secs_f64());
+        }
     }
 
     /// Availability: 1 online, 0 offline or not yet seen.
     pub fn up(&self, online: Option<bool>) {
-        self.up.set((online == Some(true)) as i64);
+        if let Some(h) = &self.inner {
+            h.up.set((online == Some(true)) as i64);
+        }
     }
 
     /// The module is not the model configured (set by the identification check).
     pub fn wrong_model(&self, wrong: bool) {
-        self.wrong_model.set(wrong as i64);
+        if let Some(h) = &self.inner {
+            h.wrong_model.set(wrong as i64);
+        }
     }
 
     /// A reading that is being published; `encoder`: its total is a position.
     pub fn reading(&mut self, r: &Reading, encoder: bool) {
-        let ch = self.channels.entry(r.channel.clone()).or_insert_with(|| {
-            let f = &self.families;
-            let l = [self.bus.as_str(), self.device.as_str(), &r.channel];
+        let Some(h) = &mut self.inner else { return };
+        let ch = h.channels.entry(r.channel.clone()).or_insert_with(|| {
+            let f = &h.families;
+            let l = [h.bus.as_str(), h.device.as_str(), &r.channel];
             ChannelMetrics {
                 pulses: (!encoder).then(|| f.channel_pulses.with_label_values(&l)),
                 position: encoder.then(|| f.channel_position.with_label_values(&l)),

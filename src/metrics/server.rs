@@ -75,8 +75,8 @@ pub async fn serve(
         let (metrics, health) = (metrics.clone(), health.clone());
         tokio::spawn(async move {
             let service = hyper::service::service_fn(move |req| {
-                let answer = answer(&req, &metrics, &health);
-                async move { Ok::<_, Infallible>(answer) }
+                let (metrics, health) = (metrics.clone(), health.clone());
+                async move { Ok::<_, Infallible>(answer(req, metrics, health).await) }
             });
             let conn = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
@@ -90,13 +90,22 @@ pub async fn serve(
     }
 }
 
-fn answer(req: &Request<Incoming>, metrics: &Metrics, health: &Health) -> Response<Full<Bytes>> {
+async fn answer(
+    req: Request<Incoming>,
+    metrics: Metrics,
+    health: Arc<Health>,
+) -> Response<Full<Bytes>> {
     if req.method() != Method::GET && req.method() != Method::HEAD {
         return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into());
     }
     match req.uri().path() {
         "/metrics" => {
-            let mut r = Response::new(Full::new(Bytes::from(metrics.encode())));
+            // Thousands of series take tens of milliseconds to encode: off the runtime thread,
+            // so polling does not wait for a scrape.
+            let text = tokio::task::spawn_blocking(move || metrics.encode())
+                .await
+                .unwrap_or_default();
+            let mut r = Response::new(Full::new(Bytes::from(text)));
             r.headers_mut()
                 .insert(CONTENT_TYPE, HeaderValue::from_static(TEXT_FORMAT));
             r

@@ -172,3 +172,15 @@ fn latency_is_a_histogram_in_seconds_and_build_info_names_the_version() {
     )));
     assert!(text.contains("# TYPE process_start_time_seconds gauge"));
 }
+
+#[test]
+fn metrics_that_are_off_record_nothing_and_expose_nothing() {
+    let m = Metrics::disabled();
+    let mut bus = m.bus("line1");
+    let mut d = bus.device("press1");
+    d.up(Some(true));
+    d.reading(&reading("press1", "a2", 5, 1.0), false);
+    bus.wire(&WireCounters::default(), Duration::from_secs(1));
+    m.mqtt(true, 1, 2, 3);
+    assert_eq!(m.encode(), "");
+}
