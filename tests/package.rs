@@ -120,3 +120,19 @@ fn the_readme_starts_with_the_demo_and_the_test_command() {
         commands[0]
     );
 }
+
+/// The packaged binary has no broker: `demo` without `--mqtt` says how to get one.
+#[cfg(not(feature = "embedded-broker"))]
+#[test]
+fn the_lean_demo_without_a_broker_names_both_ways_to_get_one() {
+    let out = Command::new(env!("CARGO_BIN_EXE_pulsegate"))
+        .args(["demo", "--duration", "1s"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--mqtt HOST:PORT") && err.contains("--features embedded-broker"),
+        "{err}"
+    );
+}
