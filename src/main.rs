@@ -169,6 +169,12 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                 Err(code) => return Ok(code),
             };
             print!("{}", pulsegate::report::poll_plan(&config));
+            if let Some(host) = &config.gateway.id_from_hostname {
+                println!(
+                    "gateway.id is not set: \"{}\" (from the hostname {host:?})",
+                    config.gateway.id
+                );
+            }
             println!("config {} is valid", config.source.display());
             Ok(ExitCode::SUCCESS)
         }
@@ -202,6 +208,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Demo { mqtt, duration } => {
+            if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
+                anyhow::bail!("--duration: at most 7 days");
+            }
             let shutdown = CancellationToken::new();
             on_signals(shutdown.clone())?;
             pulsegate::demo::run(mqtt.as_deref(), duration.map(Into::into), shutdown).await?;

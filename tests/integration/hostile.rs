@@ -626,3 +626,106 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
             .is_some()
     );
 }
+
+/// Runs the gateway binary with `args`, as an unprivileged user when the tests run as root
+/// (root reads any file, and the service never runs as root).
+fn run_as_service_user(args: &[&str], config: &std::path::Path) -> std::process::Output {
+    let root = unsafe { libc::geteuid() } == 0;
+    let mut cmd = if root {
+        let mut c = std::process::Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", bin()]);
+        c
+    } else {
+        std::process::Command::new(bin())
+    };
+    cmd.args(args)
+        .arg("--config")
+        .arg(config)
+        .stdin(std::process::Stdio::null())
+        .env_remove("PULSEGATE__MQTT__PORT");
+    let child = cmd
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.wait_with_output().unwrap()
+}
+
+/// A CA file the service user cannot read (or that holds no certificate): `check` reports it,
+/// and `run` exits non-zero with a clear message instead of connecting without TLS.
+#[test]
+fn tls_that_cannot_be_set_up_is_an_error_in_check_and_fatal_in_run() {
+    let dir = temp_dir("hostile-tls");
+    std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let ca = dir.join("ca.pem");
+    std::fs::write(&ca, "-----BEGIN CERTIFICATE-----\n").unwrap();
+    std::fs::set_permissions(&ca, std::os::unix::fs::PermissionsExt::from_mode(0o000)).unwrap();
+    let garbage = dir.join("garbage.pem");
+    std::fs::write(&garbage, "not a certificate\n").unwrap();
+    std::fs::set_permissions(
+        &garbage,
+        std::os::unix::fs::PermissionsExt::from_mode(0o644),
+    )
+    .unwrap();
+    for (file, cause) in [(&ca, "Permission denied"), (&garbage, "no PEM certificate")] {
+        let config = dir.join("pulsegate.toml");
+        std::fs::write(
+            &config,
+            format!(
+                "[gateway]\nid = \"t\"\nstate_dir = \"{d}/state\"\n[mqtt]\nport = {port}\nusername = \"u\"\npassword = \"secret\"\n[mqtt.tls]\nca_file = \"{f}\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 1\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n",
+                d = dir.display(),
+                port = free_port(),
+                f = file.display()
+            ),
+        )
+        .unwrap();
+        std::fs::set_permissions(&config, std::os::unix::fs::PermissionsExt::from_mode(0o644))
+            .unwrap();
+        let check = run_as_service_user(&["check"], &config);
+        let err = String::from_utf8_lossy(&check.stderr);
+        assert!(!check.status.success(), "check accepted it: {err}");
+        assert!(
+            err.contains("mqtt.tls") && err.contains("TLS cannot be set up") && err.contains(cause),
+            "{err}"
+        );
+        let t = Instant::now();
+        let run = run_as_service_user(&["run"], &config);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "run went on: {err}");
+        assert!(
+            err.contains("TLS cannot be set up") && err.contains(cause),
+            "{err}"
+        );
+        assert!(t.elapsed() < Duration::from_secs(5));
+    }
+}
+
+/// `check` with absurd durations reports each one and does not panic.
+#[test]
+fn check_with_absurd_durations_reports_errors_and_does_not_panic() {
+    let dir = temp_dir("hostile-durations");
+    let config = write_config(
+        &dir,
+        "[gateway]\nid = \"x\"\nstate_flush = \"500000000000years\"\n[mqtt]\nkeep_alive = \"500000000000years\"\n[buses.line1]\nport = \"/dev/ttyUSB0\"\nguard = \"500000000000years\"\ntimeout = \"500000000000years\"\n[buses.line1.devices.press1]\nunit = 1\nmodel = \"yl67\"\npoll = \"500000000000years\"\n",
+    );
+    let out = std::process::Command::new(bin())
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    for key in [
+        "gateway.state_flush",
+        "mqtt.keep_alive",
+        "buses.line1.guard",
+        "buses.line1.timeout",
+        "buses.line1.devices.press1.poll",
+    ] {
+        assert!(
+            err.contains(&format!("{key}: must be at most")),
+            "{key}: {err}"
+        );
+    }
+}
