@@ -213,5 +213,9 @@ fn an_fqdn_hostname_becomes_a_visible_id_never_a_shared_default() {
     assert_eq!(id_from_host("edge_7").as_deref(), Some("edge_7"));
     assert_eq!(id_from_host(""), None);
     assert_eq!(id_from_host("..."), None);
-    assert_eq!(id_from_host(&"a".repeat(100)), None, "too long for a topic level");
+    assert_eq!(
+        id_from_host(&"a".repeat(100)),
+        None,
+        "too long for a topic level"
+    );
 }

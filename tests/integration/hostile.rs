@@ -729,3 +729,63 @@ fn check_with_absurd_durations_reports_errors_and_does_not_panic() {
         );
     }
 }
+
+/// With stderr a pipe nobody reads any more, logging fails on every line: the gateway keeps
+/// working and SIGTERM still shuts it down cleanly within 5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_stderr_does_not_keep_sigterm_from_a_clean_shutdown() {
+    let broker = Broker::start();
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-stderr");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let config = write_config(
+        &dir,
+        &gateway_toml(
+            &plant,
+            broker.port,
+            &dir,
+            &[("line1", "d", 1, "yl67", "100ms")],
+            "",
+        ),
+    );
+    let mut child = std::process::Command::new(bin())
+        .args(["run", "--config"])
+        .arg(&config)
+        .env("RUST_LOG", "debug")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stderr.take()); // the reader goes away: every log line now fails (EPIPE)
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
+            .await
+            .is_some(),
+        "working without a stderr"
+    );
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert!(child.try_wait().unwrap().is_none(), "still running");
+    let t = Instant::now();
+    let _ = std::process::Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(5),
+            "no exit within 5 s of SIGTERM"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert!(status.success(), "{status:?}");
+    assert!(
+        sub.wait_for("pulsegate/test/status", Duration::from_secs(2), |m| m
+            .payload
+            == "offline")
+            .await
+            .is_some(),
+        "a clean shutdown says offline"
+    );
+}
