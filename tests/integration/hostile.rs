@@ -789,3 +789,186 @@ async fn a_closed_stderr_does_not_keep_sigterm_from_a_clean_shutdown() {
         "a clean shutdown says offline"
     );
 }
+
+/// 2% of the bytes corrupted, both ways, at 9600 baud for 60 s (`PULSEGATE_NOISE_SECS`): CRC
+/// errors and undecodable frames are garbled answers, not line faults, and no device goes
+/// offline.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_percent_corrupted_bytes_at_9600_baud_take_no_device_offline() {
+    let secs: u64 = std::env::var("PULSEGATE_NOISE_SECS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(60);
+    let broker = Broker::start();
+    let plant = plant(
+        r#"
+[buses.line1]
+line = { baud = 9600, turnaround = "2ms", corrupt = 0.02 }
+[buses.line1.devices.a]
+unit = 1
+model = "yl67"
+channels.enc0 = { rate = 100.0 }
+[buses.line1.devices.b]
+unit = 2
+model = "wj157"
+channels.enc0 = { rate = 50.0 }
+[buses.line1.devices.c]
+unit = 3
+model = "wj157"
+modes = [1]
+channels.a0 = { rate = 20.0 }
+"#,
+    )
+    .await;
+    let dir = temp_dir("hostile-noise");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices = [
+        ("line1", "a", 1, "yl67", "500ms"),
+        ("line1", "b", 2, "wj157", "500ms"),
+        ("line1", "c", 3, "wj157", "500ms"),
+    ];
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, "")
+        .replace("baud = 115200", "baud = 9600")
+        .replace("timeout = \"100ms\"", "timeout = \"200ms\"");
+    let gw = Gateway::start(&write_config(&dir, &text));
+    for d in ["a", "b", "c"] {
+        assert!(
+            sub.wait_for(
+                &format!("pulsegate/test/{d}/status"),
+                Duration::from_secs(20),
+                |m| m.payload == "online"
+            )
+            .await
+            .is_some(),
+            "{d} online:\n{}",
+            gw.log_text()
+        );
+    }
+    tokio::time::sleep(Duration::from_secs(secs)).await;
+    let corrupted = plant
+        .bus("line1")
+        .unwrap()
+        .line
+        .as_ref()
+        .unwrap()
+        .counters
+        .corrupted
+        .load(std::sync::atomic::Ordering::Relaxed);
+    let log = gw.log_text();
+    let garbled = log.matches("garbled answer").count();
+    println!("noise: {corrupted} bytes corrupted in {secs} s; {garbled} garbled-answer log lines");
+    assert!(corrupted > 100, "the line was noisy: {corrupted}");
+    assert!(
+        !sub.all()
+            .iter()
+            .any(|m| m.topic.ends_with("/status") && m.payload == "offline"),
+        "a device went offline:\n{log}"
+    );
+    assert!(!log.contains("device offline"), "{log}");
+    assert!(!log.contains("line fault"), "{log}");
+    // The line is saturated at 9600 baud (the YL67's poll alone reads 160 registers, and noisy
+    // reads are asked again): readings come slower than the 500 ms asked, but they come.
+    let counts: Vec<usize> = ["a/enc0", "b/enc0", "c/a0"]
+        .iter()
+        .map(|d| sub.on(&format!("pulsegate/test/{d}")).len())
+        .collect();
+    println!("noise: readings per device {counts:?}");
+    assert!(
+        counts[1] as u64 >= secs && counts[2] as u64 >= secs,
+        "{counts:?}"
+    );
+}
+
+/// Clears while the input counts at 1 kHz: every pulse the module counted after the gateway's
+/// write (up to the read-back) is booked; the total equals the pulses generated less only those
+/// counted between the gateway's last read and its write, which the module's clear erased
+/// before anyone could read them (the simulator reports what each clear replaced).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clears_while_counting_at_1_khz_lose_no_pulse_between_the_write_and_the_read_back() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n",
+    )
+    .await;
+    let dir = temp_dir("hostile-clear");
+    let topic = "pulsegate/test/m/a0";
+    let sub = Subscriber::start(broker.port, "pulsegate/test/m/#").await;
+    let _gw = start_gateway(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "m", 1, "yl67", "100ms")],
+        "",
+    );
+    assert!(
+        sub.wait_for(topic, Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+    for i in 0..10 {
+        let id = format!("c{i}");
+        sub.client
+            .publish(
+                format!("{topic}/cmd"),
+                QoS::AtLeastOnce,
+                false,
+                format!(r#"{{"op":"clear","id":"{id}"}}"#),
+            )
+            .await
+            .unwrap();
+        let r = sub
+            .wait_for(
+                &format!("{topic}/cmd/result"),
+                Duration::from_secs(5),
+                |m| m.json()["id"] == id.as_str(),
+            )
+            .await
+            .expect("a result");
+        assert_eq!(r.json()["ok"], true, "{}", r.payload);
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+    plant
+        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
+        .unwrap();
+    let after = Instant::now() + Duration::from_millis(400);
+    let last = sub
+        .wait_for(topic, Duration::from_secs(5), |m| m.at > after)
+        .await
+        .expect("a reading after the pulses stopped")
+        .json();
+    let (generated, overwritten) = plant
+        .with_module("line1", 1, |m, now| {
+            let c = m.channel("a0").unwrap();
+            (c.generated(now), c.overwritten.clone())
+        })
+        .unwrap();
+    let all = readings(&sub, topic);
+    let cleared: Vec<usize> = (0..all.len())
+        .filter(|&i| all[i]["event"] == "cleared")
+        .collect();
+    assert_eq!(cleared.len(), 10);
+    // The plant's own start value came first; then one per clear.
+    let overwritten = &overwritten[overwritten.len() - 10..];
+    // Pulses between the read just before each write and the write itself: erased unseen.
+    let unseen: i64 = cleared
+        .iter()
+        .zip(overwritten)
+        .map(|(&i, &was)| was - all[i - 1]["count"].as_i64().unwrap())
+        .sum();
+    let after_write: i64 = cleared
+        .iter()
+        .map(|&i| all[i]["delta"].as_i64().unwrap())
+        .sum();
+    println!(
+        "clear: {generated} generated, total {}, {unseen} erased before the write, {after_write} booked between write and read-back",
+        last["total"]
+    );
+    assert!(
+        after_write > 0,
+        "pulses came in between the write and the read-back"
+    );
+    assert_eq!(
+        last["total"].as_i64().unwrap(),
+        generated - all[0]["count"].as_i64().unwrap() - unseen
+    );
+}
