@@ -155,7 +155,11 @@ fn a_bad_config_is_not_restarted_forever() {
         .stderr(std::process::Stdio::null())
         .status()
         .unwrap();
-    assert_eq!(status.code(), Some(2), "a bad config exits with the status systemd is told");
+    assert_eq!(
+        status.code(),
+        Some(2),
+        "a bad config exits with the status systemd is told"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
