@@ -162,6 +162,21 @@ impl Counter {
         self.outcome(0, Some(event), None)
     }
 
+    /// The gateway wrote `written` (0 for a clear, the preset value) and read back `count`: the
+    /// pulses counted between the write and the read-back are booked (the movement from
+    /// `written` to `count`), so a clear while counting loses nothing it could see.
+    pub fn rebase_from(&mut self, written: i64, count: i64, at_ms: u64, event: Event) -> Update {
+        let (delta, _) = self.spec.movement(written, count);
+        let s = &mut self.state;
+        s.seq += 1;
+        s.count = Some(count);
+        s.at_ms = at_ms;
+        s.total += delta;
+        s.suspect = None;
+        s.gap = false;
+        self.outcome(delta, Some(event), None)
+    }
+
     fn book(
         &mut self,
         count: i64,
@@ -372,5 +387,22 @@ mod tests {
         let text = serde_json::to_string(&c.state).unwrap();
         let back: CounterState = serde_json::from_str(&text).unwrap();
         assert_eq!(back, c.state);
+    }
+
+    #[test]
+    fn a_clear_books_the_pulses_counted_between_the_write_and_the_read_back() {
+        let mut c = di(1000.0);
+        booked(&mut c, &[(500, 0), (700, 200)]);
+        let u = c.rebase_from(0, 7, 210, Event::Cleared);
+        assert_eq!((u.delta, u.total, u.event), (7, 207, Some(Event::Cleared)));
+        let next = c.update(57, 260).expect("booked");
+        assert_eq!((next.delta, next.total), (50, 257));
+    }
+
+    #[test]
+    fn a_preset_of_an_encoder_books_its_movement_both_ways() {
+        let mut c = encoder(1000.0);
+        booked(&mut c, &[(10, 0)]);
+        assert_eq!(c.rebase_from(3000, 2996, 10, Event::Preset).delta, -4);
     }
 }

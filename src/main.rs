@@ -79,7 +79,10 @@ fn init_logging(format: LogFormat) {
             .init();
         return;
     }
+    // A closed stderr (a pipe whose reader went away) must not panic the gateway: write errors
+    // are dropped, not reported on the very stderr that failed.
     let builder = tracing_subscriber::fmt()
+        .log_internal_errors(false)
         .with_env_filter(filter())
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr);
@@ -129,9 +132,15 @@ fn on_hangup(path: PathBuf) -> anyhow::Result<tokio::sync::mpsc::UnboundedReceiv
     Ok(rx)
 }
 
+/// Writes to stderr, ignoring failure (`eprint!` panics when stderr is closed).
+fn say_err(text: std::fmt::Arguments<'_>) {
+    use std::io::Write as _;
+    let _ = std::io::stderr().write_fmt(text);
+}
+
 fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
     Config::load(path).map_err(|e| {
-        eprint!("{e}");
+        say_err(format_args!("{e}"));
         ExitCode::from(2)
     })
 }
@@ -148,14 +157,14 @@ fn main() -> ExitCode {
     {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("error: cannot start the async runtime: {e}");
+            say_err(format_args!("error: cannot start the async runtime: {e}\n"));
             return ExitCode::FAILURE;
         }
     };
     match runtime.block_on(run(cli.command)) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            say_err(format_args!("error: {e:#}\n"));
             ExitCode::FAILURE
         }
     }
@@ -169,6 +178,12 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                 Err(code) => return Ok(code),
             };
             print!("{}", pulsegate::report::poll_plan(&config));
+            if let Some(host) = &config.gateway.id_from_hostname {
+                println!(
+                    "gateway.id is not set: \"{}\" (from the hostname {host:?})",
+                    config.gateway.id
+                );
+            }
             println!("config {} is valid", config.source.display());
             Ok(ExitCode::SUCCESS)
         }
@@ -202,6 +217,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Demo { mqtt, duration } => {
+            if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
+                anyhow::bail!("--duration: at most 7 days");
+            }
             let shutdown = CancellationToken::new();
             on_signals(shutdown.clone())?;
             pulsegate::demo::run(mqtt.as_deref(), duration.map(Into::into), shutdown).await?;

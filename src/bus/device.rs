@@ -84,6 +84,9 @@ impl ChannelRt {
     }
 }
 
+/// Times a read of an online device is asked again after noise (timeout, garbled, mismatch).
+const NOISE_RETRIES: u32 = 2;
+
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
     blocks: Vec<(Block, Vec<u16>, SystemTime)>,
@@ -373,6 +376,7 @@ impl DeviceRt {
         let mut blocks = self.plan(regs);
         let mut out = Vec::with_capacity(blocks.len());
         let mut i = 0;
+        let mut retries = 0;
         while i < blocks.len() {
             if preempt() {
                 return Err(PollError::Preempted);
@@ -380,7 +384,19 @@ impl DeviceRt {
             let b = blocks[i];
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
-            match link.read(self.unit, b.start, b.len, timeout).await? {
+            let answer = match link.read(self.unit, b.start, b.len, timeout).await {
+                // A device that is online and lost one request or answer to noise is asked
+                // again: on a noisy line a corrupted request gets no answer at all, and three
+                // of those in a row must not make a healthy device offline. An offline device
+                // is not asked twice (a dead one costs the others one timeout per probe).
+                Err(e) if e.is_noise() && self.online == Some(true) && retries < NOISE_RETRIES => {
+                    retries += 1;
+                    continue;
+                }
+                other => other?,
+            };
+            retries = 0;
+            match answer {
                 Ok(words) => {
                     self.record_latency(started.elapsed(), link, b.len);
                     out.push((b, words, SystemTime::now()));

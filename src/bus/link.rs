@@ -53,6 +53,15 @@ impl LinkError {
         matches!(self, LinkError::Open { .. } | LinkError::Io(_))
     }
 
+    /// Worth asking again at once (a read only): the request or the answer may have been hit
+    /// by noise.
+    pub fn is_noise(&self) -> bool {
+        matches!(
+            self,
+            LinkError::Timeout(_) | LinkError::Garbled(..) | LinkError::Mismatch(_)
+        )
+    }
+
     /// Something answered: the device is alive even though this answer is unusable.
     pub fn device_answered(&self) -> bool {
         matches!(self, LinkError::Garbled(..))
@@ -250,6 +259,17 @@ impl Link {
                     self.counters.timeouts += 1;
                     Err(LinkError::Timeout(timeout))
                 }
+            }
+            // tokio-modbus reports a frame it could not decode (bad CRC, an impossible function
+            // code or length) as an I/O error of kind InvalidData: that is a garbled answer on
+            // a noisy line, not a line fault. Rebuild the client so decoding starts afresh.
+            Ok(Err(tokio_modbus::Error::Transport(e)))
+                if e.kind() == io::ErrorKind::InvalidData =>
+            {
+                self.counters.garbled += 1;
+                self.ctx = None;
+                let got = self.bytes_in.load(Ordering::Relaxed) - bytes_before;
+                Err(LinkError::Garbled(got.max(1), timeout))
             }
             Ok(Err(tokio_modbus::Error::Transport(e))) => {
                 self.counters.io_errors += 1;

@@ -10,6 +10,9 @@ use super::walk::{Errors, Table, join};
 use super::{Bus, ChannelConfig, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
+/// Longest answer timeout (a module that needs longer is not answering).
+pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
+
 /// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
 pub const MAX_SPOOL_MB: u64 = 1 << 20;
 
@@ -277,15 +280,9 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
         }
     }
-    if let Some(v) = t.duration("keep_alive", errs) {
-        // MQTT carries it in 16 bits of seconds.
-        if v < Duration::from_secs(5) || v > Duration::from_secs(u64::from(u16::MAX)) {
-            errs.push(
-                &join(&t.path, "keep_alive"),
-                t.origin(),
-                "must be between 5s and 65535s (18h 12m 15s)",
-            );
-        }
+    // MQTT carries it in 16 bits of seconds.
+    let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
+    if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
         m.keep_alive = v;
     }
     if let Some(v) = t.int::<u8>("qos", errs) {
@@ -399,17 +396,10 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         None
     };
 
-    let timeout = t.duration("timeout", errs);
-    let guard = t.opt::<String>("guard", errs).map_or(Duration::ZERO, |s| {
-        humantime::parse_duration(&s).unwrap_or_else(|e| {
-            errs.push(
-                &join(&path, "guard"),
-                t.origin(),
-                format!("bad duration {s:?}: {e}"),
-            );
-            Duration::ZERO
-        })
-    });
+    let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
+    let guard = t
+        .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
+        .unwrap_or(Duration::ZERO);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
         errs.push(
@@ -518,7 +508,7 @@ fn device(
         p
     });
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
-    let timeout = t.duration("timeout", errs);
+    let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {

@@ -202,3 +202,20 @@ fn topic_safe_names() {
         assert!(!is_topic_safe(bad), "{bad:?}");
     }
 }
+
+#[test]
+fn an_fqdn_hostname_becomes_a_visible_id_never_a_shared_default() {
+    use super::id_from_host;
+    assert_eq!(
+        id_from_host("edge-01.plant.example.com").as_deref(),
+        Some("edge-01-plant-example-com")
+    );
+    assert_eq!(id_from_host("edge_7").as_deref(), Some("edge_7"));
+    assert_eq!(id_from_host(""), None);
+    assert_eq!(id_from_host("..."), None);
+    assert_eq!(
+        id_from_host(&"a".repeat(100)),
+        None,
+        "too long for a topic level"
+    );
+}

@@ -211,10 +211,72 @@ impl Profile {
         out
     }
 
+    /// Every address, code and number a profile can produce stays within u16, every rate is
+    /// positive: checked in u32 before anything is resolved, so a user profile cannot make the
+    /// gateway overflow.
+    fn check_ranges(&self) -> Result<(), String> {
+        let fits = |what: &str, base: u16, stride: u16, n: u16, width: u32| {
+            let last = u32::from(base) + u32::from(n.saturating_sub(1)) * u32::from(stride);
+            if last + width > 0x1_0000 {
+                Err(format!(
+                    "{what}: register or value {last} (+{width}) is beyond 65535"
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        if self.answer_timeout.is_zero() || self.answer_timeout > Duration::from_secs(60) {
+            return Err("answer_timeout must be between 1ms and 60s".into());
+        }
+        if let Some((address, words)) = &self.identify {
+            let n = u32::try_from(words.len()).unwrap_or(u32::MAX);
+            if u32::from(*address) + n > 0x1_0000 || words.len() > 125 {
+                return Err("identify: registers beyond 65535 or more than 125".into());
+            }
+        }
+        for g in &self.groups {
+            if g.instances == 0 {
+                return Err(format!("group {} has no instances", g.name));
+            }
+            let n = g.instances;
+            fits(
+                &format!("group {} mode", g.name),
+                g.mode.address,
+                g.mode.stride,
+                n,
+                1,
+            )?;
+            for mode in &g.modes {
+                for ch in &mode.channels {
+                    let what = format!("channel {}", ch.name);
+                    if !(ch.max_rate_hz > 0.0 && ch.max_rate_hz.is_finite()) {
+                        return Err(format!("{what}: max_rate_hz must be greater than zero"));
+                    }
+                    fits(&what, ch.number.base, ch.number.stride, n, 0)?;
+                    for r in [
+                        Some(&ch.count),
+                        ch.freq.as_ref(),
+                        ch.rpm.as_ref(),
+                        ch.ppr.as_ref(),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    {
+                        fits(&what, r.address, r.stride, n, u32::from(r.ty.words()))?;
+                    }
+                    fits(&what, ch.clear.address, ch.clear.stride, n, 1)?;
+                    fits(&what, ch.clear.code, ch.clear.code_stride, n, 0)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn check(&self) -> Result<(), String> {
         if self.model.is_empty() {
             return Err("model name is empty".into());
         }
+        self.check_ranges()?;
         if self.groups.is_empty() {
             return Err("no groups of channels".into());
         }

@@ -255,12 +255,30 @@ pub async fn run(
         }
     };
     let (client, eventloop) = options.connect(WINDOW + 64);
-    let spool = match Spool::open(spool_dir, config.spool_bytes) {
-        Ok(s) => s,
+    // Reading a large spool left by the last run must not hold up the buses.
+    let (dir, bytes) = (spool_dir.to_path_buf(), config.spool_bytes);
+    let opened = tokio::task::spawn_blocking(move || match Spool::open(&dir, bytes) {
+        Ok(s) => Ok(s),
         Err(e) => {
             tracing::error!("{e}; spooling in a temporary directory instead");
             let dir = std::env::temp_dir().join(format!("pulsegate-spool-{}", std::process::id()));
-            Spool::open(&dir, config.spool_bytes).expect("temporary spool")
+            Spool::open(&dir, bytes)
+        }
+    })
+    .await;
+    let spool = match opened {
+        Ok(Ok(s)) => s,
+        Ok(Err(e)) => {
+            tracing::error!("{e}; no spool at all: stopping");
+            shutdown.cancel();
+            while output.recv().await.is_some() {}
+            return;
+        }
+        Err(e) => {
+            tracing::error!("spool open task failed: {e}; stopping");
+            shutdown.cancel();
+            while output.recv().await.is_some() {}
+            return;
         }
     };
     if !spool.is_empty() {
@@ -387,7 +405,7 @@ pub async fn run(
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    {
+    let synced = {
         let mut s = lock(&shared);
         if let Err(e) = s.spool.spill() {
             tracing::error!("{e}");
@@ -404,7 +422,10 @@ pub async fn run(
             let _ = s.client.publish(status, 1, true, "offline".into(), None);
             let _ = s.client.disconnect();
         }
-    }
+        s.spool.barrier()
+    };
+    // The spool's last writes reach the disk before the process ends.
+    let _ = tokio::task::spawn_blocking(move || synced.recv_timeout(Duration::from_secs(3))).await;
     if tokio::time::timeout(Duration::from_secs(1), events)
         .await
         .is_err()
@@ -523,7 +544,7 @@ async fn drive(
                     // Do not fight over the id every second.
                     pause = (pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
                 } else if up != Some(false) {
-                    tracing::warn!(broker = %link.broker, "MQTT connection failed: {e}; reconnecting with a fresh client, readings are spooled");
+                    tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
                 }
                 up = Some(false);
                 {

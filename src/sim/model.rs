@@ -33,6 +33,10 @@ pub struct SimChannel {
     /// Command register value, where the channel has one.
     command: u16,
     pub ppr: u16,
+    /// The counts that clears and presets replaced, in order: what the module held at the
+    /// instant of the write (a test's account of the pulses between a gateway's last read and
+    /// its write, which no gateway can see).
+    pub overwritten: Vec<i64>,
 }
 
 impl SimChannel {
@@ -61,6 +65,7 @@ impl SimChannel {
 
     fn set_count(&mut self, now: f64, value: i64) {
         self.rebase(now);
+        self.overwritten.push(self.base);
         self.base = value;
     }
 
@@ -154,6 +159,7 @@ impl SimModule {
                 generated_base: 0,
                 running: true,
                 ppr: 1000,
+                overwritten: Vec::new(),
             })
             .collect();
         Ok(SimModule {
