@@ -56,11 +56,20 @@ impl Broker {
     /// A broker that keeps sessions across its own restarts (saved at SIGTERM), and queues
     /// without limit for subscribers that are away.
     pub fn start_persistent(port: u16, dir: &Path) -> Broker {
+        // Started as root, Mosquitto drops to its own user: its database directory must be
+        // writable by that user, or the sessions are silently not saved.
+        let db = dir.join("mosquitto");
+        std::fs::create_dir_all(&db).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&db, std::fs::Permissions::from_mode(0o777)).unwrap();
+        }
         Self::start_with(
             port,
             &format!(
                 "persistence true\npersistence_location {}/\nmax_queued_messages 0\n",
-                dir.display()
+                db.display()
             ),
         )
     }
