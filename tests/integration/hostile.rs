@@ -1035,7 +1035,6 @@ async fn connected_in_the_status_means_publishing() {
         &[("line1", "d", 1, "yl67", "100ms")],
         "",
     )
-    .replace("port = {port}\n", "")
     .replace(
         &format!("[mqtt]\nhost = \"127.0.0.1\"\nport = {port}\n"),
         &format!("[mqtt]\nhost = \"127.0.0.1\"\nport = {port}\nkeep_alive = \"5s\"\n"),
