@@ -132,21 +132,23 @@ impl BusTask {
                 pending.push(c);
             }
             let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
-            durable.collect().await;
+            durable.collect(&devices, &self.out).await;
             if !poll_owed {
                 owed = None;
                 if let Some(readings) = run_one_command(&mut pending, &mut devices, &mut link).await
                 {
-                    durable.publish(readings, &devices, &self.out).await;
+                    durable.publish(readings, &devices, &self.out);
                     owed = Some(Instant::now());
                     continue;
                 }
             }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
+            // Held readings are released as soon as their save is done.
+            let soon = if durable.holding() { 20 } else { 1000 };
             let wake = slots[i]
                 .due
-                .min(Instant::now() + Duration::from_secs(1))
+                .min(Instant::now() + Duration::from_millis(soon))
                 .min(flush_at)
                 .min(stats_at)
                 .min(expiry.unwrap_or(flush_at));
@@ -209,7 +211,7 @@ impl BusTask {
                     }
                     self.heart.set_up(true);
                     availability::answered(&mut devices[i], &name, &self.out);
-                    durable.publish(readings, &devices, &self.out).await;
+                    durable.publish(readings, &devices, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -225,7 +227,7 @@ impl BusTask {
                 }
             }
         }
-        if durable.finish(&devices).await {
+        if durable.finish(&devices, &self.out).await {
             tracing::info!(bus = %name, "state saved");
         }
         for d in &devices {
