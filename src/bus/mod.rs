@@ -135,9 +135,10 @@ impl BusTask {
             durable.collect(&devices, &self.out).await;
             if !poll_owed {
                 owed = None;
-                if let Some(readings) = run_one_command(&mut pending, &mut devices, &mut link).await
+                if let Some((from, readings)) =
+                    run_one_command(&mut pending, &mut devices, &mut link).await
                 {
-                    durable.publish(readings, &devices, &self.out);
+                    durable.publish(readings, from, &devices, &self.out);
                     owed = Some(Instant::now());
                     continue;
                 }
@@ -211,7 +212,7 @@ impl BusTask {
                     }
                     self.heart.set_up(true);
                     availability::answered(&mut devices[i], &name, &self.out);
-                    durable.publish(readings, &devices, &self.out);
+                    durable.publish(readings, i, &devices, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -279,17 +280,22 @@ fn stall_hook(bus: &str) -> Option<Duration> {
 
 /// Carries out the first pending command whose device can take it (one command, so polls get
 /// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
-/// their device. Returns the readings of the command that went on the line, if one did.
+/// their device. Returns the device and readings of the command that went on the line, if one
+/// did.
 async fn run_one_command(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
-) -> Option<Vec<crate::reading::Reading>> {
+) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
     let mut waiting = Vec::new();
     let mut ran = None;
     for c in pending.drain(..) {
-        let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
+        let Some((i, d)) = devices
+            .iter_mut()
+            .enumerate()
+            .find(|(_, d)| *d.name == c.request.device)
+        else {
             let _ = c
                 .done
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
@@ -297,7 +303,7 @@ async fn run_one_command(
         };
         if ran.is_none() && d.online == Some(true) && d.discovered() {
             let executed = d.execute(link, &c.request).await;
-            ran = Some(executed.readings);
+            ran = Some((i, executed.readings));
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {

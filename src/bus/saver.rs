@@ -141,19 +141,18 @@ impl Durable {
         }
     }
 
-    /// Publishes `readings` of `devices`, or holds them until a save covers their seq.
+    /// Publishes `readings` of `devices[from]`, or holds them until a save covers their seq.
     pub fn publish(
         &mut self,
         readings: Vec<Reading>,
+        from: usize,
         devices: &[super::DeviceRt],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
+        let d = &devices[from];
         for r in readings {
-            let key = devices
-                .iter()
-                .find(|d| d.name == r.device)
-                .map(|d| crate::state::channel_key(d.unit, &d.config.model, &r.channel));
-            self.held.push_back((key, r));
+            let key = crate::state::channel_key(d.unit, &d.config.model, &r.channel);
+            self.held.push_back((Some(key), r));
         }
         self.release(out);
         if self.holding() {
