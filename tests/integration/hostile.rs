@@ -873,10 +873,7 @@ channels.a0 = { rate = 20.0 }
         .map(|d| sub.on(&format!("pulsegate/test/{d}")).len())
         .collect();
     println!("noise: readings per device {counts:?}");
-    assert!(
-        counts[1] as u64 >= secs && counts[2] as u64 >= secs,
-        "{counts:?}"
-    );
+    assert!(counts.iter().all(|&n| n as u64 >= secs / 3), "{counts:?}");
 }
 
 /// Clears while the input counts at 1 kHz: every pulse the module counted after the gateway's
