@@ -142,21 +142,24 @@ impl BusTask {
                 pending.push(c);
             }
             let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
-            durable.collect().await;
+            durable.collect(&devices, &self.out).await;
             if !poll_owed {
                 owed = None;
-                if let Some(readings) = run_one_command(&mut pending, &mut devices, &mut link).await
+                if let Some((from, readings)) =
+                    run_one_command(&mut pending, &mut devices, &mut link).await
                 {
-                    durable.publish(readings, &devices, &self.out).await;
+                    durable.publish(readings, from, &devices, &self.out);
                     owed = Some(Instant::now());
                     continue;
                 }
             }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
+            // Held readings are released as soon as their save is done.
+            let soon = if durable.holding() { 20 } else { 1000 };
             let wake = slots[i]
                 .due
-                .min(Instant::now() + Duration::from_secs(1))
+                .min(Instant::now() + Duration::from_millis(soon))
                 .min(flush_at)
                 .min(stats_at)
                 .min(expiry.unwrap_or(flush_at));
@@ -224,7 +227,7 @@ impl BusTask {
                     }
                     self.heart.set_up(true);
                     availability::answered(&mut devices[i], &name, &self.out);
-                    durable.publish(readings, &devices, &self.out).await;
+                    durable.publish(readings, i, &devices, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -242,7 +245,7 @@ impl BusTask {
             }
             devices[i].metrics.up(devices[i].online);
         }
-        if durable.finish(&devices).await {
+        if durable.finish(&devices, &self.out).await {
             tracing::info!(bus = %name, "state saved");
         }
         for d in &devices {
@@ -294,17 +297,22 @@ fn stall_hook(bus: &str) -> Option<Duration> {
 
 /// Carries out the first pending command whose device can take it (one command, so polls get
 /// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
-/// their device. Returns the readings of the command that went on the line, if one did.
+/// their device. Returns the device and readings of the command that went on the line, if one
+/// did.
 async fn run_one_command(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
-) -> Option<Vec<crate::reading::Reading>> {
+) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
     let mut waiting = Vec::new();
     let mut ran = None;
     for c in pending.drain(..) {
-        let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
+        let Some((i, d)) = devices
+            .iter_mut()
+            .enumerate()
+            .find(|(_, d)| *d.name == c.request.device)
+        else {
             let _ = c
                 .done
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
@@ -314,7 +322,7 @@ async fn run_one_command(
             let before = link.counters;
             let executed = d.execute(link, &c.request).await;
             d.metrics.wire(&before, &link.counters);
-            ran = Some(executed.readings);
+            ran = Some((i, executed.readings));
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {

@@ -60,6 +60,11 @@ impl Saver {
         }
     }
 
+    /// The last save failed.
+    pub fn failing(&self) -> bool {
+        self.failing
+    }
+
     /// Starts a periodic save unless one is still running (then this one is skipped).
     pub fn start(&mut self, state: BusState) {
         if self.running.is_none() {
@@ -93,14 +98,19 @@ impl Saver {
 }
 
 /// The way out of a bus for readings: a reading whose seq is not yet covered by a durable save
-/// waits for one (see [`super::ledger`]); the first reading of each channel after a crash
-/// carries `after_seq`.
+/// is held (with every reading after it, so each channel keeps its order) until a save covers it;
+/// the bus goes on polling meanwhile, and one save covers everything polled while it ran. The
+/// first reading of each channel after a crash carries `after_seq`.
 pub struct Durable {
     pub saver: Saver,
     ledger: Ledger,
     /// Per channel key, the seq saved before a crash, until the channel's first reading.
     after_seq: BTreeMap<String, u64>,
+    /// Readings waiting for a save, with their channel keys, in order.
+    held: std::collections::VecDeque<(Option<String>, Reading)>,
 }
+
+use crate::reading::{Output, Reading};
 
 impl Durable {
     pub fn new(saver: Saver, after_seq: BTreeMap<String, u64>) -> Durable {
@@ -108,51 +118,77 @@ impl Durable {
             saver,
             ledger: Ledger::default(),
             after_seq,
+            held: Default::default(),
         }
     }
 
-    /// Collects a finished periodic save.
-    pub async fn collect(&mut self) {
-        self.saver.collect(&mut self.ledger).await;
+    /// Readings are waiting for a save (the bus should come back soon).
+    pub fn holding(&self) -> bool {
+        !self.held.is_empty()
     }
 
-    /// Publishes `readings` of `devices`, saving first when a seq is beyond the durable one.
-    pub async fn publish(
+    /// Collects a finished save, releases what it covers, and starts the next save if readings
+    /// are still held.
+    pub async fn collect(
         &mut self,
-        mut readings: Vec<crate::reading::Reading>,
         devices: &[super::DeviceRt],
-        out: &tokio::sync::mpsc::UnboundedSender<crate::reading::Output>,
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
-        let key = |r: &crate::reading::Reading| {
-            devices
-                .iter()
-                .find(|d| d.name == r.device)
-                .map(|d| crate::state::channel_key(d.unit, &d.config.model, &r.channel))
-        };
-        let blocked = readings
-            .iter()
-            .any(|r| key(r).is_some_and(|k| !self.ledger.allows(&k, r.update.seq)));
-        if blocked {
-            // Publishing anyway when the save fails: readings matter more than seq after a
-            // crash, and the failure is logged.
-            self.saver
-                .save_now(super::snapshot(devices, false), &mut self.ledger)
-                .await;
+        self.saver.collect(&mut self.ledger).await;
+        self.release(out);
+        if self.holding() {
+            self.saver.start(super::snapshot(devices, false));
         }
-        for r in &mut readings {
-            if let Some(k) = key(r) {
+    }
+
+    /// Publishes `readings` of `devices[from]`, or holds them until a save covers their seq.
+    pub fn publish(
+        &mut self,
+        readings: Vec<Reading>,
+        from: usize,
+        devices: &[super::DeviceRt],
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    ) {
+        let d = &devices[from];
+        for r in readings {
+            let key = crate::state::channel_key(d.unit, &d.config.model, &r.channel);
+            self.held.push_back((Some(key), r));
+        }
+        self.release(out);
+        if self.holding() {
+            self.saver.start(super::snapshot(devices, false));
+        }
+    }
+
+    /// Sends the held readings a durable save covers, in order. While saves fail, everything
+    /// goes: readings matter more than seq after a crash (the failure is logged).
+    fn release(&mut self, out: &tokio::sync::mpsc::UnboundedSender<Output>) {
+        while let Some((key, r)) = self.held.front() {
+            let covered = key
+                .as_ref()
+                .is_none_or(|k| self.ledger.allows(k, r.update.seq));
+            if !covered && !self.saver.failing() {
+                break;
+            }
+            let (key, mut r) = self.held.pop_front().expect("front exists");
+            if let Some(k) = key {
                 r.after_seq = self.after_seq.remove(&k);
             }
-        }
-        for r in readings {
-            let _ = out.send(crate::reading::Output::Reading(r));
+            let _ = out.send(Output::Reading(r));
         }
     }
 
-    /// The last save, at shutdown: every reading is published, seq may go on from here.
-    pub async fn finish(&mut self, devices: &[super::DeviceRt]) -> bool {
-        self.saver
+    /// The last save, at shutdown (seq may go on from here), then whatever was held.
+    pub async fn finish(
+        &mut self,
+        devices: &[super::DeviceRt],
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    ) -> bool {
+        let saved = self
+            .saver
             .save_now(super::snapshot(devices, true), &mut self.ledger)
-            .await
+            .await;
+        self.release(out);
+        saved
     }
 }

@@ -580,6 +580,53 @@ mod tests {
         assert!(unsendable("pulsegate/e1/press/enc0", 100, 0, None).is_none());
     }
 
+    /// Shared state with a client whose requests go nowhere (its event loop is returned to keep
+    /// the queue open, never polled).
+    fn shared(name: &str) -> (Shared, EventLoop) {
+        let dir =
+            std::env::temp_dir().join(format!("pulsegate-mqtt-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (client, eventloop) = AsyncClient::new(MqttOptions::new("t", "127.0.0.1", 1), 10);
+        let shared = Shared {
+            spool: Spool::open(&dir, 1 << 20).unwrap(),
+            inflight: VecDeque::new(),
+            connected: true,
+            broker_max: None,
+            progress: std::time::Instant::now(),
+            direct: 0,
+            client,
+            topics: Topics::new("pg/t"),
+        };
+        (shared, eventloop)
+    }
+
+    /// What rumqttc does after a packet-id collision: the publish was taken but nothing is
+    /// acknowledged any more, while pings go on. The gateway counts that as not publishing.
+    #[test]
+    fn messages_in_flight_without_an_acknowledgement_for_too_long_are_a_stalled_connection() {
+        let (mut s, _requests) = shared("stall");
+        s.push("pg/t/d/enc0".into(), "{}".into(), 1, false, None);
+        assert_eq!(s.inflight.len(), 1);
+        let limit = Duration::from_secs(10);
+        assert!(!s.stalled(limit));
+        s.progress -= Duration::from_secs(11);
+        assert!(s.stalled(limit), "nothing acknowledged for 11 s");
+        s.sent(1);
+        s.acked(1);
+        assert!(s.inflight.is_empty());
+        assert!(!s.stalled(limit), "acknowledged: publishing");
+    }
+
+    #[test]
+    fn an_unsendable_message_is_dropped_and_the_next_one_sent() {
+        let (mut s, _requests) = shared("unsendable");
+        s.push("evil/#".into(), "{}".into(), 1, false, None);
+        s.push("pg/t/ok".into(), "{}".into(), 1, false, None);
+        assert_eq!(s.spool.len(), 1, "the wildcard one is gone");
+        assert_eq!(s.inflight.len(), 1);
+        assert_eq!(s.spool.get(0).unwrap().topic, "pg/t/ok");
+    }
+
     #[test]
     fn a_message_larger_than_the_broker_takes_can_never_be_sent() {
         assert!(unsendable("t", 2000, 0, Some(1024)).is_some());

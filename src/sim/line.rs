@@ -196,9 +196,9 @@ fn carry(
         }
         counters.bytes.fetch_add(n as u64, Ordering::Relaxed);
         // A module's frame layer discards a request whose CRC fails and resynchronises on the
-        // silence after it (Modbus over serial line, 2.5.1.1): it never reads the next request
-        // as the rest of a broken one. The simulator's server has no silence timing, so the
-        // broken frame is discarded here, where the timing is.
+        // silence after it (Modbus over Serial Line, RTU framing): it never reads the next
+        // request as the rest of a broken one. The simulator's server has no silence timing, so
+        // the broken frame is discarded here, where the timing is.
         if to_module && out.as_slice() != &buf[..n] {
             out.clear();
         }

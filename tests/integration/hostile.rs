@@ -873,10 +873,7 @@ channels.a0 = { rate = 20.0 }
         .map(|d| sub.on(&format!("pulsegate/test/{d}")).len())
         .collect();
     println!("noise: readings per device {counts:?}");
-    assert!(
-        counts[1] as u64 >= secs && counts[2] as u64 >= secs,
-        "{counts:?}"
-    );
+    assert!(counts.iter().all(|&n| n as u64 >= secs / 3), "{counts:?}");
 }
 
 /// Clears while the input counts at 1 kHz: every pulse the module counted after the gateway's
@@ -971,4 +968,133 @@ async fn clears_while_counting_at_1_khz_lose_no_pulse_between_the_write_and_the_
         last["total"].as_i64().unwrap(),
         generated - all[0]["count"].as_i64().unwrap() - unseen
     );
+}
+
+/// A broker that takes packets of at most 300 bytes (its CONNACK says so): the bus stats are
+/// larger and can never be sent. They are dropped with an error; the readings behind them keep
+/// flowing on the same connection.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn messages_larger_than_the_broker_takes_are_dropped_not_retried_forever() {
+    let port = free_port();
+    let _broker = Broker::start_with_config(port, "max_packet_size 300\n", port);
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-maxpacket");
+    let sub = Subscriber::start(port, "pulsegate/test/#").await;
+    let text = gateway_toml(
+        &plant,
+        port,
+        &dir,
+        &[("line1", "d", 1, "yl67", "100ms")],
+        "",
+    )
+    .replace(
+        "state_flush = \"500ms\"",
+        "state_flush = \"500ms\"\nstats_interval = \"1s\"",
+    );
+    let gw = Gateway::start(&write_config(&dir, &text));
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let since = Instant::now();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let log = gw.log_text();
+    assert!(
+        log.contains("it can never be sent") && log.contains("maximum packet size of 300"),
+        "{log}"
+    );
+    assert!(
+        count_on(&sub, "pulsegate/test/d/enc0", since) >= 10,
+        "readings keep flowing:\n{log}"
+    );
+    assert!(
+        !log.contains("MQTT broker unreachable"),
+        "no reconnect loop:\n{log}"
+    );
+}
+
+/// The broker stops answering (SIGSTOP: the socket stays open): within a keep-alive the
+/// systemd status no longer says "MQTT connected"; when it answers again the gateway is back
+/// with a fresh connection and publishes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connected_in_the_status_means_publishing() {
+    let port = free_port();
+    let broker = Broker::start_on(port);
+    let plant = plant(ONE_ENCODER).await;
+    let dir = temp_dir("hostile-stalled");
+    let sub = Subscriber::start(port, "pulsegate/test/d/enc0").await;
+    let text = gateway_toml(
+        &plant,
+        port,
+        &dir,
+        &[("line1", "d", 1, "yl67", "100ms")],
+        "",
+    )
+    .replace(
+        &format!("[mqtt]\nhost = \"127.0.0.1\"\nport = {port}\n"),
+        &format!("[mqtt]\nhost = \"127.0.0.1\"\nport = {port}\nkeep_alive = \"5s\"\n"),
+    );
+    let config = write_config(&dir, &text);
+    let sock_path = dir.join("notify.sock");
+    let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
+    sock.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let gw = Notified::start(&config, &sock_path);
+    let status_within = |want: &'static str, within: Duration| {
+        let deadline = Instant::now() + within;
+        let mut buf = [0u8; 4096];
+        let mut last = String::new();
+        while Instant::now() < deadline {
+            if let Ok(n) = sock.recv(&mut buf) {
+                let text = String::from_utf8_lossy(&buf[..n]).to_string();
+                if let Some(s) = text.lines().find_map(|l| l.strip_prefix("STATUS=")) {
+                    last = s.to_string();
+                    if s.contains(want) {
+                        return Ok(s.to_string());
+                    }
+                }
+            }
+        }
+        Err(last)
+    };
+    status_within("MQTT connected", Duration::from_secs(10)).expect("connected at first");
+    let pid = broker_pid(port);
+    let _ = std::process::Command::new("kill")
+        .args(["-STOP", &pid.to_string()])
+        .status();
+    let stalled = status_within("MQTT disconnected", Duration::from_secs(20));
+    let _ = std::process::Command::new("kill")
+        .args(["-CONT", &pid.to_string()])
+        .status();
+    assert!(
+        stalled.is_ok(),
+        "still 'connected' with a broker that answers nothing: {stalled:?}\n{}",
+        gw.log_text()
+    );
+    status_within("MQTT connected", Duration::from_secs(20)).expect("connected again");
+    let since = Instant::now();
+    assert!(
+        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(10), |m| m.at
+            > since)
+            .await
+            .is_some(),
+        "publishing again:\n{}",
+        gw.log_text()
+    );
+    drop(broker);
+}
+
+/// The pid of the Mosquitto listening on `port` (started by this test).
+fn broker_pid(port: u16) -> u32 {
+    let out = std::process::Command::new("pgrep")
+        .args(["-f", &format!("pulsegate-mosquitto-{port}.conf")])
+        .output()
+        .unwrap();
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .next()
+        .and_then(|l| l.trim().parse().ok())
+        .expect("mosquitto pid")
 }
