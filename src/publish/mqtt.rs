@@ -586,7 +586,18 @@ mod tests {
         let dir =
             std::env::temp_dir().join(format!("pulsegate-mqtt-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        let (client, eventloop) = AsyncClient::new(MqttOptions::new("t", "127.0.0.1", 1), 10);
+        let (client, eventloop) = Options::new(Settings {
+            protocol: crate::config::MqttProtocol::V5,
+            client_id: "t",
+            host: "127.0.0.1",
+            port: 1,
+            keep_alive: Duration::from_secs(30),
+            max_incoming: MAX_PACKET,
+            will: ("pg/t/status".into(), "offline"),
+            login: None,
+            transport: None,
+        })
+        .connect(10);
         let shared = Shared {
             spool: Spool::open(&dir, 1 << 20).unwrap(),
             inflight: VecDeque::new(),
