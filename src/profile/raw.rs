@@ -58,6 +58,8 @@ pub(super) struct Profile {
     pub bauds: Vec<u32>,
     pub identify: Option<Identify>,
     pub autosave: Option<Autosave>,
+    #[serde(default)]
+    pub settings: std::collections::BTreeMap<String, super::settings::RawSetting>,
     pub groups: Vec<Group>,
 }
 
