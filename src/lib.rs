@@ -14,6 +14,7 @@
 pub mod app;
 pub mod bus;
 pub mod command;
+pub mod commission;
 pub mod config;
 pub mod counter;
 pub mod decode;

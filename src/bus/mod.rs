@@ -2,7 +2,7 @@
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
 mod availability;
-mod device;
+pub mod device;
 mod execute;
 pub mod link;
 pub mod schedule;
