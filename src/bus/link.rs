@@ -89,6 +89,12 @@ pub struct Link {
     pub counters: WireCounters,
     /// Time the line was busy with our transactions (for utilisation).
     pub busy: Duration,
+    /// Units that answer at another baud rate than the bus's: one RS-485 wire can carry
+    /// several, so the port is switched to a unit's rate before its transaction.
+    unit_bauds: std::collections::HashMap<u8, u32>,
+    /// The rate the open port is set to.
+    speed: Option<u32>,
+    guard: Duration,
 }
 
 impl Link {
@@ -105,7 +111,38 @@ impl Link {
             last_io: None,
             counters: WireCounters::default(),
             busy: Duration::ZERO,
+            unit_bauds: std::collections::HashMap::new(),
+            speed: None,
+            guard,
         }
+    }
+
+    /// Talks to `unit` at `baud` instead of the bus's rate (RTU).
+    pub fn set_unit_baud(&mut self, unit: u8, baud: u32) {
+        self.unit_bauds.insert(unit, baud);
+    }
+
+    /// Switches the open port to the rate `unit` answers at, after the silent interval at the
+    /// old rate has passed.
+    fn switch_speed(&mut self, unit: u8) -> Result<(), LinkError> {
+        let LinkConfig::Rtu { baud, .. } = &self.config else {
+            return Ok(());
+        };
+        let want = self.unit_bauds.get(&unit).copied().unwrap_or(*baud);
+        if self.speed == Some(want) {
+            return Ok(());
+        }
+        if let Some(port) = &self.port {
+            port.with(|s| s.set_baud_rate(want))
+                .map_err(|e| LinkError::Io(io::Error::other(e)))?;
+        }
+        self.speed = Some(want);
+        let mut config = self.config.clone();
+        if let LinkConfig::Rtu { baud, .. } = &mut config {
+            *baud = want;
+        }
+        self.timing = crate::config::line_timing(&config, self.guard);
+        Ok(())
     }
 
     /// Character timing of an RTU line.
@@ -117,6 +154,7 @@ impl Link {
     pub fn close(&mut self) {
         self.ctx = None;
         self.port = None;
+        self.speed = None;
     }
 
     /// Reads `len` holding registers from `start`.
@@ -224,6 +262,7 @@ impl Link {
             // RTU frames must be separated by the silent interval.
             wait_until(last + timing.silent_interval()).await;
         }
+        self.switch_speed(unit)?;
         let ctx = self.ctx.as_mut().expect("opened above");
         ctx.set_slave(Slave(unit));
         self.counters.transactions += 1;
@@ -284,6 +323,11 @@ impl Link {
                     None => {
                         let p = SharedPort::new(self.open_serial()?);
                         self.port = Some(p.clone());
+                        self.speed = match &self.config {
+                            LinkConfig::Rtu { baud, .. } => Some(*baud),
+                            LinkConfig::Tcp { .. } => None,
+                        };
+                        self.timing = crate::config::line_timing(&self.config, self.guard);
                         p
                     }
                 };

@@ -77,6 +77,11 @@ impl BusTask {
             }
         };
         let mut link = Link::new(bus.link.clone(), bus.guard);
+        for d in &bus.devices {
+            if let Some(baud) = d.baud {
+                link.set_unit_baud(d.unit, baud);
+            }
+        }
         let wire = match link.timing() {
             Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
             None => Wire::tcp(),

@@ -195,8 +195,14 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
             toml,
             json,
         } => scan(&line, &baud, &units, toml, json, &profiles).await,
-        Commission::Read { module, json, watch } => read(&module, json, watch, &profiles).await,
-        Commission::Clear { module, channel } => write_count(&module, &channel, Op::Clear, &profiles).await,
+        Commission::Read {
+            module,
+            json,
+            watch,
+        } => read(&module, json, watch, &profiles).await,
+        Commission::Clear { module, channel } => {
+            write_count(&module, &channel, Op::Clear, &profiles).await
+        }
         Commission::Preset {
             module,
             channel,
@@ -257,7 +263,10 @@ async fn scan(
     let table = found_table(&outcome.found);
     if toml {
         eprint!("{table}");
-        print!("{}", super::snippet::config_snippet(&target, &outcome.found));
+        print!(
+            "{}",
+            super::snippet::config_snippet(&target, &outcome.found)
+        );
     } else if json {
         println!(
             "{}",
@@ -291,7 +300,11 @@ fn progress(e: ScanEvent<'_>, tty: bool) {
             if tty {
                 eprint!("\r\x1b[K");
             }
-            eprintln!("  found unit {}: {}", f.unit, f.model.as_deref().unwrap_or("unknown model"));
+            eprintln!(
+                "  found unit {}: {}",
+                f.unit,
+                f.model.as_deref().unwrap_or("unknown model")
+            );
         }
         ScanEvent::Garbled { baud, unit } => {
             if tty {
@@ -304,11 +317,16 @@ fn progress(e: ScanEvent<'_>, tty: bool) {
 }
 
 fn found_table(found: &[Found]) -> String {
-    let mut t = format!("{:<7} {:>4}  {:<10} {:<14} channels\n", "baud", "unit", "model", "work modes");
+    let mut t = format!(
+        "{:<7} {:>4}  {:<10} {:<14} channels\n",
+        "baud", "unit", "model", "work modes"
+    );
     for f in found {
         t += &format!(
             "{:<7} {:>4}  {:<10} {:<14} {}\n",
-            f.baud.map(|b| b.to_string()).unwrap_or_else(|| "tcp".into()),
+            f.baud
+                .map(|b| b.to_string())
+                .unwrap_or_else(|| "tcp".into()),
             f.unit,
             f.model.as_deref().unwrap_or("?"),
             format!("{:?}", f.modes),
@@ -331,7 +349,8 @@ async fn read(
 ) -> Result<(), CommissionError> {
     let target = target(&m.line)?;
     let mut link = target.open(m.baud)?;
-    let profile = super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
+    let profile =
+        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
     let mut rt = super::read::poller(&target, m.baud, m.unit, &profile, &link);
     let Some(every) = watch.map(Duration::from) else {
         let value = super::read::read_once(&mut rt, &mut link, &profile, &target, m.baud).await?;
@@ -365,10 +384,16 @@ async fn read(
     Ok(())
 }
 
-async fn write_count(m: &ModuleArgs, channel: &str, op: Op, profiles: &Profiles) -> Result<(), CommissionError> {
+async fn write_count(
+    m: &ModuleArgs,
+    channel: &str,
+    op: Op,
+    profiles: &Profiles,
+) -> Result<(), CommissionError> {
     let target = target(&m.line)?;
     let mut link = target.open(m.baud)?;
-    let profile = super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
+    let profile =
+        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
     if !profile.all_channels().iter().any(|c| c.name == channel) {
         return Err(CommissionError::BadInput(format!(
             "model {} has no channel {channel}",
@@ -377,7 +402,11 @@ async fn write_count(m: &ModuleArgs, channel: &str, op: Op, profiles: &Profiles)
     }
     let mut rt = super::read::poller(&target, m.baud, m.unit, &profile, &link);
     let got = super::read::write_count(&mut rt, &mut link, &target, channel, op).await?;
-    let what = if matches!(op, Op::Clear) { "cleared" } else { "preset" };
+    let what = if matches!(op, Op::Clear) {
+        "cleared"
+    } else {
+        "preset"
+    };
     match got {
         Some(v) => println!("unit {} {channel}: {what}; reads back {v}", m.unit),
         None => println!("unit {} {channel}: {what}", m.unit),
@@ -394,7 +423,11 @@ fn wanted(
     set: &[String],
 ) -> Result<Vec<Wanted>, CommissionError> {
     let mut out = Vec::new();
-    for (setting, value) in [("unit", new_unit), ("baud", new_baud), ("power_on", power_on)] {
+    for (setting, value) in [
+        ("unit", new_unit),
+        ("baud", new_baud),
+        ("power_on", power_on),
+    ] {
         if let Some(value) = value {
             out.push(Wanted {
                 setting: setting.into(),
@@ -443,12 +476,22 @@ async fn confirm(question: String) -> bool {
     matches!(answer, Ok(Ok(s)) if matches!(s.trim(), "y" | "Y" | "yes"))
 }
 
-async fn setup(m: &ModuleArgs, wanted: &[Wanted], yes: bool, profiles: &Profiles) -> Result<(), CommissionError> {
+async fn setup(
+    m: &ModuleArgs,
+    wanted: &[Wanted],
+    yes: bool,
+    profiles: &Profiles,
+) -> Result<(), CommissionError> {
     use super::setup::*;
     let target = target(&m.line)?;
     let mut link = target.open(m.baud)?;
-    let profile = super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
-    let answer = m.line.timeout.map(Into::into).unwrap_or(profile.answer_timeout);
+    let profile =
+        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
+    let answer = m
+        .line
+        .timeout
+        .map(Into::into)
+        .unwrap_or(profile.answer_timeout);
     let timeout = super::line::timeout_for(answer, &link, 1);
     let modes = super::scan::read_modes(&mut link, m.unit, &profile, timeout)
         .await
@@ -461,7 +504,9 @@ async fn setup(m: &ModuleArgs, wanted: &[Wanted], yes: bool, profiles: &Profiles
         let new = c.field as u8;
         if new != m.unit {
             let id_timeout = super::line::timeout_for(answer, &link, 3);
-            if let Ok(Some(_)) = super::identify::identify(&mut link, profiles, new, id_timeout).await {
+            if let Ok(Some(_)) =
+                super::identify::identify(&mut link, profiles, new, id_timeout).await
+            {
                 return Err(CommissionError::BadInput(format!(
                     "unit {new} already answers on this line; choose a free unit id"
                 )));
@@ -470,17 +515,40 @@ async fn setup(m: &ModuleArgs, wanted: &[Wanted], yes: bool, profiles: &Profiles
     }
     let words = current_words(&mut link, &target, m.unit, &changes, answer).await?;
     let mut plan = format!("unit {} ({}):\n", m.unit, profile.model);
+    let mut lines: Vec<(String, usize)> = Vec::new();
     for (c, w) in changes.iter().zip(&words) {
-        plan += &format!(
-            "  {}: {} -> {}\n",
-            c.label,
+        let from_to = format!(
+            "{} -> {}",
             c.setting.describe(c.setting.field(*w)),
             c.setting.describe(c.field)
         );
+        // Sixteen counters changed alike are one line.
+        let key = format!("{}: {from_to}", c.setting.name);
+        match lines.last_mut() {
+            Some((k, n)) if *k == key && c.label != c.setting.name => *n += 1,
+            _ => lines.push((
+                if c.label.contains('#') {
+                    key
+                } else {
+                    format!("{}: {from_to}", c.label)
+                },
+                1,
+            )),
+        }
+    }
+    for (line, n) in lines {
+        let times = if n > 1 {
+            format!(" (x{n})")
+        } else {
+            String::new()
+        };
+        plan += &format!("  {line}{times}\n");
     }
     eprint!("{plan}");
     if !yes && !confirm("write these settings?".into()).await {
-        return Err(CommissionError::BadInput("not confirmed; nothing written".into()));
+        return Err(CommissionError::BadInput(
+            "not confirmed; nothing written".into(),
+        ));
     }
     write_changes(&mut link, &target, m.unit, &changes, &words, answer).await?;
     drop(link);
@@ -495,7 +563,13 @@ async fn setup(m: &ModuleArgs, wanted: &[Wanted], yes: bool, profiles: &Profiles
     Ok(())
 }
 
-async fn raw(line: &LineArgs, baud: u32, unit: u8, op: RawOp, profiles: &Profiles) -> Result<(), CommissionError> {
+async fn raw(
+    line: &LineArgs,
+    baud: u32,
+    unit: u8,
+    op: RawOp,
+    profiles: &Profiles,
+) -> Result<(), CommissionError> {
     let target = target(line)?;
     if target.is_serial() {
         super::scan::scan_bauds(&baud.to_string(), profiles)?;
@@ -507,9 +581,20 @@ async fn raw(line: &LineArgs, baud: u32, unit: u8, op: RawOp, profiles: &Profile
             let words = super::raw::read(&mut link, &target, unit, start, count, answer).await?;
             print!("{}", super::raw::words_table(start, &words));
         }
-        RawOp::Write { address, values, yes } => {
-            if !yes && !confirm(format!("write {values:?} at register {address} of unit {unit}?")).await {
-                return Err(CommissionError::BadInput("not confirmed; nothing written".into()));
+        RawOp::Write {
+            address,
+            values,
+            yes,
+        } => {
+            if !yes
+                && !confirm(format!(
+                    "write {values:?} at register {address} of unit {unit}?"
+                ))
+                .await
+            {
+                return Err(CommissionError::BadInput(
+                    "not confirmed; nothing written".into(),
+                ));
             }
             super::raw::write(&mut link, &target, unit, address, &values, answer).await?;
             println!("unit {unit}: wrote {values:?} at {address}");

@@ -17,7 +17,10 @@ impl Holder {
     pub fn is_gateway(&self) -> bool {
         let mut words = self.command.split(' ');
         let exe = words.next().unwrap_or_default();
-        exe.rsplit('/').next().is_some_and(|n| n.starts_with("pulsegate")) && words.any(|w| w == "run")
+        exe.rsplit('/')
+            .next()
+            .is_some_and(|n| n.starts_with("pulsegate"))
+            && words.any(|w| w == "run")
     }
 }
 
@@ -43,7 +46,11 @@ pub fn holders(port: &Path) -> Vec<Holder> {
     };
     let mut out = Vec::new();
     for entry in procs.flatten() {
-        let Some(pid) = entry.file_name().to_str().and_then(|s| s.parse::<u32>().ok()) else {
+        let Some(pid) = entry
+            .file_name()
+            .to_str()
+            .and_then(|s| s.parse::<u32>().ok())
+        else {
             continue;
         };
         if pid == me {
@@ -112,7 +119,9 @@ mod tests {
         let _ = child.kill();
         let _ = child.wait();
         assert!(
-            found.iter().any(|h| h.pid == child.id() && h.command.starts_with("sleep")),
+            found
+                .iter()
+                .any(|h| h.pid == child.id() && h.command.starts_with("sleep")),
             "{found:?}"
         );
     }

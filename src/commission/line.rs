@@ -78,7 +78,10 @@ impl Target {
         let Target::Serial { port, .. } = self else {
             return Ok(());
         };
-        let gateways: Vec<_> = holders(port).into_iter().filter(|h| h.is_gateway()).collect();
+        let gateways: Vec<_> = holders(port)
+            .into_iter()
+            .filter(|h| h.is_gateway())
+            .collect();
         if gateways.is_empty() {
             return Ok(());
         }
@@ -107,7 +110,11 @@ fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
     let gateway = by.iter().any(|h| h.is_gateway());
     CommissionError::PortHeld {
         port: port.display().to_string(),
-        holders: by.iter().map(|h| h.to_string()).collect::<Vec<_>>().join(", "),
+        holders: by
+            .iter()
+            .map(|h| h.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
         advice: if gateway {
             "a running pulsegate gateway polls this line: stop it first (systemctl stop \
              pulsegate), or survey through it over MQTT (<root>/bus/<bus>/scan)"

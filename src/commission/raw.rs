@@ -12,7 +12,9 @@ pub fn parse_u16(text: &str) -> Result<u16, String> {
         Some(hex) => u16::from_str_radix(hex, 16),
         None => t.parse::<u16>(),
     };
-    parsed.map_err(|_| format!("{text:?} is not a register number or value (0..=65535 or 0x0000..=0xFFFF)"))
+    parsed.map_err(|_| {
+        format!("{text:?} is not a register number or value (0..=65535 or 0x0000..=0xFFFF)")
+    })
 }
 
 /// Reads `count` registers from `start` at `unit`.
@@ -50,7 +52,10 @@ pub(super) async fn write(
     values: &[u16],
     answer: std::time::Duration,
 ) -> Result<(), CommissionError> {
-    if values.is_empty() || values.len() > 123 || u32::from(address) + values.len() as u32 > 0x1_0000 {
+    if values.is_empty()
+        || values.len() > 123
+        || u32::from(address) + values.len() as u32 > 0x1_0000
+    {
         return Err(CommissionError::BadInput(format!(
             "write {address}: Modbus writes 1..=123 registers within 0..=65535"
         )));
@@ -89,6 +94,8 @@ mod tests {
     fn registers_are_decimal_or_hex() {
         assert_eq!(parse_u16("67"), Ok(67));
         assert_eq!(parse_u16("0x1160"), Ok(0x1160));
-        assert!(parse_u16("65536").is_err() && parse_u16("-1").is_err() && parse_u16("0xG").is_err());
+        assert!(
+            parse_u16("65536").is_err() && parse_u16("-1").is_err() && parse_u16("0xG").is_err()
+        );
     }
 }

@@ -68,7 +68,11 @@ pub(super) async fn resolve_model(
     Ok(profile)
 }
 
-fn check_baud_known(profiles: &Profiles, target: &Target, baud: u32) -> Result<(), CommissionError> {
+fn check_baud_known(
+    profiles: &Profiles,
+    target: &Target,
+    baud: u32,
+) -> Result<(), CommissionError> {
     if target.is_serial() {
         super::scan::scan_bauds(&baud.to_string(), profiles)?;
     }
@@ -76,7 +80,13 @@ fn check_baud_known(profiles: &Profiles, target: &Target, baud: u32) -> Result<(
 }
 
 /// The gateway's poller for one module.
-pub(super) fn poller(target: &Target, baud: u32, unit: u8, profile: &Arc<Profile>, link: &Link) -> DeviceRt {
+pub(super) fn poller(
+    target: &Target,
+    baud: u32,
+    unit: u8,
+    profile: &Arc<Profile>,
+    link: &Link,
+) -> DeviceRt {
     let bus = Bus {
         name: "commission".into(),
         link: target.link_config(baud),
@@ -96,6 +106,7 @@ pub(super) fn poller(target: &Target, baud: u32, unit: u8, profile: &Arc<Profile
         poll: Duration::from_secs(1),
         timeout: None,
         commands: true,
+        baud: None,
         channels: BTreeMap::new(),
     };
     let wire = match link.timing() {
@@ -181,12 +192,17 @@ pub(super) fn table(read: &Value, previous: Option<&Value>) -> String {
             .zip(ch["count"].as_i64())
             .map(|(before, now)| format!("{:+}", now - before))
             .unwrap_or_default();
-        let num = |k: &str| ch.get(k).map(|v| v.to_string()).unwrap_or_else(|| "-".into());
+        let num = |k: &str| {
+            ch.get(k)
+                .map(|v| v.to_string())
+                .unwrap_or_else(|| "-".into())
+        };
+        let count = num("count");
         t += &format!(
             "{:<8} {:<8} {:>12} {:>8} {:>12} {:>10} {:>6}\n",
             name,
             ch["kind"].as_str().unwrap_or_default(),
-            ch["count"],
+            count,
             delta,
             num("freq_hz"),
             num("rpm"),
@@ -222,7 +238,9 @@ pub(super) async fn write_count(
     let executed = rt.execute(link, &req).await;
     executed.result.map_err(|e| match e {
         crate::command::CommandError::UnknownChannel { .. }
-        | crate::command::CommandError::OutOfRange { .. } => CommissionError::BadInput(e.to_string()),
+        | crate::command::CommandError::OutOfRange { .. } => {
+            CommissionError::BadInput(e.to_string())
+        }
         other => CommissionError::Failed(other.to_string()),
     })
 }

@@ -4,9 +4,9 @@ use std::time::Duration;
 
 use tokio_util::sync::CancellationToken;
 
+use super::CommissionError;
 use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
-use super::CommissionError;
 use crate::bus::link::{Link, LinkError};
 use crate::profile::{Profile, Profiles};
 
@@ -38,10 +38,17 @@ pub enum ScanEvent<'a> {
         estimate: Duration,
     },
     /// About to ask the `index`-th unit.
-    Asking { unit: u8, index: usize, of: usize },
+    Asking {
+        unit: u8,
+        index: usize,
+        of: usize,
+    },
     Found(&'a Found),
     /// Bytes came back but never a valid frame: something is there at another speed or parity.
-    Garbled { baud: Option<u32>, unit: u8 },
+    Garbled {
+        baud: Option<u32>,
+        unit: u8,
+    },
 }
 
 /// The outcome of a scan; `interrupted` when Ctrl-C stopped it early.
@@ -127,7 +134,11 @@ pub async fn scan_line(
     for baud in bauds {
         let mut link = target.open(baud.unwrap_or(9600))?;
         let timeout = timeout_for(answer, &link, 3);
-        let per_unit = timeout + link.timing().map(|t| t.silent_interval()).unwrap_or_default();
+        let per_unit = timeout
+            + link
+                .timing()
+                .map(|t| t.silent_interval())
+                .unwrap_or_default();
         on_event(ScanEvent::Baud {
             baud,
             units: units.len(),

@@ -37,7 +37,9 @@ pub fn plan_changes(
     let bad = |e: String| CommissionError::BadInput(e);
     let mut out = Vec::new();
     for w in wanted {
-        let setting = profile.setting(&w.setting).map_err(|e| bad(e.to_string()))?;
+        let setting = profile
+            .setting(&w.setting)
+            .map_err(|e| bad(e.to_string()))?;
         let field = setting.encode(&w.value).map_err(|e| bad(e.to_string()))?;
         match (&setting.place, &w.channel) {
             (Place::Channel(_), Some(name)) => {
@@ -45,12 +47,16 @@ pub fn plan_changes(
                     bad(format!(
                         "{} has no channel {name} in its current work modes (it has: {})",
                         profile.model,
-                        channels.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ")
+                        channels
+                            .iter()
+                            .map(|c| c.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
                     ))
                 })?;
-                let reg = ch.ppr.ok_or_else(|| {
-                    bad(format!("channel {name} has no {} register", w.setting))
-                })?;
+                let reg = ch
+                    .ppr
+                    .ok_or_else(|| bad(format!("channel {name} has no {} register", w.setting)))?;
                 out.push(Change {
                     setting: setting.clone(),
                     label: format!("{} {name}", w.setting),
@@ -65,7 +71,10 @@ pub fn plan_changes(
                 )));
             }
             (Place::Registers { .. }, Some(name)) => {
-                return Err(bad(format!("{} is not a per-channel setting ({name})", w.setting)));
+                return Err(bad(format!(
+                    "{} is not a per-channel setting ({name})",
+                    w.setting
+                )));
             }
             (Place::Registers { .. }, None) => {
                 let regs = setting.registers();
@@ -101,17 +110,24 @@ pub fn explain(change: &Change, unit: u8) -> String {
     let what = match change.setting.name.as_str() {
         "unit" => format!("the module answers at unit {v}"),
         "baud" => format!("the module answers at {v} baud"),
-        _ => format!("{} is {v}", change.label),
+        _ => format!("{} is {v}", change.setting.name),
     };
     match change.setting.applies {
         Applies::Now => format!("{what} from now on"),
-        Applies::Restart => format!(
-            "{what} after its next power-up (the datasheet: takes effect after a restart); \
-             until then it keeps answering at unit {unit} as before"
-        ),
-        Applies::Unstated => format!(
-            "{what} now or after its next power-up (the datasheet does not say which)"
-        ),
+        Applies::Restart => {
+            let until = match change.setting.name.as_str() {
+                "unit" => format!("until then it answers at unit {unit}"),
+                "baud" => "until then it answers at its old rate".to_string(),
+                _ => "until then the old value holds".to_string(),
+            };
+            format!(
+                "{what} after its next power-up (the datasheet: takes effect after a \
+                 restart); {until}"
+            )
+        }
+        Applies::Unstated => {
+            format!("{what} now or after its next power-up (the datasheet does not say which)")
+        }
     }
 }
 
@@ -246,7 +262,11 @@ mod tests {
         let plan = plan_changes(
             &p,
             &ch,
-            &[wanted("unit", None, "7"), wanted("baud", None, "19200"), wanted("ppr", Some("enc1"), "360")],
+            &[
+                wanted("unit", None, "7"),
+                wanted("baud", None, "19200"),
+                wanted("ppr", Some("enc1"), "360"),
+            ],
         )
         .unwrap();
         let regs: Vec<(u16, u16)> = plan.iter().map(|c| (c.register, c.field)).collect();
@@ -257,7 +277,12 @@ mod tests {
     #[test]
     fn a_restart_applied_address_is_read_back_at_the_old_unit() {
         let p = Profiles::builtin().get("wj157").unwrap();
-        let plan = plan_changes(&p, &[], &[wanted("unit", None, "12"), wanted("baud", None, "19200")]).unwrap();
+        let plan = plan_changes(
+            &p,
+            &[],
+            &[wanted("unit", None, "12"), wanted("baud", None, "19200")],
+        )
+        .unwrap();
         assert_eq!(answers_at(&plan, 1, 9600), [(1, 9600)]);
         assert!(explain(&plan[1], 1).contains("unit 12 after its next power-up"));
     }
@@ -265,7 +290,12 @@ mod tests {
     #[test]
     fn a_zh_yx1600_address_applies_at_once_and_its_baud_may_or_may_not() {
         let p = Profiles::builtin().get("zh-yx1600").unwrap();
-        let plan = plan_changes(&p, &[], &[wanted("unit", None, "2"), wanted("baud", None, "19200")]).unwrap();
+        let plan = plan_changes(
+            &p,
+            &[],
+            &[wanted("unit", None, "2"), wanted("baud", None, "19200")],
+        )
+        .unwrap();
         assert_eq!(answers_at(&plan, 1, 9600), [(2, 9600), (2, 19200)]);
     }
 

@@ -22,7 +22,11 @@ pub fn config_snippet(target: &Target, found: &[Found]) -> String {
             let _ = writeln!(t, "[buses.line1]\nport = {:?}", port.display().to_string());
             let _ = writeln!(t, "baud = {}", line_baud.unwrap_or(9600));
             if *parity != Parity::None {
-                let p = if *parity == Parity::Even { "even" } else { "odd" };
+                let p = if *parity == Parity::Even {
+                    "even"
+                } else {
+                    "odd"
+                };
                 let _ = writeln!(t, "parity = \"{p}\"");
             }
         }
@@ -53,12 +57,7 @@ pub fn config_snippet(target: &Target, found: &[Found]) -> String {
         }
         let _ = writeln!(t, "poll = \"1s\"");
         if !f.channels.is_empty() {
-            let _ = writeln!(
-                t,
-                "# work modes {:?}: {}",
-                f.modes,
-                f.channels.join(" ")
-            );
+            let _ = writeln!(t, "# work modes {:?}: {}", f.modes, f.channels.join(" "));
         }
     }
     for f in found.iter().filter(|f| f.model.is_none()) {
@@ -118,7 +117,9 @@ mod tests {
             ],
         );
         assert!(t.contains("baud = 9600\n"), "{t}");
-        assert!(t.contains("[buses.line1.devices.wj157-5]\nunit = 5\nmodel = \"wj157\"\nbaud = 19200"));
+        assert!(
+            t.contains("[buses.line1.devices.wj157-5]\nunit = 5\nmodel = \"wj157\"\nbaud = 19200")
+        );
         assert!(t.contains("# unit 9 at 9600 baud: unknown model"));
         let v: toml::Value = toml::from_str(&t).unwrap();
         assert_eq!(v["buses"]["line1"]["devices"].as_table().unwrap().len(), 3);

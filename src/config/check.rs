@@ -382,6 +382,15 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             devices.push(d);
         }
     }
+    if matches!(link, Some(Link::Tcp { .. })) {
+        for d in devices.iter().filter(|d| d.baud.is_some()) {
+            errs.push(
+                &format!("{path}.devices.{}.baud", d.name),
+                t.origin(),
+                "serial setting on a TCP bus",
+            );
+        }
+    }
     t.finish(errs);
     Some(Bus {
         name: name.to_string(),
@@ -446,6 +455,19 @@ fn device(
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration("timeout", errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
+    let baud = t.int::<u32>("baud", errs);
+    if let (Some(b), Some(p)) = (baud, &profile)
+        && !p.bauds.contains(&b)
+    {
+        errs.push(
+            &join(&path, "baud"),
+            t.origin(),
+            format!(
+                "model {} does not support {b} baud ({:?})",
+                p.model, p.bauds
+            ),
+        );
+    }
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -484,6 +506,7 @@ fn device(
         poll,
         timeout,
         commands,
+        baud,
         channels,
     })
 }

@@ -196,6 +196,9 @@ pub struct Device {
     pub timeout: Option<Duration>,
     /// Whether clear/preset commands are accepted for this device.
     pub commands: bool,
+    /// The device's own baud rate where it differs from its bus's (RTU): the port is switched
+    /// to it for this device's transactions.
+    pub baud: Option<u32>,
     /// Per-channel settings keyed by channel name.
     pub channels: BTreeMap<String, ChannelConfig>,
 }
@@ -208,6 +211,7 @@ impl PartialEq for Device {
             && self.poll == other.poll
             && self.timeout == other.timeout
             && self.commands == other.commands
+            && self.baud == other.baud
             && self.channels == other.channels
     }
 }
