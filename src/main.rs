@@ -57,7 +57,7 @@ enum Command {
         duration: Option<humantime::Duration>,
     },
     #[command(flatten)]
-    Commission(pulsegate::commission::Commission),
+    Commission(Box<pulsegate::commission::Commission>),
 }
 
 /// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
@@ -165,7 +165,7 @@ fn main() -> ExitCode {
 
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
-        Command::Commission(c) => Ok(pulsegate::commission::run(c).await),
+        Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
         Command::Check { config } | Command::Plan { config } => {
             let config = match load(&config) {
                 Ok(c) => c,

@@ -151,9 +151,8 @@ pub(super) async fn read_once(
             }
         }
         if let Some(reg) = spec.ppr {
-            match link.read(unit, reg.address, 1, timeout).await {
-                Ok(Ok(w)) => ch["ppr"] = json!(w[0]),
-                Ok(Err(_)) | Err(_) => {}
+            if let Ok(Ok(w)) = link.read(unit, reg.address, 1, timeout).await {
+                ch["ppr"] = json!(w[0]);
             }
         }
         channels.insert(spec.name.clone(), ch);

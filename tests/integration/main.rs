@@ -2,6 +2,7 @@
 //! real Mosquitto broker.
 
 mod commands;
+mod commission;
 mod config_cases;
 mod counters;
 mod faults;
