@@ -20,6 +20,7 @@ struct Running {
     stop: CancellationToken,
     task: JoinHandle<()>,
     commands: UnboundedSender<BusCommand>,
+    scans: tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>,
 }
 
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
@@ -42,6 +43,8 @@ pub async fn run_with_reloads(
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
+    let scans = router.scans();
+    *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
     let mqtt_config = config.mqtt.clone();
@@ -75,6 +78,7 @@ pub async fn run_with_reloads(
                 };
                 apply(&mut current, new, &mut running, &health, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
+                *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
             }
         }
     }
@@ -105,15 +109,28 @@ fn start_bus(
     shutdown: &CancellationToken,
 ) -> Running {
     let (cmd_tx, cmd_rx) = unbounded_channel();
+    // One scan runs, one may wait: further requests are answered "busy" (bounded).
+    let (scan_tx, scan_rx) = tokio::sync::mpsc::channel(1);
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
-    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart);
+    let task =
+        BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart).with_scans(scan_rx);
     Running {
         config: bus.clone(),
         task: tokio::spawn(task.run(stop.clone())),
         stop,
         commands: cmd_tx,
+        scans: scan_tx,
     }
+}
+
+fn scan_senders(
+    running: &BTreeMap<String, Running>,
+) -> HashMap<String, tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>> {
+    running
+        .iter()
+        .map(|(n, r)| (n.clone(), r.scans.clone()))
+        .collect()
 }
 
 fn senders(running: &BTreeMap<String, Running>) -> HashMap<String, UnboundedSender<BusCommand>> {

@@ -12,6 +12,7 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 
 use crate::bus::BusCommand;
+use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::reading::Output;
@@ -61,12 +62,16 @@ pub const EXPIRY: Duration = Duration::from_secs(10);
 /// Devices by name, swapped whole when the config is reloaded.
 pub type Targets = Arc<std::sync::RwLock<HashMap<String, Target>>>;
 
+/// Where each bus takes scan requests, swapped whole when the config is reloaded.
+pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender<ScanRequest>>>>;
+
 /// The command router of a gateway.
 pub struct Router {
     root: String,
     targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
+    scans: Scans,
 }
 
 impl Router {
@@ -81,6 +86,46 @@ impl Router {
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
+            scans: Arc::default(),
+        }
+    }
+
+    /// The router's table of bus scan channels, to fill at start and after a reload.
+    pub fn scans(&self) -> Scans {
+        self.scans.clone()
+    }
+
+    /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
+    fn scan(&self, bus: &str, msg: &Incoming) {
+        let mut reply = Reply {
+            topics: vec![format!("{}/result", msg.topic)],
+            correlation: msg.correlation.clone(),
+        };
+        if let Some(rt) = &msg.response_topic {
+            reply.topics.push(rt.clone());
+        }
+        let refuse = |error: &str, message: String| {
+            tracing::warn!(topic = %msg.topic, "scan refused: {message}");
+            self.send(
+                &reply,
+                serde_json::json!({"bus": bus, "error": error, "message": message}),
+            );
+        };
+        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+            Ok(p) => p,
+            Err(e) => return refuse("bad_payload", e),
+        };
+        let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
+        let Some(tx) = scans.get(bus) else {
+            return refuse("unknown_bus", format!("no bus {bus:?}"));
+        };
+        let req = ScanRequest {
+            units,
+            id,
+            reply: reply.clone(),
+        };
+        if tx.try_send(req).is_err() {
+            refuse("busy", "a scan of this bus is already waiting".into());
         }
     }
 
@@ -109,6 +154,9 @@ impl Router {
         if msg.retain {
             tracing::info!(topic = %msg.topic, "ignoring a retained command message");
             return;
+        }
+        if let Some(bus) = survey::parse_scan_topic(&self.root, &msg.topic) {
+            return self.scan(bus, &msg);
         }
         let Some((device, channel)) = command::parse_topic(&self.root, &msg.topic) else {
             return;

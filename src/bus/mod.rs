@@ -6,6 +6,7 @@ pub mod device;
 mod execute;
 pub mod link;
 pub mod schedule;
+pub mod survey;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -43,6 +44,8 @@ pub struct BusTask {
     out: UnboundedSender<Output>,
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
+    /// Scan requests from MQTT, asked in idle line time.
+    scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
 }
 
 impl BusTask {
@@ -61,7 +64,14 @@ impl BusTask {
             out,
             commands,
             heart,
+            scans: None,
         }
+    }
+
+    /// Takes scan requests from `scans` (see [`survey`]).
+    pub fn with_scans(mut self, scans: tokio::sync::mpsc::Receiver<survey::ScanRequest>) -> Self {
+        self.scans = Some(scans);
+        self
     }
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
@@ -115,6 +125,8 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
         let mut pending: Vec<BusCommand> = Vec::new();
+        let mut scan: Option<survey::Survey> = None;
+        let configured: Vec<u8> = bus.devices.iter().map(|d| d.unit).collect();
         let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
             self.heart.beat();
@@ -127,6 +139,21 @@ impl BusTask {
                 pending.push(c);
             }
             run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            let idle_until = slots[i].due;
+            if survey::idle_step(
+                &mut scan,
+                &mut self.scans,
+                &mut link,
+                idle_until,
+                &configured,
+                &name,
+                &self.out,
+                &shutdown,
+            )
+            .await
+            {
+                continue;
+            }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
             let wake = slots[i]

@@ -65,7 +65,7 @@ fn means_absent(e: ExceptionCode) -> bool {
 
 /// Asks `unit` for its identification. `Ok(None)`: nothing answered. A garbled answer is an
 /// error: something is there, perhaps at another baud rate.
-pub(super) async fn identify(
+pub(crate) async fn identify(
     link: &mut Link,
     profiles: &Profiles,
     unit: u8,

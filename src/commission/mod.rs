@@ -9,17 +9,18 @@
 
 mod cli;
 mod holder;
-mod identify;
+pub(crate) mod identify;
 mod line;
 mod raw;
 mod read;
-mod scan;
+pub(crate) mod scan;
 mod setup;
 mod snippet;
 
 pub use cli::{Commission, run};
 pub use holder::{Holder, holders};
 pub use identify::{Identified, identify_words};
+pub use line::timeout_for as line_timeout;
 pub use scan::{Found, parse_units, scan_bauds};
 pub use snippet::config_snippet;
 

@@ -169,7 +169,7 @@ pub async fn scan_line(
                 }
                 Err(_) => continue,
             };
-            let found = describe(&mut link, baud, unit, identified, timeout).await;
+            let found = describe(&mut link, baud, unit, identified, timeout, None).await;
             on_event(ScanEvent::Found(&found));
             outcome.found.push(found);
         }
@@ -178,12 +178,15 @@ pub async fn scan_line(
 }
 
 /// A found unit with its work modes and channels read.
-async fn describe(
+/// Reading the work modes is skipped when each mode read could take `timeout` and they might
+/// not be done by `deadline` (a running bus's next poll).
+pub(crate) async fn describe(
     link: &mut Link,
     baud: Option<u32>,
     unit: u8,
     identified: Identified,
     timeout: Duration,
+    deadline: Option<tokio::time::Instant>,
 ) -> Found {
     let mut found = Found {
         baud,
@@ -203,6 +206,11 @@ async fn describe(
         }
         Identified::Model(profile) => {
             found.model = Some(profile.model.clone());
+            let worst = timeout * profile.mode_registers().len() as u32;
+            if deadline.is_some_and(|d| tokio::time::Instant::now() + worst > d) {
+                found.note = Some("work modes not read: no idle line time for them".into());
+                return found;
+            }
             match read_modes(link, unit, &profile, timeout).await {
                 Ok(modes) => match profile.channels(&modes) {
                     Ok(ch) => {

@@ -388,6 +388,7 @@ async fn drive(
                 let filters = [
                     command_filter(&s.topics, "+/+/cmd"),
                     command_filter(&s.topics, "+/cmd"),
+                    command_filter(&s.topics, "bus/+/scan"),
                 ];
                 if let Err(e) = s.client.try_subscribe_many(filters) {
                     tracing::error!("cannot subscribe to command topics: {e}");

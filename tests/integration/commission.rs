@@ -451,3 +451,135 @@ async fn bad_input_is_refused_before_anything_is_written() {
     let writes = plant.with_module("line", 1, |m, _| m.writes).unwrap();
     assert_eq!(writes, 0, "a refused request wrote to the module");
 }
+
+/// Mean time between consecutive messages on `topic` that arrived within `from..to`.
+fn mean_interval(
+    sub: &Subscriber,
+    topic: &str,
+    from: std::time::Instant,
+    to: std::time::Instant,
+) -> f64 {
+    let at: Vec<std::time::Instant> = sub
+        .on(topic)
+        .iter()
+        .map(|m| m.at)
+        .filter(|t| *t >= from && *t <= to)
+        .collect();
+    assert!(
+        at.len() >= 10,
+        "{topic}: only {} readings in the window",
+        at.len()
+    );
+    (at[at.len() - 1] - at[0]).as_secs_f64() / (at.len() - 1) as f64
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_through_the_running_gateway_finds_an_added_module_without_slowing_the_polls() {
+    use rumqttc::v5::mqttbytes::QoS;
+    let plant = plant(
+        r#"
+[buses.line.devices.press]
+unit = 1
+model = "yl67"
+[buses.line.devices.doors]
+unit = 3
+model = "zh-yx1600"
+"#,
+    )
+    .await;
+    let broker = Broker::start();
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let dir = temp_dir("commission-mqtt-scan");
+    let _gw = start_gateway(
+        &plant,
+        broker.port,
+        &dir,
+        &[
+            ("line", "press", 1, "yl67", "200ms"),
+            ("line", "doors", 3, "zh-yx1600", "200ms"),
+        ],
+        "",
+    );
+    let press = "pulsegate/test/press/enc0";
+    let doors = "pulsegate/test/doors/di1";
+    assert!(
+        sub.wait_for(press, Duration::from_secs(5), |_| true)
+            .await
+            .is_some()
+    );
+    let base_from = std::time::Instant::now();
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let base_to = std::time::Instant::now();
+
+    // A WJ157 is wired onto the running line at unit 60.
+    let wj157 = pulsegate::profile::Profiles::builtin()
+        .get("wj157")
+        .unwrap();
+    let module = pulsegate::sim::SimModule::new(wj157, &[0]).unwrap();
+    plant
+        .bus("line")
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(60, module);
+
+    let scan_from = std::time::Instant::now();
+    sub.client
+        .publish(
+            "pulsegate/test/bus/line/scan",
+            QoS::AtLeastOnce,
+            false,
+            r#"{"units": "1-3,50-70", "id": "survey-1"}"#,
+        )
+        .await
+        .unwrap();
+    let result = sub
+        .wait_for(
+            "pulsegate/test/bus/line/scan/result",
+            Duration::from_secs(30),
+            |m| m.json()["id"] == "survey-1",
+        )
+        .await
+        .expect("a scan result")
+        .json();
+    let scan_to = std::time::Instant::now();
+    assert_eq!(result["complete"], true, "{result}");
+    assert_eq!(result["configured"], serde_json::json!([1, 3]), "{result}");
+    assert_eq!(result["asked"], 22, "{result}");
+    let found = result["found"].as_array().unwrap();
+    assert_eq!(found.len(), 1, "{result}");
+    assert_eq!(
+        (found[0]["unit"].as_u64(), found[0]["model"].as_str()),
+        (Some(60), Some("wj157"))
+    );
+
+    for topic in [press, doors] {
+        let base = mean_interval(&sub, topic, base_from, base_to);
+        let during = mean_interval(&sub, topic, scan_from, scan_to);
+        println!(
+            "{topic}: poll interval {base:.4} s before, {during:.4} s during the scan ({:.3}x)",
+            during / base
+        );
+        assert!(
+            during <= base * 1.05,
+            "{topic}: {base} s before, {during} s during the scan"
+        );
+    }
+
+    // A second request while none runs is fine; a bad one is refused with its cause.
+    sub.client
+        .publish("pulsegate/test/bus/nope/scan", QoS::AtLeastOnce, false, "")
+        .await
+        .unwrap();
+    let refused = sub
+        .wait_for(
+            "pulsegate/test/bus/nope/scan/result",
+            Duration::from_secs(5),
+            |_| true,
+        )
+        .await
+        .expect("an answer")
+        .json();
+    assert_eq!(refused["error"], "unknown_bus");
+}
