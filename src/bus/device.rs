@@ -419,7 +419,7 @@ impl DeviceRt {
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
-            .timing()
+            .timing_for(self.unit)
             .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
             .unwrap_or_default();
         self.answer_timeout + line
@@ -432,7 +432,7 @@ impl DeviceRt {
             self.latencies.pop_front();
         }
         self.latencies.push_back(d.as_secs_f64());
-        if let Some(t) = link.timing() {
+        if let Some(t) = link.timing_for(self.unit) {
             let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.turnaround = Some(match self.turnaround {
@@ -450,7 +450,7 @@ impl DeviceRt {
     /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
     /// request really costs this device.
     fn replan_with_turnaround(&mut self, link: &Link) {
-        if let (Some(t), Some(ta)) = (link.timing(), self.turnaround) {
+        if let (Some(t), Some(ta)) = (link.timing_for(self.unit), self.turnaround) {
             self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
     }

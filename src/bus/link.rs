@@ -117,6 +117,16 @@ impl Link {
         }
     }
 
+    /// Character timing of the line while talking to `unit` (its own rate where it has one).
+    pub fn timing_for(&self, unit: u8) -> Option<LineTiming> {
+        let mut config = self.config.clone();
+        if let (LinkConfig::Rtu { baud, .. }, Some(own)) = (&mut config, self.unit_bauds.get(&unit))
+        {
+            *baud = *own;
+        }
+        crate::config::line_timing(&config, self.guard)
+    }
+
     /// Talks to `unit` at `baud` instead of the bus's rate (RTU).
     pub fn set_unit_baud(&mut self, unit: u8, baud: u32) {
         self.unit_bauds.insert(unit, baud);
@@ -137,11 +147,7 @@ impl Link {
                 .map_err(|e| LinkError::Io(io::Error::other(e)))?;
         }
         self.speed = Some(want);
-        let mut config = self.config.clone();
-        if let LinkConfig::Rtu { baud, .. } = &mut config {
-            *baud = want;
-        }
-        self.timing = crate::config::line_timing(&config, self.guard);
+        self.timing = self.timing_for(unit);
         Ok(())
     }
 
@@ -515,5 +521,32 @@ impl AsyncWrite for FlushingPort {
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<io::Result<()>> {
         self.get_mut().port.with(|s| Pin::new(s).poll_shutdown(cx))
+    }
+}
+
+#[cfg(test)]
+mod speed_tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn the_port_is_switched_to_a_units_own_baud_rate_and_back() {
+        let (_master, slave) = serialport::TTYPort::pair().unwrap();
+        let path = PathBuf::from(slave.name().unwrap());
+        let config = LinkConfig::Rtu {
+            port: path,
+            baud: 9600,
+            parity: Parity::None,
+            stop_bits: 1,
+        };
+        let mut link = Link::new(config, Duration::ZERO);
+        link.set_unit_baud(5, 19200);
+        let short = Duration::from_millis(20);
+        // Nobody answers on this pty; the speed the port was set to is what counts.
+        assert!(link.read(5, 210, 1, short).await.is_err());
+        assert_eq!(slave.baud_rate().unwrap(), 19200);
+        assert_eq!(link.timing().unwrap().baud, 19200);
+        assert!(link.read(1, 210, 1, short).await.is_err());
+        assert_eq!(slave.baud_rate().unwrap(), 9600);
+        assert_eq!(link.timing_for(5).unwrap().baud, 19200);
     }
 }

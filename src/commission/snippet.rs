@@ -16,8 +16,13 @@ pub fn config_snippet(target: &Target, found: &[Found]) -> String {
          [mqtt]\nhost = \"127.0.0.1\"\nport = 1883\n\n",
     );
     let known: Vec<&Found> = found.iter().filter(|f| f.model.is_some()).collect();
+    if known.is_empty() {
+        // A bus needs a device: without one the file would not pass `check`.
+        t += "# No module of a known model answered, so there is no bus here yet.\n";
+    }
     let line_baud = most_common_baud(&known);
     match target {
+        _ if known.is_empty() => {}
         Target::Serial { port, parity } => {
             let _ = writeln!(t, "[buses.line1]\nport = {:?}", port.display().to_string());
             let _ = writeln!(t, "baud = {}", line_baud.unwrap_or(9600));

@@ -583,3 +583,113 @@ model = "zh-yx1600"
         .json();
     assert_eq!(refused["error"], "unknown_bus");
 }
+
+/// Starts `pulsegate ARGS`, sends SIGINT after `after`, and returns its output.
+async fn pg_interrupted(args: &[&str], after: Duration) -> Output {
+    let child = tokio::process::Command::new(bin())
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run pulsegate");
+    let pid = child.id().expect("running");
+    tokio::time::sleep(after).await;
+    let _ = std::process::Command::new("kill")
+        .args(["-INT", &pid.to_string()])
+        .status();
+    tokio::time::timeout(Duration::from_secs(5), child.wait_with_output())
+        .await
+        .expect("exits after Ctrl-C")
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ctrl_c_during_a_scan_prints_what_was_found_so_far() {
+    let plant = plant(FACTORY_LINE).await;
+    let port = port_of(&plant, "line");
+    // Units 1..247 at 9600 take half a minute; units 1, 3 and 5 answer in the first second.
+    let scan = pg_interrupted(
+        &["scan", "--port", &port, "--json"],
+        Duration::from_millis(2500),
+    )
+    .await;
+    let (out, err) = text(&scan);
+    assert!(scan.status.success(), "{err}");
+    assert!(err.contains("interrupted"), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(v["interrupted"], true);
+    let units: Vec<u64> = v["found"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["unit"].as_u64().unwrap())
+        .collect();
+    assert_eq!(units, [1, 3, 5], "{out}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn read_watch_refreshes_with_deltas_until_ctrl_c() {
+    let plant = plant(
+        r#"
+[buses.line.devices.flow]
+unit = 4
+model = "wj157"
+modes = [1]
+channels.a0 = { count = 1000, rate = 100.0 }
+"#,
+    )
+    .await;
+    let port = port_of(&plant, "line");
+    let watch = pg_interrupted(
+        &["read", "--port", &port, "--unit", "4", "--watch", "300ms"],
+        Duration::from_millis(1600),
+    )
+    .await;
+    let (out, err) = text(&watch);
+    assert!(watch.status.success(), "{err}");
+    let a0: Vec<&str> = out.lines().filter(|l| l.starts_with("a0 ")).collect();
+    assert!(a0.len() >= 3, "{out}");
+    // Pulses at 100/s: each refresh after the first shows a positive delta of about 30.
+    let delta: i64 = a0[2].split_whitespace().nth(3).unwrap().parse().unwrap();
+    assert!((15..=60).contains(&delta), "{out}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_modbus_tcp_scan_finds_the_ethernet_zh_yx1600() {
+    let plant = plant(
+        r#"
+[buses.hall]
+listen = "127.0.0.1:0"
+[buses.hall.devices.gates]
+unit = 2
+model = "zh-yx1600"
+"#,
+    )
+    .await;
+    let Endpoint::Tcp(addr) = plant.bus("hall").unwrap().endpoint.clone() else {
+        unreachable!("TCP bus")
+    };
+    let scan = pg(&[
+        "scan",
+        "--host",
+        &addr.to_string(),
+        "--units",
+        "1-5",
+        "--json",
+    ])
+    .await;
+    let (out, err) = text(&scan);
+    assert!(scan.status.success(), "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let found = &v["found"][0];
+    assert_eq!(
+        (found["unit"].as_u64(), found["model"].as_str()),
+        (Some(2), Some("zh-yx1600")),
+        "{out}"
+    );
+    assert!(
+        found.get("baud").is_none() || found["baud"].is_null(),
+        "{out}"
+    );
+}
