@@ -184,6 +184,7 @@ channels.enc0 = { count = 31 }
 unit = 3
 model = "zh-yx1600"
 baud = 9600
+channels.di1 = { rate = 200.0 }
 [buses.line.devices.wj]
 unit = 5
 model = "wj157"
