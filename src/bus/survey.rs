@@ -185,8 +185,10 @@ pub async fn idle_step(
         && !shutdown.is_cancelled()
     {
         used = true;
-        let found = match crate::commission::identify::identify(link, &profiles, unit, timeout)
-            .await
+        let found = match crate::commission::identify::identify(
+            link, &profiles, unit, timeout, false,
+        )
+        .await
         {
             Ok(Some(identified)) => {
                 let baud = link.timing().map(|t| t.baud);

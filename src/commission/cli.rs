@@ -66,6 +66,10 @@ pub enum Commission {
         /// Print what was found as JSON.
         #[arg(long)]
         json: bool,
+        /// Ask every identification register even when a unit is silent on the first (for
+        /// modules that stay silent on registers they lack; doubles the time per empty unit).
+        #[arg(long)]
+        every_probe: bool,
     },
     /// Read one module's channels, decoded as the gateway publishes them.
     Read {
@@ -194,7 +198,15 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
             units,
             toml,
             json,
-        } => scan(&line, &baud, &units, toml, json, &profiles).await,
+            every_probe,
+        } => {
+            let how = ScanHow {
+                toml,
+                json,
+                every_probe,
+            };
+            scan(&line, &baud, &units, how, &profiles).await
+        }
         Commission::Read {
             module,
             json,
@@ -229,14 +241,25 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
     }
 }
 
+/// Output and probing choices of a scan.
+struct ScanHow {
+    toml: bool,
+    json: bool,
+    every_probe: bool,
+}
+
 async fn scan(
     line: &LineArgs,
     baud: &str,
     units: &str,
-    toml: bool,
-    json: bool,
+    how: ScanHow,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
+    let ScanHow {
+        toml,
+        json,
+        every_probe,
+    } = how;
     let target = target(line)?;
     let units = super::scan::parse_units(units)?;
     let bauds = super::scan::scan_bauds(baud, profiles)?;
@@ -244,16 +267,13 @@ async fn scan(
     let cancel = ctrl_c();
     let tty = std::io::stderr().is_terminal();
     let mut progress = |e: ScanEvent<'_>| progress(e, tty);
-    let outcome = super::scan::scan_line(
-        &target,
-        &bauds,
-        &units,
-        answer_time(line, profiles),
-        profiles,
-        &cancel,
-        &mut progress,
-    )
-    .await?;
+    let plan = super::scan::ScanPlan {
+        bauds,
+        units,
+        answer: answer_time(line, profiles),
+        every_probe,
+    };
+    let outcome = super::scan::scan_line(&target, &plan, profiles, &cancel, &mut progress).await?;
     if tty {
         eprint!("\r\x1b[K");
     }
@@ -505,7 +525,7 @@ async fn setup(
         if new != m.unit {
             let id_timeout = super::line::timeout_for(answer, &link, 3);
             if let Ok(Some(_)) =
-                super::identify::identify(&mut link, profiles, new, id_timeout).await
+                super::identify::identify(&mut link, profiles, new, id_timeout, true).await
             {
                 return Err(CommissionError::BadInput(format!(
                     "unit {new} already answers on this line; choose a free unit id"

@@ -64,17 +64,23 @@ fn means_absent(e: ExceptionCode) -> bool {
 }
 
 /// Asks `unit` for its identification. `Ok(None)`: nothing answered. A garbled answer is an
-/// error: something is there, perhaps at another baud rate.
+/// error: something is there, perhaps at another baud rate. With `every_probe`, silence on the
+/// first identification read does not end the question (a module may stay silent on a
+/// register it lacks instead of refusing it); without, an empty unit costs one timeout.
 pub(crate) async fn identify(
     link: &mut Link,
     profiles: &Profiles,
     unit: u8,
     timeout: Duration,
+    every_probe: bool,
 ) -> Result<Option<Identified>, LinkError> {
     let mut seen = Vec::new();
+    let mut answered = false;
     for (i, (address, len)) in probes(profiles).into_iter().enumerate() {
-        match link.read(unit, address, len, timeout).await {
-            Err(LinkError::Timeout(_)) if i == 0 => return Ok(None),
+        let answer = link.read(unit, address, len, timeout).await;
+        answered |= !matches!(answer, Err(LinkError::Timeout(_)));
+        match answer {
+            Err(LinkError::Timeout(_)) if i == 0 && !every_probe => return Ok(None),
             Err(LinkError::Timeout(_)) => continue,
             Err(e) => return Err(e),
             Ok(Err(e)) if i == 0 && means_absent(e) => return Ok(None),
@@ -87,7 +93,7 @@ pub(crate) async fn identify(
             }
         }
     }
-    Ok(Some(Identified::Unknown(seen)))
+    Ok(answered.then_some(Identified::Unknown(seen)))
 }
 
 #[cfg(test)]

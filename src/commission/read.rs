@@ -31,7 +31,7 @@ pub(super) async fn resolve_model(
     let profile = if model == "auto" {
         check_baud_known(profiles, target, baud)?;
         let timeout = timeout_for(super::scan::answer_time(profiles), link, 3);
-        match identify(link, profiles, unit, timeout).await {
+        match identify(link, profiles, unit, timeout, true).await {
             Ok(Some(Identified::Model(p))) => p,
             Ok(Some(Identified::Unknown(seen))) => {
                 return Err(CommissionError::Failed(format!(

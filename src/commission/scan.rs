@@ -115,16 +115,31 @@ pub fn answer_time(profiles: &Profiles) -> Duration {
         .unwrap_or(Duration::from_millis(100))
 }
 
-/// Scans `units` at each of `bauds` (ignored on TCP) until done or `cancel`.
+/// What to scan: which units at which baud rates (ignored on TCP), how long to wait for an
+/// answer, and whether to ask every identification register of a silent unit.
+#[derive(Debug, Clone)]
+pub struct ScanPlan {
+    pub bauds: Vec<u32>,
+    pub units: Vec<u8>,
+    pub answer: Duration,
+    pub every_probe: bool,
+}
+
+/// Scans as `plan` says until done or `cancel`.
 pub async fn scan_line(
     target: &Target,
-    bauds: &[u32],
-    units: &[u8],
-    answer: Duration,
+    plan: &ScanPlan,
     profiles: &Profiles,
     cancel: &CancellationToken,
     on_event: &mut dyn FnMut(ScanEvent<'_>),
 ) -> Result<ScanOutcome, CommissionError> {
+    let ScanPlan {
+        bauds,
+        units,
+        answer,
+        every_probe,
+    } = plan;
+    let (answer, every_probe) = (*answer, *every_probe);
     let mut outcome = ScanOutcome::default();
     let bauds: Vec<Option<u32>> = if target.is_serial() {
         bauds.iter().map(|b| Some(*b)).collect()
@@ -151,7 +166,7 @@ pub async fn scan_line(
                 of: units.len(),
             });
             let answer = tokio::select! {
-                a = identify(&mut link, profiles, unit, timeout) => a,
+                a = identify(&mut link, profiles, unit, timeout, every_probe) => a,
                 () = cancel.cancelled() => {
                     outcome.interrupted = true;
                     return Ok(outcome);

@@ -109,6 +109,7 @@ impl Plant {
                 comm::install(&mut m, d.unit, d.baud.unwrap_or(9600))
                     .map_err(|e| bus_err(format!("device {dname}: {e}")))?;
                 m.baud = d.baud;
+                m.silent_on_unknown = d.silent_on_unknown;
                 if modules.insert(d.unit, m).is_some() {
                     return Err(bus_err(format!("unit {} used twice", d.unit)));
                 }

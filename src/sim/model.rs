@@ -95,6 +95,9 @@ pub struct SimModule {
     /// The baud rate the module's serial port runs at (see `comm`); `None`: it answers at any
     /// line speed (plants that do not say, so older tests can run their line at 115200).
     pub baud: Option<u32>,
+    /// Stay silent, instead of answering exception 02, when asked for a register the module
+    /// lacks (no datasheet says which a module does).
+    pub silent_on_unknown: bool,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -171,6 +174,7 @@ impl SimModule {
             writes: 0,
             last_write: None,
             baud: None,
+            silent_on_unknown: false,
         })
     }
 

@@ -76,9 +76,10 @@ impl SimService {
             return nonsense(&req.request, m.writes.wrapping_add(now.to_bits()));
         }
         let response = match req.request {
-            Request::ReadHoldingRegisters(start, len) => {
-                Response::ReadHoldingRegisters(m.read(now, start, len)?)
-            }
+            Request::ReadHoldingRegisters(start, len) => match m.read(now, start, len) {
+                Err(ExceptionCode::IllegalDataAddress) if m.silent_on_unknown => return Ok(None),
+                r => Response::ReadHoldingRegisters(r?),
+            },
             Request::WriteSingleRegister(a, v) => {
                 m.writes += 1;
                 m.last_write.get_or_insert(now);

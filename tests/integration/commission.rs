@@ -694,3 +694,32 @@ model = "zh-yx1600"
         "{out}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_module_silent_on_registers_it_lacks_is_found_with_every_probe() {
+    // No datasheet says whether a module refuses a register it lacks or stays silent. This
+    // ZH-YX1600 stays silent on register 210 (the first identification read).
+    let plant = plant(
+        r#"
+[buses.line.devices.yl]
+unit = 1
+model = "yl67"
+[buses.line.devices.zh]
+unit = 3
+model = "zh-yx1600"
+silent_on_unknown = true
+"#,
+    )
+    .await;
+    let port = port_of(&plant, "line");
+    let units = |o: &Output| -> Vec<u64> {
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["found"].as_array().unwrap().iter().map(|f| f["unit"].as_u64().unwrap()).collect()
+    };
+    let quick = pg(&["scan", "--port", &port, "--units", "1-4", "--json"]).await;
+    assert_eq!(units(&quick), [1], "one read per unit misses it");
+    let thorough = pg(&["scan", "--port", &port, "--units", "1-4", "--json", "--every-probe"]).await;
+    assert_eq!(units(&thorough), [1, 3], "{:?}", text(&thorough));
+    let read = pg(&["read", "--port", &port, "--unit", "3", "--json"]).await;
+    assert!(read.status.success(), "read --model auto asks every probe: {:?}", text(&read));
+}
