@@ -714,12 +714,30 @@ silent_on_unknown = true
     let port = port_of(&plant, "line");
     let units = |o: &Output| -> Vec<u64> {
         let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-        v["found"].as_array().unwrap().iter().map(|f| f["unit"].as_u64().unwrap()).collect()
+        v["found"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["unit"].as_u64().unwrap())
+            .collect()
     };
     let quick = pg(&["scan", "--port", &port, "--units", "1-4", "--json"]).await;
     assert_eq!(units(&quick), [1], "one read per unit misses it");
-    let thorough = pg(&["scan", "--port", &port, "--units", "1-4", "--json", "--every-probe"]).await;
+    let thorough = pg(&[
+        "scan",
+        "--port",
+        &port,
+        "--units",
+        "1-4",
+        "--json",
+        "--every-probe",
+    ])
+    .await;
     assert_eq!(units(&thorough), [1, 3], "{:?}", text(&thorough));
     let read = pg(&["read", "--port", &port, "--unit", "3", "--json"]).await;
-    assert!(read.status.success(), "read --model auto asks every probe: {:?}", text(&read));
+    assert!(
+        read.status.success(),
+        "read --model auto asks every probe: {:?}",
+        text(&read)
+    );
 }
