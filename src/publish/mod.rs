@@ -1,6 +1,9 @@
 //! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
 
+pub mod decimal;
 pub mod mqtt;
 pub mod payload;
+pub mod policy;
 pub mod spool;
 pub mod topics;
+pub mod units;
