@@ -3,6 +3,7 @@
 
 mod availability;
 mod device;
+mod emit;
 mod execute;
 pub mod link;
 pub mod schedule;
@@ -43,6 +44,7 @@ pub struct BusTask {
     out: UnboundedSender<Output>,
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
+    emitter: emit::Emitter,
 }
 
 impl BusTask {
@@ -57,6 +59,7 @@ impl BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
             state_flush: gateway.state_flush,
             stats_interval: gateway.stats_interval,
+            emitter: emit::Emitter::new(gateway),
             bus,
             out,
             commands,
@@ -121,7 +124,14 @@ impl BusTask {
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
-            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            run_commands(
+                &mut pending,
+                &mut devices,
+                &mut link,
+                &mut self.emitter,
+                &self.out,
+            )
+            .await;
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
             let wake = slots[i]
@@ -194,9 +204,7 @@ impl BusTask {
                     self.heart.set_up(true);
                     let d = &mut devices[i];
                     availability::answered(d, &name, &self.out);
-                    for r in readings {
-                        let _ = self.out.send(Output::Reading(r));
-                    }
+                    self.emitter.emit(d, readings, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -245,6 +253,7 @@ async fn run_commands(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
+    emitter: &mut emit::Emitter,
     out: &UnboundedSender<Output>,
 ) {
     let now = Instant::now();
@@ -258,9 +267,7 @@ async fn run_commands(
         };
         if d.online == Some(true) && d.discovered() {
             let executed = d.execute(link, &c.request).await;
-            for r in executed.readings {
-                let _ = out.send(Output::Reading(r));
-            }
+            emitter.emit(d, executed.readings, out);
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {
