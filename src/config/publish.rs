@@ -68,9 +68,8 @@ pub(crate) fn homeassistant(table: Option<Table<'_>>, errs: &mut Errors) -> Home
         ha.discovery = v;
     }
     if let Some(p) = t.opt::<String>("prefix", errs) {
-        let ok = !p.is_empty()
-            && !p.contains(['+', '#'])
-            && p.split('/').all(|level| !level.is_empty());
+        let ok =
+            !p.is_empty() && !p.contains(['+', '#']) && p.split('/').all(|level| !level.is_empty());
         if ok {
             ha.prefix = p;
         } else {

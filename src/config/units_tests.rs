@@ -52,7 +52,10 @@ fn a_channel_takes_a_scale_as_the_exact_decimal_written() {
 fn an_environment_override_gives_the_scale_as_text() {
     let c = check(
         "[buses.line1.devices.meter.channels.a0]\nscale = 1\n",
-        &[("PULSEGATE__BUSES__LINE1__DEVICES__METER__CHANNELS__A0__SCALE", "0.1")],
+        &[(
+            "PULSEGATE__BUSES__LINE1__DEVICES__METER__CHANNELS__A0__SCALE",
+            "0.1",
+        )],
     )
     .unwrap();
     let u = &c.buses[0].devices[0].channels["a0"].units;
@@ -62,7 +65,10 @@ fn an_environment_override_gives_the_scale_as_text() {
 #[test]
 fn bad_unit_keys_are_named_with_their_cause() {
     let e = errors("[buses.line1.devices.meter.channels.a0]\nscale = -1\n");
-    assert!(e.contains("channels.a0.scale: must be greater than zero"), "{e}");
+    assert!(
+        e.contains("channels.a0.scale: must be greater than zero"),
+        "{e}"
+    );
     let e = errors("[buses.line1.devices.meter.channels.a0]\nscale = \"1/1000\"\n");
     assert!(e.contains("is not a decimal number"), "{e}");
     let e = errors("[buses.line1.devices.meter.channels.a0]\nunit = \"kWh\"\n");
@@ -70,7 +76,10 @@ fn bad_unit_keys_are_named_with_their_cause() {
     let e = errors(
         "[buses.line1.devices.meter.channels.a0]\nscale = 1\nunit = \"rpm\"\ndevice_class = \"energy\"\n",
     );
-    assert!(e.contains("device class energy does not take unit \"rpm\""), "{e}");
+    assert!(
+        e.contains("device class energy does not take unit \"rpm\""),
+        "{e}"
+    );
     let e = errors("[buses.line1.devices.meter.channels.a0]\nscale = 1\nrate_per = \"day\"\n");
     assert!(e.contains("rate_per: \"day\" is not"), "{e}");
 }
@@ -108,5 +117,8 @@ fn homeassistant_discovery_is_off_unless_asked_for() {
     assert!(c.homeassistant.discovery);
     assert_eq!(c.homeassistant.prefix, "ha");
     let e = errors("[homeassistant]\nprefix = \"ha/#\"\nnope = 1\n");
-    assert!(e.contains("homeassistant.prefix") && e.contains("homeassistant.nope"), "{e}");
+    assert!(
+        e.contains("homeassistant.prefix") && e.contains("homeassistant.nope"),
+        "{e}"
+    );
 }

@@ -178,7 +178,12 @@ mod tests {
 
     #[test]
     fn toml_floats_come_back_as_the_literal_the_user_wrote() {
-        for (v, text) in [(0.001, "0.001"), (0.1, "0.1"), (10.0, "10"), (0.0025, "0.0025")] {
+        for (v, text) in [
+            (0.001, "0.001"),
+            (0.1, "0.1"),
+            (10.0, "10"),
+            (0.0025, "0.0025"),
+        ] {
             assert_eq!(Decimal::from_f64(v).unwrap().to_string(), text);
         }
     }

@@ -158,7 +158,10 @@ mod tests {
         let text = reading(&metered(1_234_567, "0.001", 1.0));
         assert!(text.contains(r#""value":1234.567,"#), "{text}");
         assert!(text.contains(r#""rate":3.6"#), "{text}");
-        assert!(text.contains(r#""total":1234567"#), "raw fields stay: {text}");
+        assert!(
+            text.contains(r#""total":1234567"#),
+            "raw fields stay: {text}"
+        );
         let text = reading(&metered(3, "0.1", 0.0));
         assert!(text.contains(r#""value":0.3,"#), "{text}");
     }

@@ -192,7 +192,11 @@ mod tests {
     fn a_moving_channel_publishes_at_most_once_per_minimum_interval() {
         let (times, sum) = run(&change(10_000, Some(500)), 100, 30, |_| 7);
         assert_eq!(times, vec![0, 500, 1000, 1500, 2000, 2500]);
-        assert_eq!(sum, 7 * 30, "every pulse is in a published delta or still carried");
+        assert_eq!(
+            sum,
+            7 * 30,
+            "every pulse is in a published delta or still carried"
+        );
     }
 
     #[test]
@@ -207,7 +211,10 @@ mod tests {
         let still = update(0, 5);
         assert!(!gate.wants(&policy, 400, 5, &still));
         gate.skip(&still);
-        assert!(gate.wants(&policy, 600, 5, &still), "carried pulses count as movement");
+        assert!(
+            gate.wants(&policy, 600, 5, &still),
+            "carried pulses count as movement"
+        );
         assert_eq!(gate.publish(600, 5, &still).delta, 5);
         assert!(!gate.wants(&policy, 1200, 5, &still), "then it is still");
     }

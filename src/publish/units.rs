@@ -60,13 +60,20 @@ const TOTAL_CLASSES: &[(&str, &[&str])] = &[
         "volume",
         &["L", "mL", "gal", "fl. oz.", "m³", "ft³", "CCF", "MCF"],
     ),
-    ("distance", &["km", "m", "cm", "mm", "mi", "nmi", "yd", "in", "ft"]),
+    (
+        "distance",
+        &["km", "m", "cm", "mm", "mi", "nmi", "yd", "in", "ft"],
+    ),
     ("weight", &["kg", "g", "mg", "µg", "oz", "lb", "st"]),
 ];
 
 /// Device classes of rates, and their units, by the device class of the total.
 const RATE_CLASSES: &[(&str, &str, &[&str])] = &[
-    ("energy", "power", &["mW", "W", "kW", "MW", "GW", "TW", "BTU/h"]),
+    (
+        "energy",
+        "power",
+        &["mW", "W", "kW", "MW", "GW", "TW", "BTU/h"],
+    ),
     (
         "water",
         "volume_flow_rate",
@@ -91,7 +98,9 @@ const RATE_CLASSES: &[(&str, &str, &[&str])] = &[
     (
         "distance",
         "speed",
-        &["mm/s", "mm/h", "mm/d", "m/s", "km/h", "ft/s", "in/s", "in/h", "in/d", "mph", "kn"],
+        &[
+            "mm/s", "mm/h", "mm/d", "m/s", "km/h", "ft/s", "in/s", "in/h", "in/d", "mph", "kn",
+        ],
     ),
 ];
 
@@ -182,7 +191,10 @@ mod tests {
 
     #[test]
     fn a_rate_gets_the_class_that_matches_its_unit() {
-        assert_eq!(rate_device_class(&units("0.001", RatePer::Hour)), Some("power"));
+        assert_eq!(
+            rate_device_class(&units("0.001", RatePer::Hour)),
+            Some("power")
+        );
         let mut u = units("10", RatePer::Minute);
         u.device_class = Some("water".into());
         u.unit = Some("L".into());

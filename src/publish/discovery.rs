@@ -1,0 +1,242 @@
+//! Home Assistant discovery as a state machine: what the gateway has announced, what the broker
+//! holds, and what to publish when readings, Home Assistant or a reload say so. Pure: events
+//! in, retained messages out; [`run`] is the thin task around it.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+
+use super::homeassistant::{
+    Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
+    possible_topics,
+};
+use crate::config::Config;
+use crate::dispatch::Incoming;
+use crate::reading::{Output, Reading};
+
+/// A retained config message (an empty payload removes the entity).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Announce {
+    pub topic: String,
+    pub payload: String,
+}
+
+impl Announce {
+    fn output(self) -> Output {
+        Output::Message {
+            topic: self.topic,
+            payload: self.payload,
+            retain: true,
+        }
+    }
+}
+
+/// A channel by its place on the wire: bus, unit, channel name.
+type ChannelKey = (String, u8, String);
+
+/// What discovery knows.
+pub struct Discovery {
+    site: Site,
+    config: Config,
+    /// Config topics we published and their payloads (republished when HA comes back).
+    announced: BTreeMap<String, String>,
+    /// Config topics of this gateway seen retained on the broker.
+    on_broker: BTreeSet<String>,
+    /// Channels that have published readings: their entities are announced.
+    learned: BTreeSet<ChannelKey>,
+    /// Topics this config may have; anything else of ours on the broker is stale.
+    possible: BTreeSet<String>,
+}
+
+impl Discovery {
+    pub fn new(config: &Config) -> Discovery {
+        let site = Site::of(config);
+        Discovery {
+            possible: possible_topics(&site, config),
+            site,
+            config: config.clone(),
+            announced: BTreeMap::new(),
+            on_broker: BTreeSet::new(),
+            learned: BTreeSet::new(),
+        }
+    }
+
+    pub fn site(&self) -> &Site {
+        &self.site
+    }
+
+    fn announce(&mut self, entities: Vec<Entity>) -> Vec<Announce> {
+        let mut out = Vec::new();
+        for e in entities {
+            let topic = e.topic(&self.site);
+            let payload = e.config.to_string();
+            if self.announced.get(&topic) != Some(&payload) {
+                self.announced.insert(topic.clone(), payload.clone());
+                out.push(Announce { topic, payload });
+            }
+        }
+        out
+    }
+
+    /// At start: the gateway device and each module's device-wide entities.
+    pub fn start(&mut self) -> Vec<Announce> {
+        let mut entities = gateway_entities(&self.site);
+        for (bus, device) in self.config.devices() {
+            let m = Module {
+                bus: &bus.name,
+                device,
+            };
+            entities.extend(device_entities(&self.site, m));
+        }
+        self.announce(entities)
+    }
+
+    /// A reading went by: the first of a channel announces its entities.
+    pub fn reading(&mut self, r: &Reading) -> Vec<Announce> {
+        let Some((bus, device)) = self.config.devices().find(|(_, d)| *d.name == *r.device) else {
+            return Vec::new();
+        };
+        let key = (bus.name.clone(), device.unit, r.channel.to_string());
+        if self.learned.contains(&key) {
+            return Vec::new();
+        }
+        let m = Module {
+            bus: &bus.name,
+            device,
+        };
+        let Some(spec) = channel_spec(m, &r.channel) else {
+            return Vec::new();
+        };
+        let entities = channel_entities(&self.site, m, &spec);
+        self.learned.insert(key);
+        self.announce(entities)
+    }
+
+    /// Home Assistant announced itself: every config again.
+    pub fn ha_status(&mut self, payload: &[u8]) -> Vec<Announce> {
+        if payload != b"online" {
+            return Vec::new();
+        }
+        self.announced
+            .iter()
+            .map(|(topic, payload)| Announce {
+                topic: topic.clone(),
+                payload: payload.clone(),
+            })
+            .collect()
+    }
+
+    /// A config of this gateway arrived from the broker (retained at subscription, or our own
+    /// publish coming back): one that the config cannot have is cleared.
+    pub fn config_seen(&mut self, topic: &str, payload: &[u8]) -> Option<Announce> {
+        if payload.is_empty() {
+            self.on_broker.remove(topic);
+            return None;
+        }
+        self.on_broker.insert(topic.to_string());
+        (!self.possible.contains(topic)).then(|| self.clear(topic))
+    }
+
+    fn clear(&mut self, topic: &str) -> Announce {
+        self.announced.remove(topic);
+        self.on_broker.remove(topic);
+        Announce {
+            topic: topic.to_string(),
+            payload: String::new(),
+        }
+    }
+
+    /// A reloaded config: configs of removed devices and channels are cleared, the rest
+    /// announced again as the new config describes them (a renamed device keeps its entities).
+    pub fn reload(&mut self, config: &Config) -> Vec<Announce> {
+        // [gateway], [mqtt] and [homeassistant] stay as started (as for the buses).
+        let mut config = config.clone();
+        config.gateway = self.config.gateway.clone();
+        config.mqtt = self.config.mqtt.clone();
+        config.homeassistant = self.config.homeassistant.clone();
+        self.config = config;
+        self.possible = possible_topics(&self.site, &self.config);
+        let stale: Vec<String> = self
+            .announced
+            .keys()
+            .chain(&self.on_broker)
+            .filter(|t| !self.possible.contains(*t))
+            .cloned()
+            .collect::<BTreeSet<_>>()
+            .into_iter()
+            .collect();
+        let mut out: Vec<Announce> = stale.iter().map(|t| self.clear(t)).collect();
+        out.extend(self.start());
+        let learned = std::mem::take(&mut self.learned);
+        for (bus, unit, channel) in learned {
+            let config = self.config.clone();
+            let Some((b, device)) = config
+                .devices()
+                .find(|(b, d)| b.name == bus && d.unit == unit)
+            else {
+                continue;
+            };
+            let m = Module {
+                bus: &b.name,
+                device,
+            };
+            if let Some(spec) = channel_spec(m, &channel) {
+                let entities = channel_entities(&self.site, m, &spec);
+                self.learned.insert((bus, unit, channel));
+                out.extend(self.announce(entities));
+            }
+        }
+        out
+    }
+}
+
+/// Sits between the buses and MQTT: passes every output on, announcing entities before the
+/// first reading of each channel; takes Home Assistant's status and our retained configs out of
+/// the incoming messages and passes the rest (commands) to the router. Ends when the buses
+/// close their output.
+pub async fn run(
+    config: Config,
+    mut from_buses: UnboundedReceiver<Output>,
+    to_mqtt: UnboundedSender<Output>,
+    mut incoming: UnboundedReceiver<Incoming>,
+    to_router: UnboundedSender<Incoming>,
+    mut reloads: UnboundedReceiver<Config>,
+) {
+    let mut d = Discovery::new(&config);
+    let send = |list: Vec<Announce>| {
+        for a in list {
+            let _ = to_mqtt.send(a.output());
+        }
+    };
+    let _ = to_mqtt.send(Output::Subscribe(d.site().ha_status()));
+    let _ = to_mqtt.send(Output::Subscribe(d.site().config_filter()));
+    send(d.start());
+    let config_prefix = format!("{}/", d.site().prefix);
+    loop {
+        tokio::select! {
+            out = from_buses.recv() => {
+                let Some(out) = out else { break };
+                match &out {
+                    Output::Reading(r) => send(d.reading(r)),
+                    Output::DeviceReadings { readings, .. } => {
+                        for r in readings {
+                            send(d.reading(r));
+                        }
+                    }
+                    _ => {}
+                }
+                let _ = to_mqtt.send(out);
+            }
+            Some(msg) = incoming.recv() => {
+                if msg.topic == d.site().ha_status() {
+                    send(d.ha_status(&msg.payload));
+                } else if msg.topic.starts_with(&config_prefix) && msg.topic.ends_with("/config") {
+                    send(d.config_seen(&msg.topic, &msg.payload).into_iter().collect());
+                } else {
+                    let _ = to_router.send(msg);
+                }
+            }
+            Some(new) = reloads.recv() => send(d.reload(&new)),
+        }
+    }
+}
