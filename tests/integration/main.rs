@@ -4,6 +4,7 @@
 mod commands;
 mod config_cases;
 mod counters;
+mod dashboards;
 mod faults;
 mod pipeline;
 mod service;
