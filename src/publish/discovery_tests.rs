@@ -100,6 +100,12 @@ fn a_counter_total_is_total_increasing_in_its_units_with_both_statuses_for_avail
     );
     assert_eq!(v["device"]["via_device"], "pulsegate_edge");
     assert_eq!(v["device"]["model_id"], "yl67");
+    assert!(
+        v["device"]["manufacturer"]
+            .as_str()
+            .unwrap()
+            .contains("俞霖")
+    );
     assert_eq!(v["origin"]["name"], "pulsegate");
     let rate = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_rate/config");
     assert_eq!(rate["unit_of_measurement"], "kW");

@@ -107,14 +107,25 @@ fn availability(site: &Site, device: &str) -> Value {
 }
 
 fn module_device(site: &Site, m: Module<'_>) -> Value {
-    json!({
+    let profile = &m.device.profile;
+    let mut device = json!({
         "identifiers": [format!("{}_{}", site.gateway_identifier(), m.key())],
         "name": m.device.name,
-        "model": m.device.profile.title,
-        "model_id": m.device.profile.model,
+        "model": profile.title,
+        "model_id": profile.model,
         "serial_number": format!("{} unit {}", m.bus, m.device.unit),
         "via_device": site.gateway_identifier(),
-    })
+    });
+    // The profile's maker is that of its own model; an alias (IBF67 on the YL67 map) may be
+    // another maker's, so it gets none.
+    if let Some(maker) = profile
+        .manufacturer
+        .as_ref()
+        .filter(|_| m.device.model == profile.model)
+    {
+        device["manufacturer"] = maker.clone().into();
+    }
+    device
 }
 
 /// The keys every entity of a module shares.
