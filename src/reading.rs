@@ -17,6 +17,9 @@ pub struct Reading {
     pub freq_hz: Option<f64>,
     pub rpm: Option<f64>,
     pub update: Update,
+    /// What the channel counts in the module's current work mode (a ZH-YX1600 `di1` is an
+    /// input counter in one mode and an encoder in another).
+    pub kind: crate::profile::ChannelKind,
     /// Engineering units of the channel, when it has a `scale`.
     pub units: Option<Arc<crate::config::channel::ChannelUnits>>,
 }

@@ -78,6 +78,7 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            kind: self.spec.kind,
             units: None,
         }
     }

@@ -2,7 +2,7 @@
 //! holds, and what to publish when readings, Home Assistant or a reload say so. Pure: events
 //! in, retained messages out; [`run`] is the thin task around it.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashSet};
 
 use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
@@ -12,6 +12,7 @@ use super::homeassistant::{
 };
 use crate::config::Config;
 use crate::dispatch::Incoming;
+use crate::profile::ChannelKind;
 use crate::reading::{Output, Reading};
 
 /// A retained config message (an empty payload removes the entity).
@@ -31,8 +32,8 @@ impl Announce {
     }
 }
 
-/// A channel by its place on the wire: bus, unit, channel name.
-type ChannelKey = (String, u8, String);
+/// A channel by its place on the wire and what it counts: bus, unit, channel name, kind.
+type ChannelKey = (String, u8, String, ChannelKind);
 
 /// What discovery knows.
 pub struct Discovery {
@@ -43,7 +44,7 @@ pub struct Discovery {
     /// Config topics of this gateway seen retained on the broker.
     on_broker: BTreeSet<String>,
     /// Channels that have published readings: their entities are announced.
-    learned: BTreeSet<ChannelKey>,
+    learned: HashSet<ChannelKey>,
     /// Topics this config may have; anything else of ours on the broker is stale.
     possible: BTreeSet<String>,
 }
@@ -57,7 +58,7 @@ impl Discovery {
             config: config.clone(),
             announced: BTreeMap::new(),
             on_broker: BTreeSet::new(),
-            learned: BTreeSet::new(),
+            learned: HashSet::new(),
         }
     }
 
@@ -96,7 +97,7 @@ impl Discovery {
         let Some((bus, device)) = self.config.devices().find(|(_, d)| *d.name == *r.device) else {
             return Vec::new();
         };
-        let key = (bus.name.clone(), device.unit, r.channel.to_string());
+        let key = (bus.name.clone(), device.unit, r.channel.to_string(), r.kind);
         if self.learned.contains(&key) {
             return Vec::new();
         }
@@ -104,7 +105,7 @@ impl Discovery {
             bus: &bus.name,
             device,
         };
-        let Some(spec) = channel_spec(m, &r.channel) else {
+        let Some(spec) = channel_spec(m, &r.channel, r.kind) else {
             return Vec::new();
         };
         let entities = channel_entities(&self.site, m, &spec);
@@ -168,7 +169,7 @@ impl Discovery {
         let mut out: Vec<Announce> = stale.iter().map(|t| self.clear(t)).collect();
         out.extend(self.start());
         let learned = std::mem::take(&mut self.learned);
-        for (bus, unit, channel) in learned {
+        for (bus, unit, channel, kind) in learned {
             let config = self.config.clone();
             let Some((b, device)) = config
                 .devices()
@@ -180,9 +181,9 @@ impl Discovery {
                 bus: &b.name,
                 device,
             };
-            if let Some(spec) = channel_spec(m, &channel) {
+            if let Some(spec) = channel_spec(m, &channel, kind) {
                 let entities = channel_entities(&self.site, m, &spec);
-                self.learned.insert((bus, unit, channel));
+                self.learned.insert((bus, unit, channel, kind));
                 out.extend(self.announce(entities));
             }
         }

@@ -9,6 +9,7 @@ use serde_json::Value;
 use super::discovery::Discovery;
 use crate::config::Config;
 use crate::counter::Update;
+use crate::profile::ChannelKind;
 use crate::reading::Reading;
 
 const CONFIG: &str = r#"
@@ -56,6 +57,11 @@ fn reading(device: &str, channel: &str) -> Reading {
             seq: 1,
             rate_hz: None,
             event: None,
+        },
+        kind: if channel.starts_with("enc") {
+            ChannelKind::Encoder
+        } else {
+            ChannelKind::Counter
         },
         units: None,
     }
@@ -219,4 +225,20 @@ fn with_one_message_per_device_templates_reach_into_the_channel() {
             .unwrap()
             .contains("value_json['a0']['value']")
     );
+}
+
+#[test]
+fn a_zh_yx1600_pair_in_quadrature_mode_is_a_position_not_a_meter_total() {
+    let text = CONFIG.replace("model = \"yl67\"\ncommands = false", "model = \"zh-yx1600\"");
+    let mut d = Discovery::new(&config(&text));
+    let mut r = reading("press", "di1");
+    r.kind = ChannelKind::Encoder;
+    d.reading(&r);
+    let v = json(&mut d, "homeassistant/sensor/edge/line1_u4_di1_position/config");
+    assert_eq!(v["state_class"], "measurement");
+    let mut r = reading("press", "di3");
+    r.kind = ChannelKind::Counter;
+    d.reading(&r);
+    let v = json(&mut d, "homeassistant/sensor/edge/line1_u4_di3_total/config");
+    assert_eq!(v["state_class"], "total_increasing");
 }

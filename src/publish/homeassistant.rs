@@ -379,13 +379,14 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
     out
 }
 
-/// The channel of `m`'s profile called `name` (in whichever mode has it).
-pub fn channel_spec(m: Module<'_>, name: &str) -> Option<ChannelSpec> {
+/// The channel of `m`'s profile called `name` that counts as `kind` (the work mode decides:
+/// a ZH-YX1600 `di1` is an input counter or an encoder).
+pub fn channel_spec(m: Module<'_>, name: &str, kind: ChannelKind) -> Option<ChannelSpec> {
     m.device
         .profile
         .all_channels()
         .into_iter()
-        .find(|c| c.name == name)
+        .find(|c| c.name == name && c.kind == kind)
 }
 
 /// Every config topic `config` may have: the gateway's, each module's, and each channel of

@@ -92,6 +92,7 @@ mod tests {
                 rate_hz: Some(999.9996),
                 event: Some(Event::Rollover),
             },
+            kind: crate::profile::ChannelKind::Encoder,
             units: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
@@ -120,6 +121,7 @@ mod tests {
                 rate_hz: None,
                 event: None,
             },
+            kind: crate::profile::ChannelKind::Encoder,
             units: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
@@ -145,6 +147,7 @@ mod tests {
                 rate_hz: Some(rate_hz),
                 event: None,
             },
+            kind: crate::profile::ChannelKind::Counter,
             units: Some(std::sync::Arc::new(ChannelUnits {
                 scale: Some(Decimal::parse(scale).unwrap()),
                 rate_per: RatePer::Hour,
