@@ -8,7 +8,7 @@ use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
 
 use super::homeassistant::{
     Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
-    possible_topics,
+    module_topics, possible_topics,
 };
 use crate::config::Config;
 use crate::dispatch::Incoming;
@@ -47,6 +47,10 @@ pub struct Discovery {
     learned: HashSet<ChannelKey>,
     /// Topics this config may have; anything else of ours on the broker is stale.
     possible: BTreeSet<String>,
+    /// Modules that completed a poll: their channels in the current work mode are all learned.
+    settled: BTreeSet<(String, u8)>,
+    /// Topics of settled modules' channels they do not have (another work mode): stale.
+    unwanted: BTreeSet<String>,
 }
 
 impl Discovery {
@@ -59,6 +63,8 @@ impl Discovery {
             announced: BTreeMap::new(),
             on_broker: BTreeSet::new(),
             learned: HashSet::new(),
+            settled: BTreeSet::new(),
+            unwanted: BTreeSet::new(),
         }
     }
 
@@ -99,7 +105,8 @@ impl Discovery {
         };
         let key = (bus.name.clone(), device.unit, r.channel.to_string(), r.kind);
         if self.learned.contains(&key) {
-            return Vec::new();
+            // A channel read again: the module's first poll is complete.
+            return self.settle(key.0, key.1);
         }
         let m = Module {
             bus: &bus.name,
@@ -109,8 +116,66 @@ impl Discovery {
             return Vec::new();
         };
         let entities = channel_entities(&self.site, m, &spec);
+        let settled = self.settled.contains(&(key.0.clone(), key.1));
         self.learned.insert(key);
+        if settled {
+            // The work mode changed under a settled module: its new channels are wanted now.
+            self.refresh_unwanted();
+        }
         self.announce(entities)
+    }
+
+    /// The module at `bus`/`unit` completed a poll: configs of channels it does not have in
+    /// its current work mode are cleared.
+    fn settle(&mut self, bus: String, unit: u8) -> Vec<Announce> {
+        if !self.settled.insert((bus, unit)) {
+            return Vec::new();
+        }
+        self.refresh_unwanted();
+        self.clear_where(|d, t| d.unwanted.contains(t))
+    }
+
+    /// Recomputes the topics settled modules do not have.
+    fn refresh_unwanted(&mut self) {
+        let mut unwanted = BTreeSet::new();
+        for (bus, device) in self.config.devices() {
+            if !self.settled.contains(&(bus.name.clone(), device.unit)) {
+                continue;
+            }
+            let m = Module {
+                bus: &bus.name,
+                device,
+            };
+            let mut topics = module_topics(&self.site, m);
+            for e in device_entities(&self.site, m) {
+                topics.remove(&e.topic(&self.site));
+            }
+            let learned = self
+                .learned
+                .iter()
+                .filter(|(b, u, ..)| *b == bus.name && *u == device.unit);
+            for (_, _, channel, kind) in learned {
+                if let Some(spec) = channel_spec(m, channel, *kind) {
+                    for e in channel_entities(&self.site, m, &spec) {
+                        topics.remove(&e.topic(&self.site));
+                    }
+                }
+            }
+            unwanted.extend(topics);
+        }
+        self.unwanted = unwanted;
+    }
+
+    /// Clears every announced or retained config for which `stale` holds.
+    fn clear_where(&mut self, stale: impl Fn(&Discovery, &str) -> bool) -> Vec<Announce> {
+        let topics: BTreeSet<String> = self
+            .announced
+            .keys()
+            .chain(&self.on_broker)
+            .filter(|t| stale(self, t))
+            .cloned()
+            .collect();
+        topics.iter().map(|t| self.clear(t)).collect()
     }
 
     /// Home Assistant announced itself: every config again.
@@ -135,7 +200,7 @@ impl Discovery {
             return None;
         }
         self.on_broker.insert(topic.to_string());
-        (!self.possible.contains(topic)).then(|| self.clear(topic))
+        (!self.possible.contains(topic) || self.unwanted.contains(topic)).then(|| self.clear(topic))
     }
 
     fn clear(&mut self, topic: &str) -> Announce {
@@ -157,16 +222,7 @@ impl Discovery {
         config.homeassistant = self.config.homeassistant.clone();
         self.config = config;
         self.possible = possible_topics(&self.site, &self.config);
-        let stale: Vec<String> = self
-            .announced
-            .keys()
-            .chain(&self.on_broker)
-            .filter(|t| !self.possible.contains(*t))
-            .cloned()
-            .collect::<BTreeSet<_>>()
-            .into_iter()
-            .collect();
-        let mut out: Vec<Announce> = stale.iter().map(|t| self.clear(t)).collect();
+        let mut out = self.clear_where(|d, t| !d.possible.contains(t));
         out.extend(self.start());
         let learned = std::mem::take(&mut self.learned);
         for (bus, unit, channel, kind) in learned {
@@ -187,6 +243,8 @@ impl Discovery {
                 out.extend(self.announce(entities));
             }
         }
+        self.refresh_unwanted();
+        out.extend(self.clear_where(|d, t| d.unwanted.contains(t)));
         out
     }
 }

@@ -229,16 +229,51 @@ fn with_one_message_per_device_templates_reach_into_the_channel() {
 
 #[test]
 fn a_zh_yx1600_pair_in_quadrature_mode_is_a_position_not_a_meter_total() {
-    let text = CONFIG.replace("model = \"yl67\"\ncommands = false", "model = \"zh-yx1600\"");
+    let text = CONFIG.replace(
+        "model = \"yl67\"\ncommands = false",
+        "model = \"zh-yx1600\"",
+    );
     let mut d = Discovery::new(&config(&text));
     let mut r = reading("press", "di1");
     r.kind = ChannelKind::Encoder;
     d.reading(&r);
-    let v = json(&mut d, "homeassistant/sensor/edge/line1_u4_di1_position/config");
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u4_di1_position/config",
+    );
     assert_eq!(v["state_class"], "measurement");
     let mut r = reading("press", "di3");
     r.kind = ChannelKind::Counter;
     d.reading(&r);
-    let v = json(&mut d, "homeassistant/sensor/edge/line1_u4_di3_total/config");
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u4_di3_total/config",
+    );
     assert_eq!(v["state_class"], "total_increasing");
+}
+
+#[test]
+fn after_a_full_poll_configs_of_another_work_modes_channels_are_cleared() {
+    let mut d = Discovery::new(&config(CONFIG));
+    // Left over from when encoder 0 of the meter ran in quadrature mode.
+    let old = "homeassistant/sensor/edge/line1_u3_enc0_position/config";
+    assert!(
+        d.config_seen(old, b"{}").is_none(),
+        "possible until the mode is known"
+    );
+    d.reading(&reading("meter", "a0"));
+    d.reading(&reading("meter", "b0"));
+    let settled = d.reading(&reading("meter", "a0"));
+    assert_eq!(settled.len(), 1, "{settled:?}");
+    assert_eq!(
+        (settled[0].topic.as_str(), settled[0].payload.as_str()),
+        (old, "")
+    );
+    let ours = "homeassistant/sensor/edge/line1_u3_a0_total/config";
+    assert!(d.config_seen(ours, b"{}").is_none());
+    let late = "homeassistant/sensor/edge/line1_u3_enc0_rpm/config";
+    assert!(
+        d.config_seen(late, b"{}").is_some(),
+        "a late retained one too"
+    );
 }

@@ -401,14 +401,23 @@ pub fn possible_topics(site: &Site, config: &Config) -> BTreeSet<String> {
             bus: &bus.name,
             device,
         };
-        out.extend(device_entities(site, m).iter().map(|e| e.topic(site)));
-        for spec in device.profile.all_channels() {
-            out.extend(
-                channel_entities(site, m, &spec)
-                    .iter()
-                    .map(|e| e.topic(site)),
-            );
-        }
+        out.extend(module_topics(site, m));
+    }
+    out
+}
+
+/// Every config topic module `m` may have, in any work mode.
+pub fn module_topics(site: &Site, m: Module<'_>) -> BTreeSet<String> {
+    let mut out: BTreeSet<String> = device_entities(site, m)
+        .iter()
+        .map(|e| e.topic(site))
+        .collect();
+    for spec in m.device.profile.all_channels() {
+        out.extend(
+            channel_entities(site, m, &spec)
+                .iter()
+                .map(|e| e.topic(site)),
+        );
     }
     out
 }

@@ -253,6 +253,12 @@ async fn every_channel_is_discovered_with_valid_configs_cleared_when_removed_and
         .publish(stale, QoS::AtLeastOnce, true, r#"{"name":"old"}"#)
         .await
         .unwrap();
+    // The meter's encoder 0 ran in quadrature mode before it was set to count A and B.
+    let other_mode = "homeassistant/sensor/test/line1_u1_enc0_position/config";
+    ha.client
+        .publish(other_mode, QoS::AtLeastOnce, true, r#"{"name":"old"}"#)
+        .await
+        .unwrap();
     let config = write_config(&dir, &discovery_config(&plant, broker.port, &dir));
     let gw = Gateway::start(&config);
 
@@ -261,6 +267,12 @@ async fn every_channel_is_discovered_with_valid_configs_cleared_when_removed_and
             .await
             .is_some(),
         "a retained config of a module no longer configured is cleared at start"
+    );
+    assert!(
+        ha.wait_for(other_mode, Duration::from_secs(5), |m| m.payload.is_empty())
+            .await
+            .is_some(),
+        "a config of a channel the module's work mode does not have is cleared"
     );
     tokio::time::sleep(Duration::from_secs(3)).await;
 
