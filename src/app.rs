@@ -43,6 +43,7 @@ pub async fn run_with_reloads(
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
+    let (out_rx, incoming_rx, discovery) = discovery_stage(&config, out_rx, incoming_rx);
     let scans = router.scans();
     *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
@@ -76,6 +77,9 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
+                if let Some(d) = &discovery {
+                    let _ = d.send(new.clone());
+                }
                 apply(&mut current, new, &mut running, &health, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
                 *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
@@ -93,6 +97,35 @@ pub async fn run_with_reloads(
         tracing::error!("MQTT task failed: {e}");
     }
     let _ = supervisor.await;
+}
+
+/// With `[homeassistant] discovery`, puts the discovery stage between the buses and MQTT (and
+/// between MQTT and the command router); returns what MQTT and the router read from then, and
+/// where reloaded configs go.
+fn discovery_stage(
+    config: &Config,
+    out_rx: UnboundedReceiver<Output>,
+    incoming_rx: UnboundedReceiver<crate::dispatch::Incoming>,
+) -> (
+    UnboundedReceiver<Output>,
+    UnboundedReceiver<crate::dispatch::Incoming>,
+    Option<UnboundedSender<Config>>,
+) {
+    if !config.homeassistant.discovery {
+        return (out_rx, incoming_rx, None);
+    }
+    let (to_mqtt, mqtt_rx) = unbounded_channel();
+    let (to_router, router_rx) = unbounded_channel();
+    let (reload_tx, reload_rx) = unbounded_channel();
+    tokio::spawn(crate::publish::discovery::run(
+        config.clone(),
+        out_rx,
+        to_mqtt,
+        incoming_rx,
+        to_router,
+        reload_rx,
+    ));
+    (mqtt_rx, router_rx, Some(reload_tx))
 }
 
 /// Runs the gateway until `shutdown` (no reloads).

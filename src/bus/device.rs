@@ -78,6 +78,8 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            kind: self.spec.kind,
+            units: None,
         }
     }
 }
@@ -133,6 +135,14 @@ pub struct DeviceRt {
 }
 
 impl DeviceRt {
+    /// A reading of `channel` was not published: its sequence number goes back, so `seq`
+    /// counts published readings only.
+    pub(super) fn withdraw_seq(&mut self, channel: &str) {
+        if let Some(c) = self.channels.iter_mut().find(|c| &*c.name == channel) {
+            c.counter.state.seq = c.counter.state.seq.saturating_sub(1);
+        }
+    }
+
     pub fn new(
         bus: &Bus,
         config: &Device,

@@ -3,6 +3,7 @@
 
 mod availability;
 pub mod device;
+mod emit;
 mod execute;
 pub mod link;
 pub mod schedule;
@@ -46,6 +47,7 @@ pub struct BusTask {
     heart: Heart,
     /// Scan requests from MQTT, asked in idle line time.
     scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
+    emitter: emit::Emitter,
 }
 
 impl BusTask {
@@ -60,6 +62,7 @@ impl BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
             state_flush: gateway.state_flush,
             stats_interval: gateway.stats_interval,
+            emitter: emit::Emitter::new(gateway),
             bus,
             out,
             commands,
@@ -138,7 +141,14 @@ impl BusTask {
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
-            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            run_commands(
+                &mut pending,
+                &mut devices,
+                &mut link,
+                &mut self.emitter,
+                &self.out,
+            )
+            .await;
             let idle_until = slots[i].due;
             if survey::idle_step(
                 &mut scan,
@@ -226,9 +236,7 @@ impl BusTask {
                     self.heart.set_up(true);
                     let d = &mut devices[i];
                     availability::answered(d, &name, &self.out);
-                    for r in readings {
-                        let _ = self.out.send(Output::Reading(r));
-                    }
+                    self.emitter.emit(d, readings, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {
@@ -277,6 +285,7 @@ async fn run_commands(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
+    emitter: &mut emit::Emitter,
     out: &UnboundedSender<Output>,
 ) {
     let now = Instant::now();
@@ -290,9 +299,7 @@ async fn run_commands(
         };
         if d.online == Some(true) && d.discovered() {
             let executed = d.execute(link, &c.request).await;
-            for r in executed.readings {
-                let _ = out.send(Output::Reading(r));
-            }
+            emitter.emit(d, executed.readings, out);
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {

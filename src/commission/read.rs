@@ -108,6 +108,8 @@ pub(super) fn poller(
         commands: true,
         baud: None,
         channels: BTreeMap::new(),
+        publish: Default::default(),
+        payload: None,
     };
     let wire = match link.timing() {
         Some(t) => Wire::rtu(&t, Duration::from_millis(2)),

@@ -53,6 +53,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
             buses.push(bus);
         }
     }
+    let homeassistant = super::publish::homeassistant(root.table("homeassistant", errs), errs);
     root.finish(errs);
 
     // Device names become topic levels, so they are unique across the gateway.
@@ -74,6 +75,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         gateway,
         mqtt,
         buses,
+        homeassistant,
     })
 }
 
@@ -93,6 +95,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
         state_flush: Duration::from_secs(5),
         stats_interval: Duration::from_secs(60),
         profile_dir: config_dir.join("profiles"),
+        publish: Default::default(),
+        payload: Default::default(),
     };
     let Some(mut t) = table else { return g };
     if let Some(id) = t.opt::<String>("id", errs) {
@@ -122,6 +126,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
             config_dir.join(dir)
         };
     }
+    g.publish = super::publish::policy(&mut t, errs);
+    g.payload = super::publish::payload(&mut t, errs).unwrap_or_default();
     t.finish(errs);
     g
 }
@@ -468,6 +474,8 @@ fn device(
             ),
         );
     }
+    let publish = super::publish::policy(&mut t, errs);
+    let payload = super::publish::payload(&mut t, errs);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -494,8 +502,18 @@ fn device(
                 );
             }
         }
+        let units = super::channel::units(&mut ct, errs);
+        let publish = super::publish::policy(&mut ct, errs);
         ct.finish(errs);
-        channels.insert(cname, ChannelConfig { ppr, max_rate_hz });
+        channels.insert(
+            cname,
+            ChannelConfig {
+                ppr,
+                max_rate_hz,
+                units,
+                publish,
+            },
+        );
     }
     t.finish(errs);
     Some(Device {
@@ -508,5 +526,7 @@ fn device(
         commands,
         baud,
         channels,
+        publish,
+        payload,
     })
 }

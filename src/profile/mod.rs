@@ -124,6 +124,8 @@ pub struct Profile {
     pub model: String,
     pub aliases: Vec<String>,
     pub title: String,
+    /// Maker of `model` (an alias may come from another maker).
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
@@ -156,6 +158,7 @@ impl Profile {
             model: raw.model,
             aliases: raw.aliases,
             title: raw.title,
+            manufacturer: raw.manufacturer,
             word_order: raw.word_order,
             answer_timeout: raw.answer_timeout,
             bauds: raw.bauds,

@@ -52,6 +52,9 @@ pub(super) struct Profile {
     pub aliases: Vec<String>,
     #[serde(default)]
     pub title: String,
+    /// Maker of the model itself (not of its aliases), from the datasheet's imprint.
+    #[serde(default)]
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     #[serde(with = "humantime_serde")]
     pub answer_timeout: Duration,

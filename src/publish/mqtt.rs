@@ -57,6 +57,8 @@ struct Shared {
     direct: usize,
     client: AsyncClient,
     topics: Topics,
+    /// Filters asked for with [`Output::Subscribe`], renewed at every connection.
+    extra_filters: Vec<String>,
 }
 
 impl Shared {
@@ -228,6 +230,7 @@ pub async fn run(
         direct: 0,
         client: client.clone(),
         topics: topics.clone(),
+        extra_filters: Vec::new(),
     }));
     let loop_stop = CancellationToken::new();
     let broker = format!("{}:{}", config.host, config.port);
@@ -269,6 +272,28 @@ pub async fn run(
                 payload::reading(&r),
                 None,
             ),
+            Output::DeviceReadings { device, readings } => (
+                topics.device(&device),
+                config.retain,
+                reading_qos,
+                payload::device(&readings),
+                None,
+            ),
+            Output::Message {
+                topic,
+                payload,
+                retain,
+            } => (topic, retain, 1, payload, None),
+            Output::Subscribe(filter) => {
+                let mut s = lock(&shared);
+                if s.connected
+                    && let Err(e) = s.client.try_subscribe(filter.clone(), QoS::AtLeastOnce)
+                {
+                    tracing::error!("cannot subscribe to {filter}: {e}");
+                }
+                s.extra_filters.push(filter);
+                continue;
+            }
             Output::DeviceStatus { device, online } => {
                 health.device(&device, online);
                 (
@@ -392,6 +417,11 @@ async fn drive(
                 ];
                 if let Err(e) = s.client.try_subscribe_many(filters) {
                     tracing::error!("cannot subscribe to command topics: {e}");
+                }
+                for f in s.extra_filters.clone() {
+                    if let Err(e) = s.client.try_subscribe(f.clone(), QoS::AtLeastOnce) {
+                        tracing::error!("cannot subscribe to {f}: {e}");
+                    }
                 }
                 s.pump();
             }

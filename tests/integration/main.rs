@@ -5,6 +5,7 @@ mod commands;
 mod commission;
 mod config_cases;
 mod counters;
+mod dashboards;
 mod faults;
 mod pipeline;
 mod service;
