@@ -97,6 +97,8 @@ struct Shared {
     direct: usize,
     client: AsyncClient,
     topics: Topics,
+    /// Filters asked for with [`Output::Subscribe`], renewed at every connection.
+    extra_filters: Vec<String>,
 }
 
 impl Shared {
@@ -320,6 +322,7 @@ pub async fn run(
         direct: 0,
         client,
         topics: topics.clone(),
+        extra_filters: Vec::new(),
     }));
     let loop_stop = CancellationToken::new();
     let rebuild = Arc::new(tokio::sync::Notify::new());
@@ -376,6 +379,28 @@ pub async fn run(
                 payload::reading(&r),
                 None,
             ),
+            Output::DeviceReadings { device, readings } => (
+                topics.device(&device),
+                config.retain,
+                reading_qos,
+                payload::device(&readings),
+                None,
+            ),
+            Output::Message {
+                topic,
+                payload,
+                retain,
+            } => (topic, retain, 1, payload, None),
+            Output::Subscribe(filter) => {
+                let mut s = lock(&shared);
+                if s.connected
+                    && let Err(e) = s.client.try_subscribe(filter.clone(), QoS::AtLeastOnce)
+                {
+                    tracing::error!("cannot subscribe to {filter}: {e}");
+                }
+                s.extra_filters.push(filter);
+                continue;
+            }
             Output::DeviceStatus { device, online } => {
                 health.device(&device, online);
                 (
@@ -550,9 +575,15 @@ async fn drive(
                     let filters = [
                         command_filter(&s.topics, "+/+/cmd"),
                         command_filter(&s.topics, "+/cmd"),
+                        command_filter(&s.topics, "bus/+/scan"),
                     ];
                     if let Err(e) = s.client.try_subscribe_many(filters) {
                         tracing::error!("cannot subscribe to command topics: {e}");
+                    }
+                }
+                for f in s.extra_filters.clone() {
+                    if let Err(e) = s.client.try_subscribe(f.clone(), QoS::AtLeastOnce) {
+                        tracing::error!("cannot subscribe to {f}: {e}");
                     }
                 }
                 s.pump();
@@ -652,6 +683,7 @@ mod tests {
             direct: 0,
             client,
             topics: Topics::new("pg/t"),
+            extra_filters: Vec::new(),
         };
         (shared, eventloop)
     }
