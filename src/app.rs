@@ -21,6 +21,7 @@ struct Running {
     stop: CancellationToken,
     task: JoinHandle<()>,
     commands: UnboundedSender<BusCommand>,
+    scans: tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>,
 }
 
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
@@ -48,6 +49,9 @@ pub async fn run_with_reloads(
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
+    let (out_rx, incoming_rx, discovery) = discovery_stage(&config, out_rx, incoming_rx);
+    let scans = router.scans();
+    *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
     let mqtt_config = config.mqtt.clone();
@@ -86,8 +90,12 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
+                if let Some(d) = &discovery {
+                    let _ = d.send(new.clone());
+                }
                 apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
+                *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
             }
         }
     }
@@ -133,6 +141,35 @@ async fn start_metrics(
     }
 }
 
+/// With `[homeassistant] discovery`, puts the discovery stage between the buses and MQTT (and
+/// between MQTT and the command router); returns what MQTT and the router read from then, and
+/// where reloaded configs go.
+fn discovery_stage(
+    config: &Config,
+    out_rx: UnboundedReceiver<Output>,
+    incoming_rx: tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
+) -> (
+    UnboundedReceiver<Output>,
+    tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
+    Option<UnboundedSender<Config>>,
+) {
+    if !config.homeassistant.discovery {
+        return (out_rx, incoming_rx, None);
+    }
+    let (to_mqtt, mqtt_rx) = unbounded_channel();
+    let (to_router, router_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
+    let (reload_tx, reload_rx) = unbounded_channel();
+    tokio::spawn(crate::publish::discovery::run(
+        config.clone(),
+        out_rx,
+        to_mqtt,
+        incoming_rx,
+        to_router,
+        reload_rx,
+    ));
+    (mqtt_rx, router_rx, Some(reload_tx))
+}
+
 /// Runs the gateway until `shutdown` (no reloads).
 pub async fn run(config: Config, shutdown: CancellationToken) {
     let (_keep, reloads) = unbounded_channel();
@@ -148,16 +185,29 @@ fn start_bus(
     shutdown: &CancellationToken,
 ) -> Running {
     let (cmd_tx, cmd_rx) = unbounded_channel();
+    // One scan runs, one may wait: further requests are answered "busy" (bounded).
+    let (scan_tx, scan_rx) = tokio::sync::mpsc::channel(1);
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
     let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
+        .with_scans(scan_rx)
         .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
         task: tokio::spawn(task.run(stop.clone())),
         stop,
         commands: cmd_tx,
+        scans: scan_tx,
     }
+}
+
+fn scan_senders(
+    running: &BTreeMap<String, Running>,
+) -> HashMap<String, tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>> {
+    running
+        .iter()
+        .map(|(n, r)| (n.clone(), r.scans.clone()))
+        .collect()
 }
 
 fn senders(running: &BTreeMap<String, Running>) -> HashMap<String, UnboundedSender<BusCommand>> {

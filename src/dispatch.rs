@@ -13,6 +13,7 @@ use tokio::time::Instant;
 
 use crate::admission::{Admission, LogBudget};
 use crate::bus::BusCommand;
+use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::reading::Output;
@@ -66,6 +67,9 @@ pub const EXPIRY: Duration = Duration::from_secs(10);
 /// Devices by name, swapped whole when the config is reloaded.
 pub type Targets = Arc<std::sync::RwLock<HashMap<String, Target>>>;
 
+/// Where each bus takes scan requests, swapped whole when the config is reloaded.
+pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender<ScanRequest>>>>;
+
 /// The command router of a gateway.
 pub struct Router {
     root: String,
@@ -74,6 +78,7 @@ pub struct Router {
     dedupe: Arc<Mutex<Dedupe>>,
     admission: Arc<Mutex<Admission>>,
     log_budget: Mutex<LogBudget>,
+    scans: Scans,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -94,6 +99,64 @@ impl Router {
             dedupe: Arc::default(),
             admission: Arc::default(),
             log_budget: Mutex::new(LogBudget::new(20)),
+            scans: Arc::default(),
+        }
+    }
+
+    /// The router's table of bus scan channels, to fill at start and after a reload.
+    pub fn scans(&self) -> Scans {
+        self.scans.clone()
+    }
+
+    /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
+    fn scan(&self, bus: &str, msg: &Incoming) {
+        let mut reply = Reply {
+            topics: vec![format!("{}/result", msg.topic)],
+            correlation: None,
+        };
+        let refuse = |reply: &Reply, error: &str, message: String| {
+            self.warn(&msg.topic, &format!("scan refused: {message}"));
+            self.send(
+                reply,
+                serde_json::json!({"bus": bus, "error": error, "message": message}),
+            );
+        };
+        // The same checks as for commands: nothing unsendable reaches the spool.
+        if msg.payload.len() > command::MAX_PAYLOAD {
+            let size = msg.payload.len();
+            return refuse(&reply, "too_large", format!("the payload is {size} bytes"));
+        }
+        if let Some(c) = &msg.correlation
+            && c.len() > command::MAX_CORRELATION
+        {
+            return refuse(&reply, "too_large", "correlation data too long".into());
+        }
+        if let Some(rt) = &msg.response_topic {
+            if let Err(e) = command::check_response_topic(rt) {
+                return refuse(&reply, e.code(), e.to_string());
+            }
+            reply.topics.push(rt.clone());
+            reply.correlation = msg.correlation.clone();
+        }
+        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+            Ok(p) => p,
+            Err(e) => return refuse(&reply, "bad_payload", e),
+        };
+        let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
+        let Some(tx) = scans.get(bus) else {
+            return refuse(&reply, "unknown_bus", format!("no bus {bus:?}"));
+        };
+        let req = ScanRequest {
+            units,
+            id,
+            reply: reply.clone(),
+        };
+        if tx.try_send(req).is_err() {
+            refuse(
+                &reply,
+                "busy",
+                "a scan of this bus is already waiting".into(),
+            );
         }
     }
 
@@ -122,6 +185,9 @@ impl Router {
         if msg.retain {
             self.warn(&msg.topic, "ignoring a retained command message");
             return;
+        }
+        if let Some(bus) = survey::parse_scan_topic(&self.root, &msg.topic) {
+            return self.scan(bus, &msg);
         }
         let Some((device, channel)) = command::parse_topic(&self.root, &msg.topic) else {
             return;

@@ -16,6 +16,7 @@ pub mod app;
 pub mod boot;
 pub mod bus;
 pub mod command;
+pub mod commission;
 pub mod config;
 pub mod counter;
 pub mod decode;

@@ -56,18 +56,19 @@ enum Command {
         #[arg(long)]
         duration: Option<humantime::Duration>,
     },
+    #[command(flatten)]
+    Commission(Box<pulsegate::commission::Commission>),
 }
 
 /// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
 /// readable text on stderr otherwise (colours only on a terminal), or as JSON lines with
 /// `--log-format json`.
-fn init_logging(format: LogFormat) {
+fn init_logging(format: LogFormat, default_filter: &'static str) {
     use std::io::IsTerminal;
     use tracing_subscriber::prelude::*;
     let filter = || {
-        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-            tracing_subscriber::EnvFilter::new("info,tokio_modbus=error,rumqttc=warn,rumqttd=off")
-        })
+        tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter))
     };
     if matches!(format, LogFormat::Human)
         && std::env::var_os("JOURNAL_STREAM").is_some()
@@ -150,7 +151,12 @@ fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
 /// measures this). Blocking work (state files, precise sleeps) goes to tokio's blocking pool.
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_logging(cli.log_format);
+    // Commissioning commands talk to a person: the poller's info logs would only be noise.
+    let default_filter = match cli.command {
+        Command::Commission(_) => "warn,tokio_modbus=error",
+        _ => "info,tokio_modbus=error,rumqttc=warn,rumqttd=off",
+    };
+    init_logging(cli.log_format, default_filter);
     let runtime = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -172,6 +178,7 @@ fn main() -> ExitCode {
 
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
+        Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
         Command::Check { config } | Command::Plan { config } => {
             let config = match load(&config) {
                 Ok(c) => c,

@@ -79,6 +79,8 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            kind: self.spec.kind,
+            units: None,
             after_seq: None,
         }
     }
@@ -140,13 +142,20 @@ pub struct DeviceRt {
 }
 
 impl DeviceRt {
+    /// A reading of `channel` was not published: its sequence number goes back, so `seq`
+    /// counts published readings only.
+    pub(super) fn withdraw_seq(&mut self, channel: &str) {
+        if let Some(c) = self.channels.iter_mut().find(|c| &*c.name == channel) {
+            c.counter.state.seq = c.counter.state.seq.saturating_sub(1);
+        }
+    }
+
     pub fn new(
         bus: &Bus,
         config: &Device,
         wire: Wire,
         saved: &BTreeMap<String, CounterState>,
         holes: Vec<Range<u16>>,
-        metrics: DeviceMetrics,
     ) -> DeviceRt {
         let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
@@ -175,9 +184,15 @@ impl DeviceRt {
             turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
-            metrics,
+            metrics: DeviceMetrics::disabled(),
             config: config.clone(),
         }
+    }
+
+    /// Records into the gateway's metrics (without: nothing is recorded).
+    pub fn with_metrics(mut self, metrics: DeviceMetrics) -> DeviceRt {
+        self.metrics = metrics;
+        self
     }
 
     /// The key under which this device's holes are saved.
@@ -262,8 +277,7 @@ impl DeviceRt {
                 continue;
             };
             let reading = ch.reading(&self.name, at, count, freq_hz, rpm, update);
-            let encoder = ch.spec.kind == crate::profile::ChannelKind::Encoder;
-            self.metrics.reading(&reading, encoder);
+            self.metrics.reading(&reading);
             readings.push(reading);
         }
         let now = Instant::now();
@@ -444,7 +458,7 @@ impl DeviceRt {
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
-            .timing()
+            .timing_for(self.unit)
             .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
             .unwrap_or_default();
         self.answer_timeout + line
@@ -458,7 +472,7 @@ impl DeviceRt {
             self.latencies.pop_front();
         }
         self.latencies.push_back(d.as_secs_f64());
-        if let Some(t) = link.timing() {
+        if let Some(t) = link.timing_for(self.unit) {
             let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.turnaround = Some(match self.turnaround {
@@ -476,7 +490,7 @@ impl DeviceRt {
     /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
     /// request really costs this device.
     fn replan_with_turnaround(&mut self, link: &Link) {
-        if let (Some(t), Some(ta)) = (link.timing(), self.turnaround) {
+        if let (Some(t), Some(ta)) = (link.timing_for(self.unit), self.turnaround) {
             self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
     }

@@ -2,12 +2,14 @@
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
 mod availability;
-mod device;
+pub mod device;
+mod emit;
 mod execute;
 mod ledger;
 pub mod link;
 mod saver;
 pub mod schedule;
+pub mod survey;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -47,6 +49,9 @@ pub struct BusTask {
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
     metrics: BusMetrics,
+    /// Scan requests from MQTT, asked in idle line time.
+    scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
+    emitter: emit::Emitter,
 }
 
 impl BusTask {
@@ -61,17 +66,25 @@ impl BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
             state_flush: gateway.state_flush,
             stats_interval: gateway.stats_interval,
+            emitter: emit::Emitter::new(gateway),
             bus,
             out,
             commands,
             heart,
             metrics: BusMetrics::default(),
+            scans: None,
         }
     }
 
     /// Records into the gateway's metrics (without: into a registry nobody serves).
     pub fn with_metrics(mut self, metrics: BusMetrics) -> BusTask {
         self.metrics = metrics;
+        self
+    }
+
+    /// Takes scan requests from `scans` (see [`survey`]).
+    pub fn with_scans(mut self, scans: tokio::sync::mpsc::Receiver<survey::ScanRequest>) -> Self {
+        self.scans = Some(scans);
         self
     }
 
@@ -93,6 +106,11 @@ impl BusTask {
             after_seq,
         );
         let mut link = Link::new(bus.link.clone(), bus.guard);
+        for d in &bus.devices {
+            if let Some(baud) = d.baud {
+                link.set_unit_baud(d.unit, baud);
+            }
+        }
         let wire = match link.timing() {
             Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
             None => Wire::tcp(),
@@ -107,8 +125,8 @@ impl BusTask {
                     wire,
                     &saved.channels,
                     saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
-                    self.metrics.device(&d.name),
                 )
+                .with_metrics(self.metrics.device(&d.name))
             })
             .collect();
         log_dropped_state(&name, &saved, &devices);
@@ -130,6 +148,8 @@ impl BusTask {
         // Polls due when the last command ended: they go before the next command, so a burst
         // of commands slows commands, never polling (each poll waits for at most one command).
         let mut owed: Option<Instant> = None;
+        let mut scan: Option<survey::Survey> = None;
+        let configured: Vec<u8> = bus.devices.iter().map(|d| d.unit).collect();
         let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
             self.heart.beat();
@@ -148,10 +168,27 @@ impl BusTask {
                 if let Some((from, readings)) =
                     run_one_command(&mut pending, &mut devices, &mut link).await
                 {
-                    durable.publish(readings, from, &devices, &self.out);
+                    let outputs = self.emitter.emit(&mut devices[from], readings);
+                    durable.publish(outputs, from, &devices, &self.out);
                     owed = Some(Instant::now());
                     continue;
                 }
+            }
+            let idle_until = slots[i].due;
+            if !poll_owed
+                && survey::idle_step(
+                    &mut scan,
+                    &mut self.scans,
+                    &mut link,
+                    idle_until,
+                    &configured,
+                    &name,
+                    &self.out,
+                    &shutdown,
+                )
+                .await
+            {
+                continue;
             }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
@@ -227,7 +264,8 @@ impl BusTask {
                     }
                     self.heart.set_up(true);
                     availability::answered(&mut devices[i], &name, &self.out);
-                    durable.publish(readings, i, &devices, &self.out);
+                    let outputs = self.emitter.emit(&mut devices[i], readings);
+                    durable.publish(outputs, i, &devices, &self.out);
                     slots[i].advance(now);
                 }
                 Err(e) => {

@@ -106,11 +106,29 @@ pub struct Durable {
     ledger: Ledger,
     /// Per channel key, the seq saved before a crash, until the channel's first reading.
     after_seq: BTreeMap<String, u64>,
-    /// Readings waiting for a save, with their channel keys, in order.
-    held: std::collections::VecDeque<(Option<String>, Reading)>,
+    /// Outputs waiting for a save, with the channel key and seq of each reading in them, in
+    /// order.
+    held: std::collections::VecDeque<(Vec<(String, u64)>, Output)>,
 }
 
 use crate::reading::{Output, Reading};
+
+/// The readings an output carries (none for statuses and stats).
+fn readings_of(o: &Output) -> &[Reading] {
+    match o {
+        Output::Reading(r) => std::slice::from_ref(r),
+        Output::DeviceReadings { readings, .. } => readings,
+        _ => &[],
+    }
+}
+
+fn readings_of_mut(o: &mut Output) -> &mut [Reading] {
+    match o {
+        Output::Reading(r) => std::slice::from_mut(r),
+        Output::DeviceReadings { readings, .. } => readings,
+        _ => &mut [],
+    }
+}
 
 impl Durable {
     pub fn new(saver: Saver, after_seq: BTreeMap<String, u64>) -> Durable {
@@ -141,18 +159,23 @@ impl Durable {
         }
     }
 
-    /// Publishes `readings` of `devices[from]`, or holds them until a save covers their seq.
+    /// Sends `outputs` (the readings of `devices[from]`), or holds them until a save covers
+    /// their seq.
     pub fn publish(
         &mut self,
-        readings: Vec<Reading>,
+        outputs: Vec<Output>,
         from: usize,
         devices: &[super::DeviceRt],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         let d = &devices[from];
-        for r in readings {
-            let key = crate::state::channel_key(d.unit, &d.config.model, &r.channel);
-            self.held.push_back((Some(key), r));
+        let key = |r: &Reading| crate::state::channel_key(d.unit, &d.config.model, &r.channel);
+        for o in outputs {
+            let keys = readings_of(&o)
+                .iter()
+                .map(|r| (key(r), r.update.seq))
+                .collect();
+            self.held.push_back((keys, o));
         }
         self.release(out);
         if self.holding() {
@@ -163,18 +186,16 @@ impl Durable {
     /// Sends the held readings a durable save covers, in order. While saves fail, everything
     /// goes: readings matter more than seq after a crash (the failure is logged).
     fn release(&mut self, out: &tokio::sync::mpsc::UnboundedSender<Output>) {
-        while let Some((key, r)) = self.held.front() {
-            let covered = key
-                .as_ref()
-                .is_none_or(|k| self.ledger.allows(k, r.update.seq));
+        while let Some((keys, _)) = self.held.front() {
+            let covered = keys.iter().all(|(k, seq)| self.ledger.allows(k, *seq));
             if !covered && !self.saver.failing() {
                 break;
             }
-            let (key, mut r) = self.held.pop_front().expect("front exists");
-            if let Some(k) = key {
-                r.after_seq = self.after_seq.remove(&k);
+            let (keys, mut o) = self.held.pop_front().expect("front exists");
+            for (r, (k, _)) in readings_of_mut(&mut o).iter_mut().zip(&keys) {
+                r.after_seq = self.after_seq.remove(k);
             }
-            let _ = out.send(Output::Reading(r));
+            let _ = out.send(o);
         }
     }
 

@@ -60,6 +60,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
             buses.push(bus);
         }
     }
+    let homeassistant = super::publish::homeassistant(root.table("homeassistant", errs), errs);
     root.finish(errs);
 
     // Device names become topic levels, so they are unique across the gateway.
@@ -82,6 +83,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         mqtt,
         metrics,
         buses,
+        homeassistant,
     })
 }
 
@@ -120,6 +122,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
         state_flush: Duration::from_secs(5),
         stats_interval: Duration::from_secs(60),
         profile_dir: config_dir.join("profiles"),
+        publish: Default::default(),
+        payload: Default::default(),
     };
     let Some(mut t) = table else {
         refuse_unusable_host(&g, errs);
@@ -153,6 +157,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
             config_dir.join(dir)
         };
     }
+    g.publish = super::publish::policy(&mut t, errs);
+    g.payload = super::publish::payload(&mut t, errs).unwrap_or_default();
     t.finish(errs);
     refuse_unusable_host(&g, errs);
     g
@@ -446,6 +452,15 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             devices.push(d);
         }
     }
+    if matches!(link, Some(Link::Tcp { .. })) {
+        for d in devices.iter().filter(|d| d.baud.is_some()) {
+            errs.push(
+                &format!("{path}.devices.{}.baud", d.name),
+                t.origin(),
+                "serial setting on a TCP bus",
+            );
+        }
+    }
     t.finish(errs);
     Some(Bus {
         name: name.to_string(),
@@ -469,11 +484,11 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd") {
+    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
         errs.push(
             &path,
             t.origin(),
-            "device name must be letters, digits, '-' or '_' and not status, bus or cmd \
+            "device name must be letters, digits, '-' or '_' and not status, bus, cmd or gateway \
              (it is a topic level)",
         );
     }
@@ -510,6 +525,21 @@ fn device(
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
+    let baud = t.int::<u32>("baud", errs);
+    if let (Some(b), Some(p)) = (baud, &profile)
+        && !p.bauds.contains(&b)
+    {
+        errs.push(
+            &join(&path, "baud"),
+            t.origin(),
+            format!(
+                "model {} does not support {b} baud ({:?})",
+                p.model, p.bauds
+            ),
+        );
+    }
+    let publish = super::publish::policy(&mut t, errs);
+    let payload = super::publish::payload(&mut t, errs);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -536,8 +566,18 @@ fn device(
                 );
             }
         }
+        let units = super::channel::units(&mut ct, errs);
+        let publish = super::publish::policy(&mut ct, errs);
         ct.finish(errs);
-        channels.insert(cname, ChannelConfig { ppr, max_rate_hz });
+        channels.insert(
+            cname,
+            ChannelConfig {
+                ppr,
+                max_rate_hz,
+                units,
+                publish,
+            },
+        );
     }
     t.finish(errs);
     Some(Device {
@@ -548,6 +588,9 @@ fn device(
         poll,
         timeout,
         commands,
+        baud,
         channels,
+        publish,
+        payload,
     })
 }

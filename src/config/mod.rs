@@ -4,8 +4,10 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
+pub mod channel;
 mod check;
 mod metrics;
+pub mod publish;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -18,6 +20,9 @@ use crate::profile::Profile;
 
 pub use check::{from_tree, host_name_raw, id_from_host};
 pub use metrics::Metrics as MetricsEndpoint;
+pub use publish::HomeAssistant;
+
+use crate::publish::policy::{PayloadMode, PolicyOverride};
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
@@ -68,6 +73,8 @@ pub struct Config {
     pub metrics: Option<MetricsEndpoint>,
     /// Buses sorted by name.
     pub buses: Vec<Bus>,
+    /// `[homeassistant]`: MQTT discovery.
+    pub homeassistant: HomeAssistant,
 }
 
 /// `[gateway]`
@@ -84,6 +91,10 @@ pub struct Gateway {
     pub stats_interval: Duration,
     /// Where user profiles (`*.toml`) are looked up.
     pub profile_dir: PathBuf,
+    /// Publish policy of every channel unless a device or channel says otherwise.
+    pub publish: PolicyOverride,
+    /// One message per channel or per device, unless a device says otherwise.
+    pub payload: PayloadMode,
 }
 
 /// A secret (the MQTT password): never printed, never logged.
@@ -218,8 +229,15 @@ pub struct Device {
     pub timeout: Option<Duration>,
     /// Whether clear/preset commands are accepted for this device.
     pub commands: bool,
+    /// The device's own baud rate where it differs from its bus's (RTU): the port is switched
+    /// to it for this device's transactions.
+    pub baud: Option<u32>,
     /// Per-channel settings keyed by channel name.
     pub channels: BTreeMap<String, ChannelConfig>,
+    /// Publish policy keys of this device (over the gateway's).
+    pub publish: PolicyOverride,
+    /// `payload` of this device, when it overrides the gateway's.
+    pub payload: Option<PayloadMode>,
 }
 
 impl PartialEq for Device {
@@ -230,7 +248,10 @@ impl PartialEq for Device {
             && self.poll == other.poll
             && self.timeout == other.timeout
             && self.commands == other.commands
+            && self.baud == other.baud
             && self.channels == other.channels
+            && self.publish == other.publish
+            && self.payload == other.payload
     }
 }
 
@@ -241,6 +262,10 @@ pub struct ChannelConfig {
     pub ppr: Option<f64>,
     /// Highest plausible input rate; overrides the profile's.
     pub max_rate_hz: Option<f64>,
+    /// Engineering units: scale, unit, rate unit and time base, device class.
+    pub units: channel::ChannelUnits,
+    /// Publish policy keys of this channel (over the device's).
+    pub publish: PolicyOverride,
 }
 
 impl Device {
@@ -322,3 +347,5 @@ pub fn is_topic_safe(name: &str) -> bool {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod units_tests;

@@ -219,3 +219,34 @@ fn an_fqdn_hostname_becomes_a_visible_id_never_a_shared_default() {
         "too long for a topic level"
     );
 }
+
+#[test]
+fn a_device_may_answer_at_its_own_baud_rate_on_a_serial_bus() {
+    let text = GOOD.replace("poll = \"500ms\"", "poll = \"500ms\"\nbaud = 9600");
+    let c = check(&text).unwrap();
+    assert_eq!(c.buses[1].devices[0].baud, Some(9600));
+    assert_eq!(c.buses[0].devices[0].baud, None);
+}
+
+#[test]
+fn a_device_baud_is_refused_on_tcp_and_outside_its_model() {
+    let tcp = GOOD.replace(
+        "model = \"zh-yx1600\"",
+        "model = \"zh-yx1600\"\nbaud = 9600",
+    );
+    assert!(
+        errors(&tcp)
+            .iter()
+            .any(|e| e.contains("buses.hall2.devices.doors.baud") && e.contains("TCP")),
+        "{:?}",
+        errors(&tcp)
+    );
+    let odd = GOOD.replace("poll = \"500ms\"", "poll = \"500ms\"\nbaud = 14400");
+    assert!(
+        errors(&odd)
+            .iter()
+            .any(|e| e.contains("does not support 14400")),
+        "{:?}",
+        errors(&odd)
+    );
+}

@@ -89,6 +89,11 @@ impl<'a> Table<'a> {
         }
     }
 
+    /// An optional value as the tree holds it (for values of more than one type).
+    pub fn raw(&mut self, key: &str) -> Option<&'a Value> {
+        self.take(key)
+    }
+
     /// A value that must be present.
     pub fn req<T: DeserializeOwned>(&mut self, key: &str, errs: &mut Errors) -> Option<T> {
         if !self.map.contains_key(key) {

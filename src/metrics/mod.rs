@@ -231,6 +231,11 @@ struct DeviceHandles {
 }
 
 impl DeviceMetrics {
+    /// Handles that record nothing.
+    pub fn disabled() -> DeviceMetrics {
+        DeviceMetrics { inner: None }
+    }
+
     /// The transactions this device took: the link's counters before and after them.
     pub fn wire(&self, before: &WireCounters, after: &WireCounters) {
         let Some(h) = &self.inner else { return };
@@ -262,8 +267,9 @@ impl DeviceMetrics {
         }
     }
 
-    /// A reading that is being published; `encoder`: its total is a position.
-    pub fn reading(&mut self, r: &Reading, encoder: bool) {
+    /// A reading that is being published (an encoder's total is a position).
+    pub fn reading(&mut self, r: &Reading) {
+        let encoder = r.kind == crate::profile::ChannelKind::Encoder;
         let Some(h) = &mut self.inner else { return };
         let ch = h.channels.entry(r.channel.clone()).or_insert_with(|| {
             let f = &h.families;

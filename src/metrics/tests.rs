@@ -4,7 +4,7 @@ use std::time::{Duration, SystemTime};
 use super::*;
 use crate::counter::Update;
 
-fn reading(device: &str, channel: &str, total: i64, rate: f64) -> Reading {
+fn reading(device: &str, channel: &str, total: i64, rate: f64, encoder: bool) -> Reading {
     Reading {
         device: Arc::from(device),
         channel: Arc::from(channel),
@@ -13,6 +13,12 @@ fn reading(device: &str, channel: &str, total: i64, rate: f64) -> Reading {
         freq_hz: None,
         rpm: None,
         after_seq: None,
+        kind: if encoder {
+            crate::profile::ChannelKind::Encoder
+        } else {
+            crate::profile::ChannelKind::Counter
+        },
+        units: None,
         update: Update {
             delta: 0,
             total,
@@ -111,9 +117,9 @@ fn bus_counters_never_go_backwards_when_a_restarted_bus_task_starts_from_zero() 
 fn inputs_are_counters_and_encoders_are_positions_that_may_go_negative() {
     let m = Metrics::new();
     let mut d = m.bus("line1").device("press1");
-    d.reading(&reading("press1", "a2", 1618, 250.0), false);
-    d.reading(&reading("press1", "a2", 1700, 41.0), false);
-    d.reading(&reading("press1", "enc0", -13680, -120.0), true);
+    d.reading(&reading("press1", "a2", 1618, 250.0, false));
+    d.reading(&reading("press1", "a2", 1700, 41.0, false));
+    d.reading(&reading("press1", "enc0", -13680, -120.0, true));
     let text = m.encode();
     assert!(text.contains(
         "pulsegate_channel_pulses_total{bus=\"line1\",channel=\"a2\",device=\"press1\"} 1700"
@@ -179,7 +185,7 @@ fn metrics_that_are_off_record_nothing_and_expose_nothing() {
     let mut bus = m.bus("line1");
     let mut d = bus.device("press1");
     d.up(Some(true));
-    d.reading(&reading("press1", "a2", 5, 1.0), false);
+    d.reading(&reading("press1", "a2", 5, 1.0, false));
     bus.wire(&WireCounters::default(), Duration::from_secs(1));
     m.mqtt(true, 1, 2, 3);
     assert_eq!(m.encode(), "");

@@ -7,6 +7,7 @@
 
 mod builtin;
 mod raw;
+mod settings;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -14,6 +15,7 @@ use std::time::Duration;
 
 pub use builtin::builtin_profiles;
 pub use raw::{ChannelKind, ValueType, WordOrder};
+pub use settings::{Allowed, Applies, Place, Setting, SettingError};
 
 /// A profile could not be loaded or is inconsistent.
 #[derive(Debug, thiserror::Error)]
@@ -122,11 +124,15 @@ pub struct Profile {
     pub model: String,
     pub aliases: Vec<String>,
     pub title: String,
+    /// Maker of `model` (an alias may come from another maker).
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
     pub identify: Option<(u16, Vec<u16>)>,
     pub autosave: Option<u16>,
+    /// Settings `pulsegate setup` may write, by name (`unit`, `baud`, ...).
+    pub settings: BTreeMap<String, Setting>,
     groups: Vec<raw::Group>,
 }
 
@@ -137,15 +143,28 @@ impl Profile {
             origin: origin.to_string(),
             source: Box::new(e),
         })?;
+        let invalid = |message: String| ProfileError::Invalid {
+            origin: origin.to_string(),
+            message,
+        };
+        let settings = raw
+            .settings
+            .into_iter()
+            .map(|(name, s)| Setting::from_raw(&name, s).map(|s| (name, s)))
+            .collect::<Result<BTreeMap<_, _>, _>>()
+            .map_err(invalid)?;
+        settings::check(&settings, &raw.bauds).map_err(invalid)?;
         let profile = Profile {
             model: raw.model,
             aliases: raw.aliases,
             title: raw.title,
+            manufacturer: raw.manufacturer,
             word_order: raw.word_order,
             answer_timeout: raw.answer_timeout,
             bauds: raw.bauds,
             identify: raw.identify.map(|i| (i.address, i.words)),
             autosave: raw.autosave.map(|a| a.address),
+            settings,
             groups: raw.groups,
         };
         profile.check().map_err(|message| ProfileError::Invalid {
@@ -153,6 +172,17 @@ impl Profile {
             message,
         })?;
         Ok(profile)
+    }
+
+    /// The setting `name`, or an error listing the ones the datasheet documents.
+    pub fn setting(&self, name: &str) -> Result<&Setting, SettingError> {
+        self.settings
+            .get(name)
+            .ok_or_else(|| SettingError::Unknown {
+                model: self.model.clone(),
+                name: name.to_string(),
+                known: self.settings.keys().cloned().collect::<Vec<_>>().join(", "),
+            })
     }
 
     /// Every mode register the gateway reads at start, in group and instance order.

@@ -52,12 +52,17 @@ pub(super) struct Profile {
     pub aliases: Vec<String>,
     #[serde(default)]
     pub title: String,
+    /// Maker of the model itself (not of its aliases), from the datasheet's imprint.
+    #[serde(default)]
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     #[serde(with = "humantime_serde")]
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
     pub identify: Option<Identify>,
     pub autosave: Option<Autosave>,
+    #[serde(default)]
+    pub settings: std::collections::BTreeMap<String, super::settings::RawSetting>,
     pub groups: Vec<Group>,
 }
 

@@ -85,6 +85,8 @@ struct Shared {
     direct: usize,
     client: Client,
     topics: Topics,
+    /// Filters asked for with [`Output::Subscribe`], renewed at every connection.
+    extra_filters: Vec<String>,
 }
 
 impl Shared {
@@ -296,6 +298,7 @@ pub async fn run(
         direct: 0,
         client,
         topics: topics.clone(),
+        extra_filters: Vec::new(),
     }));
     let loop_stop = CancellationToken::new();
     let rebuild = Arc::new(tokio::sync::Notify::new());
@@ -353,6 +356,28 @@ pub async fn run(
                 payload::reading(&r),
                 None,
             ),
+            Output::DeviceReadings { device, readings } => (
+                topics.device(&device),
+                config.retain,
+                reading_qos,
+                payload::device(&readings),
+                None,
+            ),
+            Output::Message {
+                topic,
+                payload,
+                retain,
+            } => (topic, retain, 1, payload, None),
+            Output::Subscribe(filter) => {
+                let mut s = lock(&shared);
+                if s.connected
+                    && let Err(e) = s.client.subscribe(filter.clone())
+                {
+                    tracing::error!("cannot subscribe to {filter}: {e}");
+                }
+                s.extra_filters.push(filter);
+                continue;
+            }
             Output::DeviceStatus { device, online } => {
                 health.device(&device, online);
                 (
@@ -497,9 +522,15 @@ async fn drive(
                     let filters = [
                         command_filter(&s.topics, "+/+/cmd"),
                         command_filter(&s.topics, "+/cmd"),
+                        command_filter(&s.topics, "bus/+/scan"),
                     ];
                     if let Err(e) = s.client.subscribe_commands(&filters) {
                         tracing::error!("cannot subscribe to command topics: {e}");
+                    }
+                }
+                for f in s.extra_filters.clone() {
+                    if let Err(e) = s.client.subscribe(f.clone()) {
+                        tracing::error!("cannot subscribe to {f}: {e}");
                     }
                 }
                 s.pump();
@@ -607,6 +638,7 @@ mod tests {
             direct: 0,
             client,
             topics: Topics::new("pg/t"),
+            extra_filters: Vec::new(),
         };
         (shared, eventloop)
     }

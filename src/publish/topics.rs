@@ -32,6 +32,11 @@ impl Topics {
         format!("{}/{device}/status", self.root)
     }
 
+    /// `<root>/<device>`: all channels of a poll in one message (`payload = "device"`).
+    pub fn device(&self, device: &str) -> String {
+        format!("{}/{device}", self.root)
+    }
+
     /// `<root>/<device>/<channel>`: readings.
     pub fn reading(&self, device: &str, channel: &str) -> String {
         format!("{}/{device}/{channel}", self.root)
@@ -54,5 +59,6 @@ mod tests {
         assert_eq!(t.device_status("press1"), "pulsegate/edge-01/press1/status");
         assert_eq!(t.reading("press1", "enc0"), "pulsegate/edge-01/press1/enc0");
         assert_eq!(t.bus_stats("line1"), "pulsegate/edge-01/bus/line1/stats");
+        assert_eq!(t.device("press1"), "pulsegate/edge-01/press1");
     }
 }

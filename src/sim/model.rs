@@ -97,6 +97,12 @@ pub struct SimModule {
     /// one arrived (plant seconds).
     pub writes: u64,
     pub last_write: Option<f64>,
+    /// The baud rate the module's serial port runs at (see `comm`); `None`: it answers at any
+    /// line speed (plants that do not say, so older tests can run their line at 115200).
+    pub baud: Option<u32>,
+    /// Stay silent, instead of answering exception 02, when asked for a register the module
+    /// lacks (no datasheet says which a module does).
+    pub silent_on_unknown: bool,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -173,7 +179,19 @@ impl SimModule {
             glitch_zero: Vec::new(),
             writes: 0,
             last_write: None,
+            baud: None,
+            silent_on_unknown: false,
         })
+    }
+
+    /// Stores a register the module keeps (address, baud rate: see `comm`).
+    pub fn store(&mut self, address: u16, value: u16) {
+        self.plain.insert(address, value);
+    }
+
+    /// A register the module keeps, as last written.
+    pub fn stored(&self, address: u16) -> Option<u16> {
+        self.plain.get(&address).copied()
     }
 
     /// The raw mode values the module was built with.

@@ -586,13 +586,19 @@ const CASES: &[(&str, &str, &str, &str)] = &[
         "buses.line1.devices.status",
         "{ unit = 7, model = \"yl67\" }",
         "buses.line1.devices.status",
-        "not status, bus or cmd",
+        "not status, bus, cmd or gateway",
     ),
     (
         "buses.line1.devices.cmd",
         "{ unit = 7, model = \"yl67\" }",
         "buses.line1.devices.cmd",
-        "not status, bus or cmd",
+        "not status, bus, cmd or gateway",
+    ),
+    (
+        "buses.line1.devices.gateway",
+        "{ unit = 7, model = \"yl67\" }",
+        "buses.line1.devices.gateway",
+        "not status, bus, cmd or gateway",
     ),
     (
         "buses.line1.devices.twin",

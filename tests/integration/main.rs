@@ -2,8 +2,10 @@
 //! real Mosquitto broker.
 
 mod commands;
+mod commission;
 mod config_cases;
 mod counters;
+mod dashboards;
 mod faults;
 mod hostile;
 mod metrics;
