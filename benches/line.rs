@@ -7,7 +7,15 @@
 //! - one module silent: the others' poll rate against their target;
 //! - CPU per transaction: the pipeline (decode, counter, JSON, hand-off) in-process, and the
 //!   whole gateway process on loopback Modbus TCP with a zero-latency simulator;
-//! - 1000 devices x 4 channels at 1 Hz publishing to a real Mosquitto: CPU share and peak RSS.
+//! - 1000 devices x 4 channels at 1 Hz publishing to a real Mosquitto: CPU share and peak RSS;
+//! - side by side with mbpoll (a bare C Modbus client), all on one CPU: the gateway's CPU per
+//!   transaction over mbpoll's, Modbus TCP and RTU at 9600 baud (`sidebyside`).
+//!
+//! `cargo bench --bench line NAME` runs only the parts whose name contains NAME (saturated,
+//! silent, cpu, mbpoll, command, thousand).
+
+#[path = "line/sidebyside.rs"]
+mod sidebyside;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -638,6 +646,9 @@ fn main() {
         if want("cpu") {
             pipeline_cpu(&mut figures);
             process_cpu_per_tx(&mut figures).await;
+        }
+        if want("mbpoll") {
+            sidebyside::run(&mut figures).await;
         }
         if want("command") {
             command_latency(&mut figures).await;

@@ -21,7 +21,8 @@ use tokio::time::Instant;
 use tokio_modbus::client::{Client, Context};
 use tokio_modbus::prelude::SlaveContext;
 use tokio_modbus::{ExceptionCode, Request, Response, Slave};
-use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
+
+use super::serial::{RtuPort, SHORTEST_ANSWER, expected_len};
 
 use crate::config::{Link as LinkConfig, Parity};
 use crate::plan::LineTiming;
@@ -104,6 +105,8 @@ pub struct Link {
     /// The rate the open port is set to.
     speed: Option<u32>,
     guard: Duration,
+    /// Times the silent interval on the runtime's thread (RTU; made at the first wait).
+    timer: Option<super::timer::FineTimer>,
 }
 
 impl Link {
@@ -123,6 +126,7 @@ impl Link {
             unit_bauds: std::collections::HashMap::new(),
             speed: None,
             guard,
+            timer: None,
         }
     }
 
@@ -275,15 +279,22 @@ impl Link {
         self.ensure_open(timeout).await?;
         if let (Some(timing), Some(last)) = (self.timing, self.last_io) {
             // RTU frames must be separated by the silent interval.
-            wait_until(last + timing.silent_interval()).await;
+            self.wait_until(last + timing.silent_interval()).await;
         }
         self.switch_speed(unit)?;
+        self.ensure_timer();
         let ctx = self.ctx.as_mut().expect("opened above");
         ctx.set_slave(Slave(unit));
         self.counters.transactions += 1;
         let started = Instant::now();
         let bytes_before = self.bytes_in.load(Ordering::Relaxed);
-        let result = tokio::time::timeout(timeout, ctx.call(req)).await;
+        // The timeout on the fine timer too: a runtime timer registered per transaction wakes
+        // the runtime's driver once more each time (to take the new, earlier deadline).
+        let result = tokio::select! {
+            biased;
+            answer = ctx.call(req) => Ok(answer),
+            () = deadline(self.timer.as_ref(), started + timeout) => Err(()),
+        };
         let now = Instant::now();
         self.busy += now - started;
         let last_byte = self
@@ -296,7 +307,9 @@ impl Link {
             Err(_elapsed) => {
                 // A late answer may still arrive: rebuild so it cannot be read as the next one.
                 self.ctx = None;
-                let got = self.bytes_in.load(Ordering::Relaxed) - bytes_before;
+                // Bytes still in the kernel (fewer than the port waited for) came back too.
+                let unread = self.port.as_ref().map_or(0, |p| p.with(|s| s.pending()));
+                let got = self.bytes_in.load(Ordering::Relaxed) - bytes_before + unread as u64;
                 if got > 0 {
                     self.counters.garbled += 1;
                     Err(LinkError::Garbled(got, timeout))
@@ -334,6 +347,25 @@ impl Link {
                 Ok(Err(exception))
             }
             Ok(Ok(Ok(response))) => Ok(Ok(response)),
+        }
+    }
+
+    /// Waits until `t` with sub-millisecond precision (see [`super::timer`]); where no timerfd
+    /// can be had, on the runtime's timer, which rounds up (never early, up to a tick late).
+    async fn wait_until(&mut self, t: Instant) {
+        if t <= Instant::now() {
+            return;
+        }
+        self.ensure_timer();
+        deadline(self.timer.as_ref(), t).await;
+    }
+
+    fn ensure_timer(&mut self) {
+        if self.timer.is_none() {
+            match super::timer::FineTimer::new() {
+                Ok(timer) => self.timer = Some(timer),
+                Err(e) => tracing::debug!("no timerfd ({e}): timing on the runtime timer"),
+            }
         }
     }
 
@@ -381,7 +413,7 @@ impl Link {
         Ok(())
     }
 
-    fn open_serial(&self) -> Result<SerialStream, LinkError> {
+    fn open_serial(&self) -> Result<RtuPort, LinkError> {
         let LinkConfig::Rtu {
             port,
             baud,
@@ -391,57 +423,34 @@ impl Link {
         else {
             unreachable!("serial open on a TCP link");
         };
-        let open_err = |e: tokio_serial::Error| LinkError::Open {
-            what: port.display().to_string(),
-            message: e.to_string(),
-        };
-        let mut stream = tokio_serial::new(port_name(port), *baud)
-            .data_bits(tokio_serial::DataBits::Eight)
+        let builder = serialport::new(port_name(port), *baud)
+            .data_bits(serialport::DataBits::Eight)
             .parity(match parity {
-                Parity::None => tokio_serial::Parity::None,
-                Parity::Even => tokio_serial::Parity::Even,
-                Parity::Odd => tokio_serial::Parity::Odd,
+                Parity::None => serialport::Parity::None,
+                Parity::Even => serialport::Parity::Even,
+                Parity::Odd => serialport::Parity::Odd,
             })
             .stop_bits(if *stop_bits == 2 {
-                tokio_serial::StopBits::Two
+                serialport::StopBits::Two
             } else {
-                tokio_serial::StopBits::One
+                serialport::StopBits::One
             })
-            .flow_control(tokio_serial::FlowControl::None)
-            .open_native_async()
-            .map_err(open_err)?;
-        // Another process on the same adapter would garble every frame.
-        let _ = stream.set_exclusive(true);
-        Ok(stream)
+            .flow_control(serialport::FlowControl::None);
+        RtuPort::open(&builder).map_err(|e| LinkError::Open {
+            what: port.display().to_string(),
+            message: e.to_string(),
+        })
     }
 }
 
-/// Waits until `t` with sub-millisecond precision. The runtime's timer ticks in milliseconds,
-/// which at 115200 baud (1.75 ms silent interval) would cost a third of the line's capacity;
-/// the last stretch is slept on a blocking thread instead, which the OS wakes on time.
-async fn wait_until(t: Instant) {
-    const COARSE: Duration = Duration::from_millis(2);
-    let now = Instant::now();
-    if t <= now {
+/// Returns at `t`: on the fine timer where there is one and it works, else on the runtime's.
+async fn deadline(timer: Option<&super::timer::FineTimer>, t: Instant) {
+    if let Some(timer) = timer
+        && timer.sleep_until(t).await.is_ok()
+    {
         return;
     }
-    if t - now > COARSE {
-        tokio::time::sleep_until(t - COARSE).await;
-    }
-    // Even with a fine timer slack the OS wakes a little late: sleep short of the mark, then
-    // yield until it.
-    const SPIN: Duration = Duration::from_micros(30);
-    let rest = t.saturating_duration_since(Instant::now());
-    if rest > SPIN {
-        let _ = tokio::task::spawn_blocking(move || {
-            fine_timer_slack();
-            std::thread::sleep(rest - SPIN)
-        })
-        .await;
-    }
-    while Instant::now() < t {
-        tokio::task::yield_now().await;
-    }
+    tokio::time::sleep_until(t).await;
 }
 
 /// Asks Linux to wake this thread's sleeps on time: the default timer slack (50 us) would
@@ -463,14 +472,14 @@ fn port_name(p: &std::path::Path) -> String {
 
 /// The serial port, shared so the client can be rebuilt without reopening the device.
 #[derive(Clone)]
-struct SharedPort(Arc<Mutex<SerialStream>>);
+struct SharedPort(Arc<Mutex<RtuPort>>);
 
 impl SharedPort {
-    fn new(s: SerialStream) -> SharedPort {
+    fn new(s: RtuPort) -> SharedPort {
         SharedPort(Arc::new(Mutex::new(s)))
     }
 
-    fn with<R>(&self, f: impl FnOnce(&mut SerialStream) -> R) -> R {
+    fn with<R>(&self, f: impl FnOnce(&mut RtuPort) -> R) -> R {
         // A poisoned lock only means another poll panicked mid-I/O; the port itself is fine.
         let mut guard = self.0.lock().unwrap_or_else(|e| e.into_inner());
         f(&mut guard)
@@ -478,10 +487,15 @@ impl SharedPort {
 }
 
 /// The port as tokio-modbus sees it: before the first byte of each request, whatever the kernel
-/// holds in the input buffer (a late answer, line noise) is discarded.
+/// holds in the input buffer (a late answer, line noise) is discarded, and the port is set to
+/// wake the reader when the answer's first five bytes are in, then when the rest of it is
+/// (see [`super::serial`]).
 struct FlushingPort {
     port: SharedPort,
     at_request_start: bool,
+    /// The first bytes of the answer being read, and how many have come.
+    head: [u8; 3],
+    got: usize,
     bytes_in: Arc<AtomicU64>,
     last_byte: Arc<Mutex<Option<Instant>>>,
 }
@@ -495,9 +509,31 @@ impl FlushingPort {
         FlushingPort {
             port,
             at_request_start: true,
+            head: [0; 3],
+            got: 0,
             bytes_in,
             last_byte,
         }
+    }
+
+    /// Notes `bytes` of the answer and sets the port to wake the reader when the rest is in.
+    fn answer_bytes(&mut self, bytes: &[u8]) -> io::Result<()> {
+        for (i, b) in bytes.iter().enumerate() {
+            if let Some(slot) = self.head.get_mut(self.got + i) {
+                *slot = *b;
+            }
+        }
+        self.got += bytes.len();
+        let wanted = if self.got < self.head.len() {
+            SHORTEST_ANSWER - self.got
+        } else {
+            // An unknown function: byte by byte, as any reader would.
+            expected_len(&self.head).map_or(1, |total| total.saturating_sub(self.got))
+        };
+        if wanted == 0 {
+            return Ok(()); // complete: the next request sets the port again
+        }
+        self.port.with(|s| s.wake_at(wanted))
     }
 }
 
@@ -515,6 +551,7 @@ impl AsyncRead for FlushingPort {
         if n > 0 {
             this.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
             *this.last_byte.lock().unwrap_or_else(|e| e.into_inner()) = Some(Instant::now());
+            this.answer_bytes(&buf.filled()[before..])?;
         }
         poll
     }
@@ -528,9 +565,11 @@ impl AsyncWrite for FlushingPort {
     ) -> Poll<io::Result<usize>> {
         let this = self.get_mut();
         if std::mem::take(&mut this.at_request_start) {
-            this.port
-                .with(|s| s.clear(tokio_serial::ClearBuffer::Input))
-                .map_err(io::Error::other)?;
+            this.got = 0;
+            this.port.with(|s| {
+                s.clear_input().map_err(io::Error::other)?;
+                s.wake_at(SHORTEST_ANSWER)
+            })?;
         }
         this.port.with(|s| Pin::new(s).poll_write(cx, data))
     }

@@ -8,8 +8,10 @@ mod execute;
 mod ledger;
 pub mod link;
 mod saver;
+mod serial;
 pub mod schedule;
 pub mod survey;
+mod timer;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;

@@ -28,6 +28,12 @@ pub struct LineSpec {
     /// Share of bytes with a flipped bit (0..1).
     #[serde(default)]
     pub corrupt: f64,
+    /// Answers reach the gateway byte by byte, each when its character is through, as from a
+    /// UART without a FIFO or a USB adapter polled every millisecond. Otherwise (the default) a
+    /// frame arrives at once when its last character is through, as from a USB adapter that
+    /// holds bytes until the line goes quiet.
+    #[serde(default)]
+    pub trickle: bool,
 }
 
 impl LineSpec {
@@ -203,14 +209,21 @@ fn carry(
             out.clear();
         }
         // The bytes occupy the line (dropped ones too: they were sent) from when it is free.
-        let done = {
+        let (start, done) = {
             let mut free = line_free.lock().unwrap_or_else(|e| e.into_inner());
             // The module's turnaround counts from the end of the request (the line's last use),
             // not from when the simulator happened to answer.
             let start = arrived.max(*free + delay);
             *free = start + spec.char_time() * n as u32;
-            *free
+            (start, *free)
         };
+        if spec.trickle && !to_module {
+            for (i, b) in out.iter().enumerate() {
+                sleep_until(start + spec.char_time() * (i as u32 + 1));
+                let _ = to.write_all(&[*b]);
+            }
+            continue;
+        }
         sleep_until(done);
         if !out.is_empty() {
             let _ = to.write_all(&out);

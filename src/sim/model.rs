@@ -103,6 +103,9 @@ pub struct SimModule {
     /// Stay silent, instead of answering exception 02, when asked for a register the module
     /// lacks (no datasheet says which a module does).
     pub silent_on_unknown: bool,
+    /// Read requests (FC03) this module has answered: a count of transactions that does not
+    /// depend on the client (the benchmark compares the gateway with another Modbus master).
+    pub reads: u64,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -181,6 +184,7 @@ impl SimModule {
             last_write: None,
             baud: None,
             silent_on_unknown: false,
+            reads: 0,
         })
     }
 

@@ -77,6 +77,10 @@ impl SimService {
         }
         let response = match req.request {
             Request::ReadHoldingRegisters(start, len) => match m.read(now, start, len) {
+                Ok(words) => {
+                    m.reads += 1;
+                    Response::ReadHoldingRegisters(words)
+                }
                 Err(ExceptionCode::IllegalDataAddress) if m.silent_on_unknown => return Ok(None),
                 r => Response::ReadHoldingRegisters(r?),
             },

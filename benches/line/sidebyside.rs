@@ -1,0 +1,401 @@
+//! The anchor: the gateway's whole-process CPU per Modbus transaction against mbpoll's (a bare
+//! libmodbus client in C that publishes nothing), polling the same simulated plant in the same
+//! run, everything pinned to one CPU.
+//!
+//! - One CPU (`BENCH_CPU`, default the last one) carries the simulator (this process, pinned with
+//!   `taskset -a -p`), Mosquitto, the gateway and mbpoll (both started under `taskset -c`).
+//! - Transactions are counted by the simulated modules (FC03 answers), the same counter for both
+//!   clients.
+//! - CPU is the client's whole process, read from `/proc/PID/task/*/schedstat` (nanoseconds of
+//!   CPU per thread) at the start and end of a fixed window; `/proc/PID/stat` (utime + stime, in
+//!   10 ms ticks) is read too and printed beside it as a cross-check. No in-process timer.
+//! - Rounds alternate gateway and mbpoll (`BENCH_ROUNDS`, default 3): each round's ratio comes
+//!   from measurements a few seconds apart, and the spread over rounds is printed.
+//!
+//! mbpoll is the Debian package `mbpoll` (`apt-get install mbpoll`). Without it this part says so
+//! and reports the figures as missed.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use pulsegate::sim::{Endpoint, Plant, SimConfig};
+
+use super::{Figure, Mosquitto, temp_dir};
+
+/// YL67 quadrature counts: the block mbpoll reads, and the first of the gateway's two reads.
+const COUNT_REGISTER: u16 = 16;
+const TCP_UNITS: u8 = 16;
+const RTU_UNITS: u8 = 4;
+const RTU_BAUD: u32 = 9600;
+
+fn env_or<T: std::str::FromStr>(name: &str, default: T) -> T {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+/// The CPU everything runs on.
+fn bench_cpu() -> usize {
+    let cpus = std::thread::available_parallelism().map_or(1, |n| n.get());
+    env_or("BENCH_CPU", cpus - 1)
+}
+
+/// Pins every thread of `pid` (and the threads they start later) to `cpus` (a taskset list).
+fn pin(pid: u32, cpus: &str) {
+    let ok = Command::new("taskset")
+        .args(["-a", "-p", "-c", cpus, &pid.to_string()])
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(ok, "taskset (util-linux) could not pin pid {pid} to {cpus}");
+}
+
+fn allowed_cpus() -> String {
+    std::fs::read_to_string("/proc/self/status")
+        .unwrap_or_default()
+        .lines()
+        .find_map(|l| l.strip_prefix("Cpus_allowed_list:"))
+        .map(|v| v.trim().to_string())
+        .unwrap_or_else(|| "0".into())
+}
+
+/// Whole-process CPU of `pid`: nanoseconds from every thread's schedstat, and the same from
+/// `/proc/PID/stat` (utime + stime, 10 ms ticks, includes threads that have ended).
+#[derive(Debug, Clone, Copy, Default)]
+struct Cpu {
+    sched_ns: u64,
+    stat_ns: u64,
+}
+
+fn cpu_of(pid: u32) -> Cpu {
+    let mut sched_ns = 0;
+    if let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) {
+        for t in tasks.flatten() {
+            let s = std::fs::read_to_string(t.path().join("schedstat")).unwrap_or_default();
+            sched_ns += s
+                .split_whitespace()
+                .next()
+                .and_then(|v| v.parse::<u64>().ok())
+                .unwrap_or(0);
+        }
+    }
+    let stat_ns = super::cpu_of(&pid.to_string()).as_nanos() as u64;
+    Cpu { sched_ns, stat_ns }
+}
+
+/// FC03 answers given by the modules of `bus` so far.
+fn reads(plant: &Plant, bus: &str) -> u64 {
+    let b = plant.bus(bus).expect("bus of the plant");
+    b.modules
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .values()
+        .map(|m| m.reads)
+        .sum()
+}
+
+/// One client measured over one window.
+#[derive(Debug, Clone, Copy)]
+struct Sample {
+    cpu: Cpu,
+    tx: u64,
+}
+
+impl Sample {
+    fn us_per_tx(&self) -> f64 {
+        self.cpu.sched_ns as f64 / 1000.0 / self.tx.max(1) as f64
+    }
+    fn stat_us_per_tx(&self) -> f64 {
+        self.cpu.stat_ns as f64 / 1000.0 / self.tx.max(1) as f64
+    }
+}
+
+/// Runs `child` for `warmup`, then measures it over `window`; stops it (SIGTERM) after.
+async fn measure(
+    mut child: Child,
+    plant: &Plant,
+    bus: &str,
+    warmup: Duration,
+    window: Duration,
+) -> Sample {
+    let pid = child.id();
+    tokio::time::sleep(warmup).await;
+    let (c0, r0) = (cpu_of(pid), reads(plant, bus));
+    tokio::time::sleep(window).await;
+    let (c1, r1) = (cpu_of(pid), reads(plant, bus));
+    let _ = Command::new("kill")
+        .args(["-TERM", &pid.to_string()])
+        .status();
+    let _ = child.wait();
+    Sample {
+        cpu: Cpu {
+            sched_ns: c1.sched_ns.saturating_sub(c0.sched_ns),
+            stat_ns: c1.stat_ns.saturating_sub(c0.stat_ns),
+        },
+        tx: r1 - r0,
+    }
+}
+
+fn plant_config(dir: &Path) -> SimConfig {
+    let mut t = String::from("[buses.hall]\nlisten = \"127.0.0.1:0\"\n");
+    for u in 1..=TCP_UNITS {
+        t += &format!(
+            "[buses.hall.devices.t{u}]\nunit = {u}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 100.0 }}\n"
+        );
+    }
+    for (bus, trickle) in [("line", false), ("trickle", true)] {
+        t += &format!(
+            "[buses.{bus}]\nlink = {:?}\nline = {{ baud = {RTU_BAUD}, turnaround = \"{}ms\", trickle = {trickle} }}\n",
+            dir.join(bus),
+            super::TURNAROUND_MS
+        );
+        for u in 1..=RTU_UNITS {
+            t += &format!(
+                "[buses.{bus}.devices.{bus}{u}]\nunit = {u}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 100.0 }}\n"
+            );
+        }
+    }
+    SimConfig::from_toml(&t).unwrap()
+}
+
+/// Gateway config polling one bus of the plant as fast as it answers, per-channel (or
+/// per-device) JSON at QoS 1.
+fn gateway_config(
+    dir: &Path,
+    name: &str,
+    endpoint: &Endpoint,
+    units: u8,
+    broker: u16,
+    per_device: bool,
+    poll: &str,
+) -> std::path::PathBuf {
+    let state = dir.join(format!("state-{name}"));
+    let payload = if per_device { "device" } else { "channel" };
+    let mut t = format!(
+        "[gateway]\nid = \"bench\"\nstate_dir = {state:?}\nstats_interval = \"1h\"\npayload = \"{payload}\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = {broker}\nqos = 1\n"
+    );
+    let prefix = match endpoint {
+        Endpoint::Serial(p) => {
+            t += &format!(
+                "[buses.b]\nport = {p:?}\nbaud = {RTU_BAUD}\ntimeout = \"100ms\"\n"
+            );
+            'r'
+        }
+        Endpoint::Tcp(a) => {
+            t += &format!(
+                "[buses.b]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n",
+                a.ip(),
+                a.port()
+            );
+            't'
+        }
+    };
+    for u in 1..=units {
+        t += &format!(
+            "[buses.b.devices.{prefix}{u}]\nunit = {u}\nmodel = \"yl67\"\npoll = \"{poll}\"\n"
+        );
+    }
+    let path = dir.join(format!("{name}.toml"));
+    std::fs::write(&path, t).unwrap();
+    path
+}
+
+fn gateway(config: &Path, cpu: usize) -> Child {
+    let bin = std::env::var("PULSEGATE_BIN")
+        .unwrap_or_else(|_| env!("CARGO_BIN_EXE_pulsegate").to_string());
+    Command::new("taskset")
+        .args(["-c", &cpu.to_string()])
+        .arg(bin)
+        .args(["run", "--config"])
+        .arg(config)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+/// mbpoll reading the count block of every unit in turn, forever (`-l 10`: its shortest pause
+/// between reads). Its output goes to a pipe read by a thread here (block-buffered by its
+/// stdio, as it would be in any script).
+fn mbpoll(endpoint: &Endpoint, units: u8, cpu: usize) -> Child {
+    let mut c = Command::new("taskset");
+    c.args(["-c", &cpu.to_string(), "mbpoll"]);
+    let count = COUNT_REGISTER.to_string();
+    let addresses = format!("1:{units}");
+    c.args(["-0", "-r", &count, "-c", "8", "-t", "4", "-l", "10", "-o", "0.1"]);
+    c.args(["-a", &addresses]);
+    match endpoint {
+        Endpoint::Tcp(a) => {
+            c.args(["-m", "tcp", "-p", &a.port().to_string(), &a.ip().to_string()]);
+        }
+        Endpoint::Serial(p) => {
+            c.args(["-m", "rtu", "-b", &RTU_BAUD.to_string(), "-P", "none"]);
+            c.arg(p);
+        }
+    }
+    let mut child = c
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut out = child.stdout.take().unwrap();
+    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
+    child
+}
+
+fn have_mbpoll() -> bool {
+    Command::new("mbpoll")
+        .arg("-V")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok()
+}
+
+/// The rounds of one comparison: (gateway, mbpoll) samples.
+type Rounds = Vec<(Sample, Sample)>;
+
+fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) {
+    let mut ratios: Vec<f64> = rounds
+        .iter()
+        .map(|(g, m)| g.us_per_tx() / m.us_per_tx())
+        .collect();
+    for (i, (g, m)) in rounds.iter().enumerate() {
+        println!(
+            "  {what}, round {}: pulsegate {:.1} us/tx ({} tx; /proc/PID/stat {:.1}), mbpoll {:.1} us/tx ({} tx; stat {:.1}), ratio {:.3}",
+            i + 1,
+            g.us_per_tx(),
+            g.tx,
+            g.stat_us_per_tx(),
+            m.us_per_tx(),
+            m.tx,
+            m.stat_us_per_tx(),
+            ratios[i]
+        );
+    }
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    let median_of = |f: &dyn Fn(&(Sample, Sample)) -> f64| {
+        let mut v: Vec<f64> = rounds.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let g = median_of(&|r| r.0.us_per_tx());
+    let m = median_of(&|r| r.1.us_per_tx());
+    figures.push(Figure {
+        what: format!("{what}: CPU/tx pulsegate / mbpoll"),
+        value: format!(
+            "{g:.0} / {m:.0} us ({:.2}-{:.2})",
+            ratios[0],
+            ratios[ratios.len() - 1]
+        ),
+        target: format!("<= {target:.1} (median of {})", ratios.len()),
+        ratio: median,
+        pass: median <= target,
+    });
+}
+
+/// The comparisons, in report order.
+const SCENARIOS: [&str; 5] = [
+    "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
+    "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
+    "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
+    "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
+    "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
+];
+
+/// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
+/// block (8 registers each).
+const YL67_READS_A_POLL: f64 = 2.0;
+
+fn missing(figures: &mut Vec<Figure>) {
+    println!(
+        "\nmbpoll is missing: the side-by-side figures need it. Install the Debian package: \
+         `sudo apt-get install mbpoll` (https://github.com/epsilonrt/mbpoll), then run \
+         `cargo bench --bench line mbpoll` again."
+    );
+    for what in SCENARIOS {
+        figures.push(Figure {
+            what: format!("{what}: CPU/tx pulsegate / mbpoll"),
+            value: "mbpoll missing".into(),
+            target: "<= 1.0".into(),
+            ratio: f64::NAN,
+            pass: false,
+        });
+    }
+}
+
+/// The side-by-side comparison (bench part `mbpoll`).
+pub async fn run(figures: &mut Vec<Figure>) {
+    if !have_mbpoll() {
+        missing(figures);
+        return;
+    }
+    let cpu = bench_cpu();
+    let before = allowed_cpus();
+    let rounds: usize = env_or("BENCH_ROUNDS", 3);
+    let tcp_window = Duration::from_secs(env_or("BENCH_TCP_SECS", 10));
+    let rtu_window = Duration::from_secs(env_or("BENCH_RTU_SECS", 15));
+    println!(
+        "\nside by side with mbpoll on CPU {cpu}: {rounds} rounds, windows {}s (TCP) / {}s (RTU)",
+        tcp_window.as_secs(),
+        rtu_window.as_secs()
+    );
+    // The simulator (this process's runtime and the line emulator's threads, started below)
+    // runs on the same CPU as the clients and the broker.
+    pin(std::process::id(), &cpu.to_string());
+    let dir = temp_dir("mbpoll");
+    let mosquitto = Mosquitto::start();
+    pin(mosquitto.0.id(), &cpu.to_string());
+    let sim = plant_config(&dir);
+    let plant = Plant::start(&sim).await.unwrap();
+    let endpoint = |bus: &str| plant.bus(bus).unwrap().endpoint.clone();
+    let (tcp, line, trickle) = (endpoint("hall"), endpoint("line"), endpoint("trickle"));
+    let broker = mosquitto.1;
+    let configs = [
+        gateway_config(&dir, "tcp-ch", &tcp, TCP_UNITS, broker, false, "1ms"),
+        gateway_config(&dir, "tcp-dev", &tcp, TCP_UNITS, broker, true, "1ms"),
+        gateway_config(&dir, "line-ch", &line, RTU_UNITS, broker, false, "1ms"),
+        gateway_config(&dir, "trickle-ch", &trickle, RTU_UNITS, broker, false, "1ms"),
+    ];
+    let warmup = Duration::from_secs(3);
+    let short = Duration::from_secs(1);
+    let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
+    for _ in 0..rounds {
+        let m = measure(mbpoll(&tcp, TCP_UNITS, cpu), &plant, "hall", short, tcp_window).await;
+        for (i, config) in configs[..2].iter().enumerate() {
+            let g = measure(gateway(config, cpu), &plant, "hall", warmup, tcp_window).await;
+            results[i].push((g, m));
+        }
+        // The gateway polling at the rate mbpoll managed: every transaction pays its own
+        // wake-ups, as mbpoll's do.
+        let rate = m.tx as f64 / tcp_window.as_secs_f64();
+        let poll_ms = (f64::from(TCP_UNITS) * YL67_READS_A_POLL / rate.max(1.0) * 1000.0) as u64;
+        let paced = gateway_config(
+            &dir,
+            "tcp-paced",
+            &tcp,
+            TCP_UNITS,
+            broker,
+            false,
+            &format!("{poll_ms}ms"),
+        );
+        let g = measure(gateway(&paced, cpu), &plant, "hall", warmup, tcp_window).await;
+        results[2].push((g, m));
+        for (i, (bus, end)) in [("line", &line), ("trickle", &trickle)].into_iter().enumerate() {
+            let g = measure(gateway(&configs[2 + i], cpu), &plant, bus, warmup, rtu_window).await;
+            let m = measure(mbpoll(end, RTU_UNITS, cpu), &plant, bus, short, rtu_window).await;
+            results[3 + i].push((g, m));
+        }
+    }
+    for (what, rounds) in SCENARIOS.iter().zip(&results) {
+        summary(what, rounds, figures, 1.0);
+    }
+    drop(plant);
+    drop(mosquitto);
+    pin(std::process::id(), &before);
+}
