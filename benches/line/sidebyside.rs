@@ -300,12 +300,13 @@ fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) 
 }
 
 /// The comparisons, in report order.
-const SCENARIOS: [&str; 5] = [
+const SCENARIOS: [&str; 6] = [
     "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
     "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
     "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
+    "Modbus RTU 9600, 4 YL67, bytes trickling, per-device JSON QoS 1",
 ];
 
 /// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
@@ -361,6 +362,7 @@ pub async fn run(figures: &mut Vec<Figure>) {
         gateway_config(&dir, "tcp-dev", &tcp, TCP_UNITS, broker, true, "1ms"),
         gateway_config(&dir, "line-ch", &line, RTU_UNITS, broker, false, "1ms"),
         gateway_config(&dir, "trickle-ch", &trickle, RTU_UNITS, broker, false, "1ms"),
+        gateway_config(&dir, "trickle-dev", &trickle, RTU_UNITS, broker, true, "1ms"),
     ];
     let warmup = Duration::from_secs(3);
     let short = Duration::from_secs(1);
@@ -386,10 +388,14 @@ pub async fn run(figures: &mut Vec<Figure>) {
         );
         let g = measure(gateway(&paced, cpu), &plant, "hall", warmup, tcp_window).await;
         results[2].push((g, m));
-        for (i, (bus, end)) in [("line", &line), ("trickle", &trickle)].into_iter().enumerate() {
-            let g = measure(gateway(&configs[2 + i], cpu), &plant, bus, warmup, rtu_window).await;
-            let m = measure(mbpoll(end, RTU_UNITS, cpu), &plant, bus, short, rtu_window).await;
-            results[3 + i].push((g, m));
+        let m = measure(mbpoll(&line, RTU_UNITS, cpu), &plant, "line", short, rtu_window).await;
+        let g = measure(gateway(&configs[2], cpu), &plant, "line", warmup, rtu_window).await;
+        results[3].push((g, m));
+        let m = measure(mbpoll(&trickle, RTU_UNITS, cpu), &plant, "trickle", short, rtu_window);
+        let m = m.await;
+        for i in 0..2 {
+            let g = measure(gateway(&configs[3 + i], cpu), &plant, "trickle", warmup, rtu_window);
+            results[4 + i].push((g.await, m));
         }
     }
     for (what, rounds) in SCENARIOS.iter().zip(&results) {

@@ -1,4 +1,5 @@
-//! A microsecond timer on the runtime's own thread, for the RTU silent interval.
+//! A microsecond timer on the runtime's own thread, for the RTU silent interval and the
+//! transaction timeouts.
 //!
 //! The runtime's timer ticks in milliseconds: rounded up, the 1.75 ms silent interval at
 //! 115200 baud would cost a third of the line. Sleeping the last stretch on a blocking-pool
@@ -64,7 +65,12 @@ impl FineTimer {
                     Ok(())
                 }
             }) {
-                Ok(Ok(())) => return Ok(()),
+                Ok(Ok(())) => {
+                    // Read: nothing more until the next arming (saves a read that would only
+                    // say "would block" at the next wait).
+                    ready.clear_ready();
+                    return Ok(());
+                }
                 Ok(Err(e)) => return Err(e),
                 // Readiness left over from an earlier expiration: wait for this one.
                 Err(_would_block) => continue,
