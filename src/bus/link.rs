@@ -22,7 +22,7 @@ use tokio_modbus::client::{Client, Context};
 use tokio_modbus::prelude::SlaveContext;
 use tokio_modbus::{ExceptionCode, Request, Response, Slave};
 
-use super::serial::{RtuPort, SHORTEST_ANSWER, expected_len};
+use super::serial::{RtuPort, expected_len};
 
 use crate::config::{Link as LinkConfig, Parity};
 use crate::plan::LineTiming;
@@ -443,6 +443,16 @@ impl Link {
     }
 }
 
+/// The length of a normal answer to the RTU request `frame` (unit, function, …), where the
+/// function is one the gateway uses.
+fn answer_len_for(frame: &[u8]) -> Option<usize> {
+    match frame {
+        [_, 0x03 | 0x04, _, _, hi, lo, ..] => Some(5 + 2 * usize::from(u16::from_be_bytes([*hi, *lo]))),
+        [_, 0x06 | 0x10, ..] => Some(8),
+        _ => None,
+    }
+}
+
 /// Returns at `t`: on the fine timer where there is one and it works, else on the runtime's.
 async fn deadline(timer: Option<&super::timer::FineTimer>, t: Instant) {
     if let Some(timer) = timer
@@ -496,6 +506,8 @@ struct FlushingPort {
     /// The first bytes of the answer being read, and how many have come.
     head: [u8; 3],
     got: usize,
+    /// The answer's length as the request implies it (a normal answer, not an exception).
+    expected: Option<usize>,
     bytes_in: Arc<AtomicU64>,
     last_byte: Arc<Mutex<Option<Instant>>>,
 }
@@ -511,12 +523,14 @@ impl FlushingPort {
             at_request_start: true,
             head: [0; 3],
             got: 0,
+            expected: None,
             bytes_in,
             last_byte,
         }
     }
 
-    /// Notes `bytes` of the answer and sets the port to wake the reader when the rest is in.
+    /// Notes `bytes` of the answer; while more are to come, the port stays quiet for the time
+    /// they take on the wire.
     fn answer_bytes(&mut self, bytes: &[u8]) -> io::Result<()> {
         for (i, b) in bytes.iter().enumerate() {
             if let Some(slot) = self.head.get_mut(self.got + i) {
@@ -524,16 +538,19 @@ impl FlushingPort {
             }
         }
         self.got += bytes.len();
-        let wanted = if self.got < self.head.len() {
-            SHORTEST_ANSWER - self.got
+        let total = if self.got >= self.head.len() {
+            expected_len(&self.head)
         } else {
-            // An unknown function: byte by byte, as any reader would.
-            expected_len(&self.head).map_or(1, |total| total.saturating_sub(self.got))
+            self.expected
         };
-        if wanted == 0 {
-            return Ok(()); // complete: the next request sets the port again
-        }
-        self.port.with(|s| s.wake_at(wanted))
+        let Some(rest) = total.map(|t| t.saturating_sub(self.got)).filter(|r| *r > 0) else {
+            return Ok(()); // complete, or of a length nobody can tell: watched
+        };
+        self.port.with(|s| {
+            // A quarter character of slack for the adapter's delivery.
+            let t = Instant::now() + s.line_time(rest) + s.line_time(1) / 4;
+            s.quiet_until(t)
+        })
     }
 }
 
@@ -566,9 +583,10 @@ impl AsyncWrite for FlushingPort {
         let this = self.get_mut();
         if std::mem::take(&mut this.at_request_start) {
             this.got = 0;
+            this.expected = answer_len_for(data);
             this.port.with(|s| {
                 s.clear_input().map_err(io::Error::other)?;
-                s.wake_at(SHORTEST_ANSWER)
+                s.watch()
             })?;
         }
         this.port.with(|s| Pin::new(s).poll_write(cx, data))

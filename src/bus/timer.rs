@@ -10,6 +10,7 @@
 
 use std::io;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use std::task::{Context, Poll, ready};
 use std::time::Duration;
 
 use tokio::io::Interest;
@@ -47,8 +48,19 @@ impl FineTimer {
             return Ok(());
         }
         self.arm(rest)?;
+        std::future::poll_fn(|cx| self.poll_expired(cx)).await
+    }
+
+    /// Arms the timer for `t` (at once if that has passed).
+    pub fn arm_at(&self, t: Instant) -> io::Result<()> {
+        let rest = t.saturating_duration_since(Instant::now());
+        self.arm(rest.max(Duration::from_nanos(1)))
+    }
+
+    /// Ready once the armed time has come.
+    pub fn poll_expired(&self, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
         loop {
-            let mut ready = self.0.readable().await?;
+            let mut ready = ready!(self.0.poll_read_ready(cx))?;
             let mut expirations = [0u8; 8];
             // SAFETY: reads 8 bytes (the expiration count) into a buffer of 8 bytes.
             match ready.try_io(|fd| {
@@ -69,9 +81,9 @@ impl FineTimer {
                     // Read: nothing more until the next arming (saves a read that would only
                     // say "would block" at the next wait).
                     ready.clear_ready();
-                    return Ok(());
+                    return Poll::Ready(Ok(()));
                 }
-                Ok(Err(e)) => return Err(e),
+                Ok(Err(e)) => return Poll::Ready(Err(e)),
                 // Readiness left over from an earlier expiration: wait for this one.
                 Err(_would_block) => continue,
             }
