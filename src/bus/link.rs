@@ -604,6 +604,7 @@ impl AsyncWrite for FlushingPort {
 #[cfg(test)]
 mod speed_tests {
     use super::*;
+    use serialport::SerialPort;
 
     #[tokio::test]
     async fn the_port_is_switched_to_a_units_own_baud_rate_and_back() {
