@@ -24,6 +24,7 @@ pub mod demo;
 pub mod dispatch;
 pub mod health;
 pub mod metrics;
+pub mod outbox;
 pub mod plan;
 pub mod profile;
 pub mod publish;
