@@ -65,21 +65,21 @@ pub async fn run_with_reloads(
     let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
         .await
         .unwrap_or_default();
-    let mqtt = tokio::spawn(async move {
-        crate::publish::mqtt::run(
-            mqtt_config,
-            &spool_dir,
-            flush,
-            out_rx,
-            incoming_tx,
-            mqtt_heart,
-            mqtt_health,
-            boot,
-            mqtt_metrics,
-            mqtt_shutdown,
-        )
-        .await
-    });
+    let task = crate::publish::mqtt::Task {
+        config: mqtt_config,
+        spool_dir,
+        flush_every: flush,
+        heart: mqtt_heart,
+        health: mqtt_health,
+        boot,
+        metrics: mqtt_metrics,
+    };
+    let mqtt = tokio::spawn(crate::publish::mqtt::run(
+        task,
+        out_rx,
+        incoming_tx,
+        mqtt_shutdown,
+    ));
 
     let mut current = config;
     loop {

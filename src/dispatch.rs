@@ -111,7 +111,7 @@ impl Router {
     /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
     fn scan(&self, bus: &str, msg: &Incoming) {
         let mut reply = Reply {
-            topics: vec![format!("{}/result", msg.topic)],
+            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         let refuse = |reply: &Reply, error: &str, message: String| {
@@ -193,7 +193,7 @@ impl Router {
             return;
         };
         let mut reply = Reply {
-            topics: vec![format!("{}/result", msg.topic)],
+            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         // MQTT v5 properties are checked before anything is published to them: a response

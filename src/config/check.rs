@@ -198,8 +198,18 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         spool_bytes: 64 << 20,
         commands: true,
         protocol: super::MqttProtocol::V5,
+        format: "json".into(),
     };
     let Some(mut t) = table else { return m };
+    if let Some(v) = t.opt::<String>("format", errs) {
+        if crate::publish::format::NAMES.contains(&v.as_str()) {
+            m.format = v;
+        } else {
+            let names = crate::publish::format::NAMES.join(", ");
+            let why = format!("unknown output format {v:?}: one of {names}");
+            errs.push(&join(&t.path, "format"), t.origin(), why);
+        }
+    }
     if let Some(v) = t.opt::<String>("protocol", errs) {
         match v.as_str() {
             "5" => m.protocol = super::MqttProtocol::V5,

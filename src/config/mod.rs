@@ -139,6 +139,8 @@ pub struct Mqtt {
     pub commands: bool,
     /// `mqtt.protocol`: "5" (default) or "3.1.1".
     pub protocol: MqttProtocol,
+    /// `mqtt.format`: how events become payloads, one of [`crate::publish::format::NAMES`].
+    pub format: String,
 }
 
 /// The MQTT protocol version spoken to the broker.

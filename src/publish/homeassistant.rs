@@ -181,7 +181,7 @@ pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
     let config = merge(
         common(site, m, "button", object, "Clear all"),
         json!({
-            "command_topic": format!("{}/cmd", site.topics.device(&m.device.name)),
+            "command_topic": site.topics.device_command(&m.device.name),
             "payload_press": r#"{"op":"clear_all"}"#,
             "qos": 1,
             "retain": false,
@@ -363,7 +363,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
         let config = merge(
             common(site, m, "button", &object, &format!("{ch} clear")),
             json!({
-                "command_topic": format!("{}/cmd", site.topics.reading(&m.device.name, ch)),
+                "command_topic": site.topics.channel_command(&m.device.name, ch),
                 "payload_press": r#"{"op":"clear"}"#,
                 "qos": 1,
                 "retain": false,
