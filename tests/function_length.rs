@@ -20,7 +20,14 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// Whether `line` (without indentation) starts a function item.
 fn starts_fn(line: &str) -> bool {
     let mut rest = line;
-    for prefix in ["pub(crate) ", "pub(super) ", "pub ", "const ", "async ", "unsafe "] {
+    for prefix in [
+        "pub(crate) ",
+        "pub(super) ",
+        "pub ",
+        "const ",
+        "async ",
+        "unsafe ",
+    ] {
         rest = rest.strip_prefix(prefix).unwrap_or(rest);
     }
     rest.starts_with("fn ")
@@ -37,9 +44,12 @@ fn functions(text: &str) -> Vec<(String, usize, usize)> {
         }
         let indent = &line[..line.len() - trimmed.len()];
         let close = format!("{indent}}}");
-        let end = lines[i..]
-            .iter()
-            .position(|l| l.trim_end() == close || (l.starts_with(&close) && l.len() > close.len() && !l[close.len()..].starts_with(' ')));
+        let end = lines[i..].iter().position(|l| {
+            l.trim_end() == close
+                || (l.starts_with(&close)
+                    && l.len() > close.len()
+                    && !l[close.len()..].starts_with(' '))
+        });
         let Some(end) = end else { continue };
         let name = trimmed.split('(').next().unwrap_or(trimmed).to_string();
         found.push((name, i + 1, end + 1));
@@ -50,7 +60,10 @@ fn functions(text: &str) -> Vec<(String, usize, usize)> {
 #[test]
 fn no_function_in_src_is_longer_than_90_lines() {
     let mut files = Vec::new();
-    rust_files(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/src")), &mut files);
+    rust_files(
+        Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/src")),
+        &mut files,
+    );
     files.sort();
     let mut long = Vec::new();
     for file in &files {
@@ -61,7 +74,11 @@ fn no_function_in_src_is_longer_than_90_lines() {
             }
         }
     }
-    assert!(long.is_empty(), "functions longer than {LIMIT} lines:\n{}", long.join("\n"));
+    assert!(
+        long.is_empty(),
+        "functions longer than {LIMIT} lines:\n{}",
+        long.join("\n")
+    );
 }
 
 #[test]

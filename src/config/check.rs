@@ -234,10 +234,19 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         m.client_id = v;
     }
     m.username = t.opt("username", errs);
-    m.password = t.opt::<String>("password", errs).map(super::Secret);
+    m.password = mqtt_password(&mut t, errs);
+    m.tls = mqtt_tls(&mut t, errs);
+    mqtt_delivery(&mut t, &mut m, errs);
+    t.finish(errs);
+    m
+}
+
+/// `mqtt.password`, `mqtt.password_file`, or systemd's credential.
+fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Secret> {
+    let mut password = t.opt::<String>("password", errs).map(super::Secret);
     if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
         match std::fs::read_to_string(&file) {
-            Ok(p) => m.password = Some(secret(p)),
+            Ok(p) => password = Some(secret(p)),
             Err(e) => errs.push(
                 &join(&t.path, "password_file"),
                 t.origin(),
@@ -245,57 +254,66 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             ),
         }
     }
-    if m.password.is_none() {
+    if password.is_none() {
         // systemd's LoadCredential=mqtt-password:… puts it here for this service only.
         if let Some(dir) = std::env::var_os("CREDENTIALS_DIRECTORY") {
             if let Ok(p) = std::fs::read_to_string(Path::new(&dir).join("mqtt-password")) {
-                m.password = Some(secret(p));
+                password = Some(secret(p));
             }
         }
     }
-    if let Some(mut tt) = t.table("tls", errs) {
-        let tt_path = tt.path.clone();
-        let ca_file = tt.req::<PathBuf>("ca_file", errs);
-        let cert_file = tt.opt::<PathBuf>("cert_file", errs);
-        let key_file = tt.opt::<PathBuf>("key_file", errs);
-        if cert_file.is_some() != key_file.is_some() {
+    password
+}
+
+/// `[mqtt.tls]`, built as `run` builds it.
+fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
+    let mut tt = t.table("tls", errs)?;
+    let tt_path = tt.path.clone();
+    let ca_file = tt.req::<PathBuf>("ca_file", errs);
+    let cert_file = tt.opt::<PathBuf>("cert_file", errs);
+    let key_file = tt.opt::<PathBuf>("key_file", errs);
+    if cert_file.is_some() != key_file.is_some() {
+        errs.push(
+            &tt.path.clone(),
+            tt.origin(),
+            "cert_file and key_file go together",
+        );
+    }
+    for (key, file) in [
+        ("ca_file", &ca_file),
+        ("cert_file", &cert_file),
+        ("key_file", &key_file),
+    ] {
+        if let Some(f) = file
+            && !f.is_file()
+        {
             errs.push(
-                &tt.path.clone(),
+                &join(&tt.path, key),
                 tt.origin(),
-                "cert_file and key_file go together",
+                format!("no such file {}", f.display()),
             );
         }
-        for (key, file) in [
-            ("ca_file", &ca_file),
-            ("cert_file", &cert_file),
-            ("key_file", &key_file),
-        ] {
-            if let Some(f) = file
-                && !f.is_file()
-            {
-                errs.push(
-                    &join(&tt.path, key),
-                    tt.origin(),
-                    format!("no such file {}", f.display()),
-                );
-            }
-        }
-        tt.finish(errs);
-        m.tls = ca_file.map(|ca_file| super::Tls {
-            ca_file,
-            cert_file,
-            key_file,
-        });
-        // Built here exactly as `run` builds it, so `check` (run as the service user) reports
-        // a file the service could not read, and the gateway never starts without TLS.
-        let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
-        if let Some(tls) = &m.tls
-            && files_exist
-            && let Err(e) = crate::publish::tls::client_config(tls)
-        {
-            errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
-        }
     }
+    tt.finish(errs);
+    let tls = ca_file.map(|ca_file| super::Tls {
+        ca_file,
+        cert_file,
+        key_file,
+    });
+    // Built here exactly as `run` builds it, so `check` (run as the service user) reports
+    // a file the service could not read, and the gateway never starts without TLS.
+    let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
+    if let Some(tls) = &tls
+        && files_exist
+        && let Err(e) = crate::publish::tls::client_config(tls)
+    {
+        errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
+    }
+    tls
+}
+
+/// Keep-alive, QoS, retain, commands, spool size and topic root.
+fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
     // MQTT carries it in 16 bits of seconds.
     let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
     if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
@@ -339,8 +357,6 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             );
         }
     }
-    t.finish(errs);
-    m
 }
 
 fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Option<Bus> {

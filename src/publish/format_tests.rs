@@ -48,7 +48,10 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
     assert_eq!((m[0].qos, m[0].retain, m[0].transient), (0, true, false));
-    assert_eq!(m[0].payload, crate::publish::payload::reading(&reading(42)).into_bytes());
+    assert_eq!(
+        m[0].payload,
+        crate::publish::payload::reading(&reading(42)).into_bytes()
+    );
 }
 
 #[test]
@@ -59,7 +62,10 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         online: false,
     };
     let m = render(&*json, &status);
-    assert_eq!((m[0].topic.as_str(), &m[0].payload[..]), ("pg/e1/press1/status", &b"offline"[..]));
+    assert_eq!(
+        (m[0].topic.as_str(), &m[0].payload[..]),
+        ("pg/e1/press1/status", &b"offline"[..])
+    );
     assert_eq!((m[0].qos, m[0].retain), (1, true));
     let stats = Output::BusStats {
         bus: "line1".into(),
@@ -93,7 +99,10 @@ fn ready_messages_pass_through_and_subscriptions_are_not_messages() {
         payload: "{}".into(),
         retain: true,
     };
-    assert_eq!(render(&*json, &ha)[0].topic, "homeassistant/sensor/x/config");
+    assert_eq!(
+        render(&*json, &ha)[0].topic,
+        "homeassistant/sensor/x/config"
+    );
     assert!(render(&*json, &Output::Subscribe("a/#".into())).is_empty());
 }
 
@@ -132,7 +141,10 @@ fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchang
         panic!("nothing to send")
     };
     assert_eq!(e.topic, "pg/e1/press1/enc0/total");
-    assert_eq!(&e.payload[..], &[0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xfe]);
+    assert_eq!(
+        &e.payload[..],
+        &[0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xfe]
+    );
 }
 
 #[test]

@@ -34,7 +34,12 @@ impl Format for Json {
         match event {
             Output::Reading(r) => {
                 let topic = t.reading(&r.device, &r.channel);
-                vec![Message::new(topic, payload::reading(r), self.qos, self.retain)]
+                vec![Message::new(
+                    topic,
+                    payload::reading(r),
+                    self.qos,
+                    self.retain,
+                )]
             }
             Output::DeviceReadings { device, readings } => {
                 let body = payload::device(readings);

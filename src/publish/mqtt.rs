@@ -169,7 +169,6 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
     }))
 }
 
-
 /// What the MQTT task is given, besides its channels.
 pub struct Task {
     pub config: Mqtt,
@@ -552,7 +551,10 @@ mod tests {
         let now = Instant::now();
         assert!(!s.outbox.stalled(now, limit));
         let later = now + Duration::from_secs(11);
-        assert!(s.outbox.stalled(later, limit), "nothing acknowledged for 11 s");
+        assert!(
+            s.outbox.stalled(later, limit),
+            "nothing acknowledged for 11 s"
+        );
         s.outbox.sent(1);
         s.outbox.acked(1, later);
         s.pump();

@@ -123,9 +123,16 @@ mod tests {
         let t = Topics::new("pg/e1");
         let cmd = t.channel_command("press", "enc0");
         assert_eq!(t.parse_command(&cmd), Some(("press", Some("enc0"))));
-        assert_eq!(t.parse_command(&t.device_command("press")), Some(("press", None)));
+        assert_eq!(
+            t.parse_command(&t.device_command("press")),
+            Some(("press", None))
+        );
         assert_eq!(t.parse_scan("pg/e1/bus/line1/scan"), Some("line1"));
-        assert_eq!(t.parse_command(&Topics::result(&cmd)), None, "results are not commands");
+        assert_eq!(
+            t.parse_command(&Topics::result(&cmd)),
+            None,
+            "results are not commands"
+        );
         let [channel, device, scan] = t.command_filters();
         let matches = |filter: &str, topic: &str| rumqttc::matches(topic, filter);
         assert!(matches(&channel, &cmd));
