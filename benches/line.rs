@@ -17,7 +17,7 @@ use std::time::{Duration, Instant, SystemTime};
 use pulsegate::bus::BusTask;
 use pulsegate::config::Config;
 use pulsegate::reading::Output;
-use pulsegate::sim::{Endpoint, Plant, SimConfig};
+use pulsegate::sim::{Plant, SimConfig};
 
 const TURNAROUND_MS: f64 = 2.0;
 
@@ -71,34 +71,18 @@ fn gateway_toml(
     state_dir: &Path,
     extra: &str,
 ) -> String {
-    let mut t = format!(
-        "[gateway]\nid = \"bench\"\nstate_dir = {state_dir:?}\nstats_interval = \"1h\"\n[mqtt]\nhost = \"127.0.0.1\"\n{extra}\n"
-    );
-    for bus in &plant.buses {
-        match &bus.endpoint {
-            Endpoint::Serial(p) => {
-                t += &format!(
-                    "[buses.{}]\nport = {p:?}\nbaud = {baud}\ntimeout = \"100ms\"\n",
-                    bus.name
-                )
-            }
-            Endpoint::Tcp(a) => {
-                t += &format!(
-                    "[buses.{}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n",
-                    bus.name,
-                    a.ip(),
-                    a.port()
-                )
-            }
-        }
-        for (name, d) in &sim.buses[&bus.name].devices {
-            t += &format!(
-                "[buses.{}.devices.{name}]\nunit = {}\nmodel = {:?}\npoll = {poll:?}\n",
-                bus.name, d.unit, d.model
-            );
-        }
+    let serial = format!("baud = {baud}\ntimeout = \"100ms\"\n");
+    pulsegate::sim::gateway::GatewayToml {
+        id: "bench",
+        state_dir,
+        gateway: "stats_interval = \"1h\"\n",
+        mqtt_host: "127.0.0.1",
+        mqtt_port: None,
+        mqtt: extra,
+        serial: &serial,
+        tcp: "timeout = \"100ms\"\n",
     }
-    t
+    .render(plant, &pulsegate::sim::gateway::every_device(sim, poll))
 }
 
 /// A plant of `buses` RTU buses behind line emulators, `units` YL67 modules each.

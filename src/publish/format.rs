@@ -21,8 +21,16 @@ pub const NAMES: &[&str] = &["json"];
 /// The format named by the config (checked against [`NAMES`] when the config is read).
 pub fn build(config: &Mqtt) -> Box<dyn Format> {
     match config.format.as_str() {
-        _ => Box::new(super::json::Json::new(config)),
+        "json" => Box::new(super::json::Json::new(config)),
+        other => unreachable_format(other, config),
     }
+}
+
+/// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
+/// between [`NAMES`] and [`build`], never a crash of the gateway).
+fn unreachable_format(name: &str, config: &Mqtt) -> Box<dyn Format> {
+    tracing::error!("output format {name:?} is not built in; publishing JSON");
+    Box::new(super::json::Json::new(config))
 }
 
 /// The output stage: ready messages as they are, events through `format`. Subscriptions are

@@ -152,3 +152,13 @@ fn an_unknown_format_is_a_config_error_naming_the_choices() {
     let err = check("format = \"xml\"").unwrap_err().to_string();
     assert!(err.contains("mqtt.format") && err.contains("json"), "{err}");
 }
+
+#[test]
+fn every_format_name_the_config_takes_is_built() {
+    for name in NAMES {
+        let mut c = config();
+        c.format = (*name).to_string();
+        let built = build(&c);
+        assert!(!render(&*built, &Output::Reading(reading(1))).is_empty(), "{name}");
+    }
+}

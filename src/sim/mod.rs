@@ -6,6 +6,7 @@
 
 mod comm;
 mod config;
+pub mod gateway;
 pub mod line;
 pub mod model;
 mod server;
