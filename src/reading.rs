@@ -47,3 +47,23 @@ pub fn unix_ms(t: SystemTime) -> u64 {
         .map(|d| d.as_millis() as u64)
         .unwrap_or(0)
 }
+
+/// The process's monotonic epoch: monotonic milliseconds are counted from the first use.
+fn epoch() -> std::time::Instant {
+    static EPOCH: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    *EPOCH.get_or_init(std::time::Instant::now)
+}
+
+/// The stamp of an answer that arrived at wall time `wall` and monotonic time `mono`.
+pub fn stamp(wall: SystemTime, mono: std::time::Instant) -> crate::counter::Stamp {
+    crate::counter::Stamp {
+        wall_ms: unix_ms(wall),
+        mono_ms: mono.saturating_duration_since(epoch()).as_millis() as u64,
+    }
+}
+
+/// Now, on both clocks.
+pub fn now() -> (SystemTime, std::time::Instant) {
+    epoch();
+    (SystemTime::now(), std::time::Instant::now())
+}

@@ -10,12 +10,12 @@ use tokio_modbus::ExceptionCode;
 
 use super::link::{Link, LinkError};
 use super::schedule::Backoff;
-use crate::config::{Bus, Device};
-use crate::counter::{Counter, CounterSpec, CounterState};
+use crate::config::{Bus, ChannelConfig, Device, Run};
+use crate::counter::{Counter, CounterSpec, CounterState, Direction, Stamp};
 use crate::decode::decode;
 use crate::plan::{Block, Wire, plan_reads};
-use crate::profile::{ChannelSpec, Profile, Register, ValueType};
-use crate::reading::{Reading, unix_ms};
+use crate::profile::{ChannelKind, ChannelSpec, Profile, Register, ValueType};
+use crate::reading::Reading;
 use crate::state::{channel_key, device_key};
 
 /// Why a poll produced no readings.
@@ -82,13 +82,30 @@ impl ChannelRt {
     }
 }
 
+/// When an answer arrived: the wall clock for `ts`, both clocks for the counter.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct At {
+    pub(super) wall: SystemTime,
+    pub(super) stamp: Stamp,
+}
+
+impl At {
+    pub(super) fn now() -> At {
+        let (wall, mono) = crate::reading::now();
+        At {
+            wall,
+            stamp: crate::reading::stamp(wall, mono),
+        }
+    }
+}
+
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
-    blocks: Vec<(Block, Vec<u16>, SystemTime)>,
+    blocks: Vec<(Block, Vec<u16>, At)>,
 }
 
 impl Snapshot {
-    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
+    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], At)> {
         self.blocks
             .iter()
             .find(|(b, ..)| b.covers(r))
@@ -248,11 +265,11 @@ impl DeviceRt {
                 _ => None,
             };
             // A read the counter holds as suspect is not published.
-            let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+            let Some(update) = ch.counter.update(count, at.stamp) else {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
-            readings.push(ch.reading(&self.name, at, count, freq_hz, rpm, update));
+            readings.push(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update));
         }
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
@@ -312,8 +329,11 @@ impl DeviceRt {
         Ok(())
     }
 
+    /// Builds the channels of the current work mode. A channel keeps its counter across the
+    /// rebuild; a channel the new mode does not have (or a disabled one) keeps its state for
+    /// when it comes back, resumed with a gap.
     fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
-        let old: BTreeMap<String, Counter> = self
+        let mut old: BTreeMap<String, Counter> = self
             .channels
             .drain(..)
             .map(|c| (c.name.to_string(), c.counter))
@@ -325,17 +345,13 @@ impl DeviceRt {
                 .get(&spec.name)
                 .cloned()
                 .unwrap_or_default();
-            let counter_spec = CounterSpec {
-                modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
-                signed: matches!(spec.count.ty, ValueType::I32 | ValueType::I16),
-                max_rate_hz: overrides.max_rate_hz.unwrap_or(spec.max_rate_hz),
-            };
+            if !overrides.enabled {
+                continue;
+            }
+            let counter_spec = counter_spec(&spec, &overrides);
             let key = channel_key(self.unit, &self.config.model, &spec.name);
-            let counter = match (old.get(&spec.name), self.saved.remove(&key)) {
-                (Some(c), _) => Counter {
-                    spec: counter_spec,
-                    state: c.state.clone(),
-                },
+            let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
+                (Some(c), _) => c.with_spec(counter_spec),
                 (None, Some(saved)) => Counter::resume(counter_spec, saved),
                 (None, None) => Counter::new(counter_spec),
             };
@@ -345,6 +361,11 @@ impl DeviceRt {
                 spec,
                 counter,
             });
+        }
+        for (name, gone) in old {
+            let key = channel_key(self.unit, &self.config.model, &name);
+            tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
+            self.saved.insert(key, gone.state);
         }
         self.fast = self
             .channels
@@ -374,7 +395,7 @@ impl DeviceRt {
             match link.read(self.unit, b.start, b.len, timeout).await? {
                 Ok(words) => {
                     self.record_latency(started.elapsed(), link, b.len);
-                    out.push((b, words, SystemTime::now()));
+                    out.push((b, words, At::now()));
                     i += 1;
                 }
                 Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
@@ -453,5 +474,24 @@ impl DeviceRt {
         if let (Some(t), Some(ta)) = (link.timing(), self.turnaround) {
             self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
+    }
+}
+
+/// How a channel's count moves: encoders both ways; inputs counting on their own only up, or
+/// in the direction the gateway runs them (ZH-YX1600 counters are signed and can count down).
+fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
+    let signed = matches!(spec.count.ty, ValueType::I32 | ValueType::I16);
+    let direction = match (spec.kind, signed, config.run) {
+        (ChannelKind::Encoder, ..) => Direction::Both,
+        (ChannelKind::Counter, false, _) => Direction::Up,
+        (ChannelKind::Counter, true, _) if spec.clear.restart.is_empty() => Direction::Both,
+        (ChannelKind::Counter, true, Run::Up) => Direction::Up,
+        (ChannelKind::Counter, true, Run::Down) => Direction::Down,
+        (ChannelKind::Counter, true, Run::Leave) => Direction::Both,
+    };
+    CounterSpec {
+        modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
+        direction,
+        max_rate_hz: config.max_rate_hz.unwrap_or(spec.max_rate_hz),
     }
 }

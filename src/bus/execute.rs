@@ -12,7 +12,7 @@ use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
 use crate::decode::{decode, encode_int};
 use crate::profile::Register;
-use crate::reading::{Reading, unix_ms};
+use crate::reading::Reading;
 
 /// The outcome of a command: readings to publish (booked counts and the event readings) and the
 /// result (the count read back for a single channel).
@@ -80,10 +80,10 @@ impl DeviceRt {
             let ch = &mut self.channels[i];
             if let Some((w, at)) = before.get(&ch.spec.count) {
                 let count = decode(w, ch.spec.count.ty, order).as_i64();
-                let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+                let Some(update) = ch.counter.update(count, at.stamp) else {
                     continue;
                 };
-                readings.push(ch.reading(&self.name, at, count, None, None, update));
+                readings.push(ch.reading(&self.name, at.wall, count, None, None, update));
             }
         }
         // 2. Write.
@@ -135,8 +135,8 @@ impl DeviceRt {
             if (got - expected).abs() > slack {
                 mismatch.get_or_insert(CommandError::ReadBack { expected, got });
             }
-            let update = ch.counter.rebase(got, unix_ms(at), event);
-            readings.push(ch.reading(&self.name, at, got, None, None, update));
+            let update = ch.counter.rebase(got, at.stamp, event);
+            readings.push(ch.reading(&self.name, at.wall, got, None, None, update));
             single = Some(got);
         }
         match mismatch {

@@ -7,7 +7,7 @@ use std::time::Duration;
 use config::Value;
 
 use super::walk::{Errors, Table, join};
-use super::{Bus, ChannelConfig, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
+use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
 /// Baud rates the seed modules can be set to (their baud-code tables).
@@ -449,31 +449,11 @@ fn device(
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
-        let Some(mut ct) = Table::of(cvalue, &cpath, errs) else {
+        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
             continue;
         };
-        if let Some(p) = &profile
-            && !p.all_channels().iter().any(|c| c.name == cname)
-        {
-            errs.push(
-                &cpath,
-                ct.origin(),
-                format!("model {} has no channel {cname}", p.model),
-            );
-        }
-        let ppr = ct.opt::<f64>("ppr", errs);
-        let max_rate_hz = ct.opt::<f64>("max_rate_hz", errs);
-        for (key, v) in [("ppr", ppr), ("max_rate_hz", max_rate_hz)] {
-            if v.is_some_and(|v| !(v > 0.0 && v.is_finite())) {
-                errs.push(
-                    &join(&cpath, key),
-                    ct.origin(),
-                    "must be a number greater than zero",
-                );
-            }
-        }
-        ct.finish(errs);
-        channels.insert(cname, ChannelConfig { ppr, max_rate_hz });
+        let c = super::channel::channel(ct, &cname, profile.as_deref(), errs);
+        channels.insert(cname, c);
     }
     t.finish(errs);
     Some(Device {

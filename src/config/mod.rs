@@ -4,6 +4,7 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
+mod channel;
 mod check;
 mod walk;
 
@@ -15,6 +16,7 @@ use std::time::Duration;
 
 use crate::profile::Profile;
 
+pub use channel::{ChannelConfig, Run};
 pub use check::from_tree;
 
 /// Default configuration file.
@@ -210,15 +212,6 @@ impl PartialEq for Device {
             && self.commands == other.commands
             && self.channels == other.channels
     }
-}
-
-/// `[buses.<bus>.devices.<device>.channels.<name>]`
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ChannelConfig {
-    /// Pulses per revolution where the module has no register for it.
-    pub ppr: Option<f64>,
-    /// Highest plausible input rate; overrides the profile's.
-    pub max_rate_hz: Option<f64>,
 }
 
 impl Device {
