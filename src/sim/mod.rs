@@ -6,6 +6,7 @@
 
 mod config;
 pub mod line;
+mod datasheet;
 pub mod model;
 mod server;
 
