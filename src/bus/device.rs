@@ -9,6 +9,7 @@ use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
 use super::link::{Link, LinkError};
+use super::run::RunState;
 use super::schedule::Backoff;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, CounterState, Direction, Stamp};
@@ -57,6 +58,10 @@ pub(super) struct ChannelRt {
     pub(super) name: Arc<str>,
     pub(super) counter: Counter,
     pub(super) ppr: Option<f64>,
+    /// What to do when the counter is found stopped (modules with a command register).
+    pub(super) run: Run,
+    /// The command register, where the module starts and stops counters by register.
+    pub(super) command: Option<Register>,
 }
 
 impl ChannelRt {
@@ -147,6 +152,9 @@ pub struct DeviceRt {
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
+    /// The module's identity is to be checked before the next poll (at discovery, after a
+    /// reset).
+    pub(super) identify_due: bool,
 }
 
 impl DeviceRt {
@@ -184,6 +192,7 @@ impl DeviceRt {
             turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
+            identify_due: true,
             config: config.clone(),
         }
     }
@@ -249,11 +258,23 @@ impl DeviceRt {
         let snapshot = snapshot?;
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
-        for ch in &mut self.channels {
+        let mut stopped = Vec::new();
+        for (i, ch) in self.channels.iter_mut().enumerate() {
             let Some((words, at)) = snapshot.get(&ch.spec.count) else {
                 continue;
             };
             let count = decode(words, ch.spec.count.ty, order).as_i64();
+            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
+                match super::run::run_state(&ch.spec, w[0]) {
+                    // The module cleared it; the gateway starts it after this read.
+                    RunState::Stopped if ch.run != Run::Leave => {
+                        stopped.push((i, count, at));
+                        continue;
+                    }
+                    RunState::Running(d) => ch.counter.spec.direction = d,
+                    _ => {}
+                }
+            }
             let freq_hz = ch
                 .spec
                 .freq
@@ -270,6 +291,9 @@ impl DeviceRt {
                 continue;
             };
             readings.push(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update));
+        }
+        for (i, count, at) in stopped {
+            readings.extend(self.start_stopped(link, i, count, at).await);
         }
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
@@ -358,6 +382,8 @@ impl DeviceRt {
             self.channels.push(ChannelRt {
                 name: Arc::from(spec.name.as_str()),
                 ppr: overrides.ppr,
+                run: overrides.run,
+                command: super::run::command_register(&spec),
                 spec,
                 counter,
             });
@@ -370,7 +396,11 @@ impl DeviceRt {
         self.fast = self
             .channels
             .iter()
-            .flat_map(|c| std::iter::once(c.spec.count).chain(c.spec.freq))
+            .flat_map(|c| {
+                std::iter::once(c.spec.count)
+                    .chain(c.spec.freq)
+                    .chain(c.command)
+            })
             .collect();
     }
 

@@ -180,25 +180,23 @@ impl DeviceRt {
                     .map_err(write_failed)?
                     .map_err(exception)?;
             } else {
-                // The register also runs the counter: note its direction, clear, restart it so.
+                // The register also runs the counter: note its state (up, down, paused or
+                // stopped), clear (which stops it), and put it back in that state.
                 let state = link
                     .read(self.unit, clear.register, 1, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                let restart = if clear.restart.contains(&state[0]) {
-                    state[0]
-                } else {
-                    clear.restart[0]
-                };
                 link.write_register(self.unit, clear.register, clear.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                link.write_register(self.unit, clear.register, restart, timeout)
-                    .await
-                    .map_err(write_failed)?
-                    .map_err(exception)?;
+                if state[0] != clear.code {
+                    link.write_register(self.unit, clear.register, state[0], timeout)
+                        .await
+                        .map_err(write_failed)?
+                        .map_err(exception)?;
+                }
             }
         }
         Ok(())

@@ -5,6 +5,7 @@ mod availability;
 mod device;
 mod execute;
 pub mod link;
+mod run;
 pub mod schedule;
 
 use std::collections::BTreeMap;

@@ -7,5 +7,6 @@ mod config_cases;
 mod counters;
 mod faults;
 mod pipeline;
+mod plants;
 mod service;
 mod support;

@@ -1,0 +1,130 @@
+//! Plants that behave as the datasheets say: ZH-YX1600 counters stopped after power-up, modules
+//! of the wrong model, devices that come and go. The simulator on pseudo-terminals, a real
+//! Mosquitto, the gateway binary.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use pulsegate::sim::Plant;
+use serde_json::Value;
+
+use crate::support::*;
+
+fn running(plant: &Plant, unit: u8, ch: &str) -> bool {
+    plant
+        .with_module("line1", unit, |m, _| m.channel(ch).unwrap().running())
+        .unwrap()
+}
+
+fn count(plant: &Plant, unit: u8, ch: &str) -> i64 {
+    plant
+        .with_module("line1", unit, |m, now| m.channel(ch).unwrap().count(now))
+        .unwrap()
+}
+
+fn set_rate(plant: &Plant, unit: u8, ch: &str, rate: f64) {
+    plant
+        .with_module("line1", unit, |m, now| assert!(m.set_rate(now, ch, rate)))
+        .unwrap();
+}
+
+async fn reading_after(sub: &Subscriber, topic: &str, after: Instant) -> Value {
+    sub.wait_for(topic, Duration::from_secs(10), |m| m.at > after)
+        .await
+        .unwrap_or_else(|| panic!("a reading on {topic}"))
+        .json()
+}
+
+async fn wait_until(what: &str, timeout: Duration, f: impl Fn() -> bool) -> Duration {
+    let t = Instant::now();
+    while !f() {
+        assert!(t.elapsed() < timeout, "{what} within {timeout:?}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    t.elapsed()
+}
+
+struct Setup {
+    broker: Broker,
+    plant: Plant,
+    dir: PathBuf,
+    config: PathBuf,
+    sub: Subscriber,
+}
+
+async fn setup(
+    name: &str,
+    sim: &str,
+    devices: &[(&str, &str, u8, &str, &str)],
+    extra: &str,
+) -> Setup {
+    let broker = Broker::start();
+    let plant = plant(sim).await;
+    let dir = temp_dir(name);
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let config = write_config(
+        &dir,
+        &gateway_toml(&plant, broker.port, &dir, devices, extra),
+    );
+    Setup {
+        broker,
+        plant,
+        dir,
+        config,
+        sub,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_zh_yx1600_at_factory_defaults_power_cycled_while_polled_counts_on_within_one_poll() {
+    let s = setup(
+        "zh-factory",
+        "[buses.line1.devices.zh]\nunit = 1\nmodel = \"zh-yx1600\"\n",
+        &[("line1", "zh", 1, "zh-yx1600", "200ms")],
+        "[buses.line1.devices.zh.channels.di3]\nrun = \"leave\"\n",
+    )
+    .await;
+    let topic = "pulsegate/test/zh/di1";
+    assert!(!running(&s.plant, 1, "di1"), "factory state: stopped");
+    let _gateway = Gateway::start(&s.config);
+    let first = reading_after(&s.sub, topic, Instant::now()).await;
+    assert_eq!(first["event"], "reset", "the start is said: {first}");
+    assert!(running(&s.plant, 1, "di1"), "the gateway started it");
+    assert!(!running(&s.plant, 1, "di3"), "run = \"leave\" is left stopped");
+
+    set_rate(&s.plant, 1, "di1", 500.0);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    set_rate(&s.plant, 1, "di1", 0.0);
+    reading_after(&s.sub, topic, Instant::now() + Duration::from_millis(300)).await;
+    let before = count(&s.plant, 1, "di1");
+    assert!(before > 900, "counted {before}");
+
+    // Power cut: the counter comes back cleared and stopped (pAuto 0).
+    set_rate(&s.plant, 1, "di1", 500.0);
+    s.plant
+        .with_module("line1", 1, |m, now| m.power_cycle(now))
+        .unwrap();
+    assert!(!running(&s.plant, 1, "di1"));
+    let took = wait_until("counting resumes", Duration::from_secs(2), || {
+        running(&s.plant, 1, "di1")
+    })
+    .await;
+    // One poll interval plus one transaction (with room for a loaded test machine).
+    assert!(took <= Duration::from_millis(200 + 300), "took {took:?}");
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    set_rate(&s.plant, 1, "di1", 0.0);
+    let last = reading_after(&s.sub, topic, Instant::now() + Duration::from_millis(400)).await;
+    let after = count(&s.plant, 1, "di1");
+    assert!(after > 900, "counted {after} after the power cut");
+    assert_eq!(
+        last["total"].as_i64().unwrap(),
+        before + after,
+        "total = the pulses the module counted"
+    );
+    let resets = readings(&s.sub, topic)
+        .iter()
+        .filter(|r| r["event"] == "reset")
+        .count();
+    assert_eq!(resets, 2, "the first start and the one after the power cut");
+    let _ = (&s.broker, &s.dir);
+}
