@@ -28,6 +28,8 @@ pub enum Output {
         device: Arc<str>,
         online: bool,
     },
+    /// The module is not the configured model: `<root>/<device>/status` = `wrong_model`.
+    WrongModel { device: Arc<str> },
     /// Health of a bus, as JSON.
     BusStats {
         bus: Arc<str>,

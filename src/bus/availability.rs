@@ -69,3 +69,19 @@ pub(super) fn failed(
         d.backoff.next_wait()
     })
 }
+
+/// The module is not the configured model: out of service with status `wrong_model` (logged and
+/// published once per change); its counters' next deltas cover the time out of service.
+pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &UnboundedSender<Output>) {
+    if d.wrong_model.as_deref() == Some(why.as_str()) {
+        return;
+    }
+    tracing::error!(bus, device = %d.name, unit = d.unit, "module taken out of service: {why}");
+    d.wrong_model = Some(why);
+    d.online = None;
+    d.failures = 0;
+    d.mark_gap();
+    let _ = out.send(Output::WrongModel {
+        device: d.name.clone(),
+    });
+}

@@ -9,6 +9,7 @@ use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
 use super::link::{Link, LinkError};
+use super::identity::{Identity, Verdict};
 use super::run::RunState;
 use super::schedule::Backoff;
 use crate::config::{Bus, ChannelConfig, Device, Run};
@@ -35,6 +36,9 @@ pub enum PollError {
     /// A command is waiting: the poll stepped aside after the transaction in flight.
     #[error("poll interrupted by a command")]
     Preempted,
+    /// The module is not the configured model: out of service, no readings.
+    #[error("wrong model: {0}")]
+    WrongModel(String),
 }
 
 impl PollError {
@@ -155,6 +159,11 @@ pub struct DeviceRt {
     /// The module's identity is to be checked before the next poll (at discovery, after a
     /// reset).
     pub(super) identify_due: bool,
+    /// Identification of every known model, to name what a wrong module is.
+    pub(super) known: Arc<[Identity]>,
+    /// Why the device is out of service, when its module is the wrong model.
+    pub wrong_model: Option<String>,
+    unidentified_warned: bool,
 }
 
 impl DeviceRt {
@@ -193,6 +202,9 @@ impl DeviceRt {
             achieved_interval: None,
             last_good_poll: None,
             identify_due: true,
+            known: Arc::from(Vec::new()),
+            wrong_model: None,
+            unidentified_warned: false,
             config: config.clone(),
         }
     }
@@ -234,6 +246,9 @@ impl DeviceRt {
         link: &mut Link,
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Vec<Reading>, PollError> {
+        if self.identify_due {
+            self.check_identity(link).await?;
+        }
         let slow_due = self
             .last_slow
             .is_none_or(|t| t.elapsed() >= self.slow_every);
@@ -290,6 +305,10 @@ impl DeviceRt {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
+            if update.event == Some(crate::counter::Event::Reset) {
+                // A module that restarted may be another module now.
+                self.identify_due = true;
+            }
             readings.push(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update));
         }
         for (i, count, at) in stopped {
@@ -302,6 +321,24 @@ impl DeviceRt {
                 Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
         }
         Ok(readings)
+    }
+
+    /// Checks the module's identity (due at discovery and after a reset).
+    async fn check_identity(&mut self, link: &mut Link) -> Result<(), PollError> {
+        match self.identify(link).await? {
+            Verdict::Confirmed => {}
+            Verdict::Unidentified => {
+                if !std::mem::replace(&mut self.unidentified_warned, true) {
+                    tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
+                }
+            }
+            Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
+        }
+        self.identify_due = false;
+        if let Some(was) = self.wrong_model.take() {
+            tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
+        }
+        Ok(())
     }
 
     /// Reads work modes (and with them the channel set) and pulses per revolution.

@@ -4,6 +4,7 @@
 mod availability;
 mod device;
 mod execute;
+mod identity;
 pub mod link;
 mod run;
 pub mod schedule;
@@ -95,6 +96,11 @@ impl BusTask {
                 )
             })
             .collect();
+        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
+        let known = identity::known(&configured);
+        for d in &mut devices {
+            d.known = known.clone();
+        }
         log_dropped_state(&name, &saved, &devices);
 
         let start = Instant::now();
@@ -199,6 +205,10 @@ impl BusTask {
                         let _ = self.out.send(Output::Reading(r));
                     }
                     slots[i].advance(now);
+                }
+                Err(PollError::WrongModel(why)) => {
+                    availability::wrong_model(d, why, &name, &self.out);
+                    slots[i].defer_to(now + bus.backoff_max);
                 }
                 Err(e) => {
                     let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());

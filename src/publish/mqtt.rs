@@ -279,6 +279,16 @@ pub async fn run(
                     None,
                 )
             }
+            Output::WrongModel { device } => {
+                health.device(&device, false);
+                (
+                    topics.device_status(&device),
+                    true,
+                    1,
+                    "wrong_model".to_string(),
+                    None,
+                )
+            }
             Output::BusStats { bus, stats } => {
                 if !lock(&shared).connected {
                     continue; // Health is of the moment: not worth spooling.

@@ -128,3 +128,63 @@ async fn a_zh_yx1600_at_factory_defaults_power_cycled_while_polled_counts_on_wit
     assert_eq!(resets, 2, "the first start and the one after the power cut");
     let _ = (&s.broker, &s.dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_with_no_readings() {
+    let s = setup(
+        "wrong-model",
+        "[buses.line1.devices.yl]\nunit = 1\nmodel = \"yl67\"\nmodes = [0, 0, 0, 0]\n\
+         channels.enc0 = { rate = 100 }\n\
+         [buses.line1.devices.zh]\nunit = 2\nmodel = \"zh-yx1600\"\n\
+         [buses.line1.devices.good]\nunit = 3\nmodel = \"wj157\"\n",
+        &[
+            ("line1", "yl", 1, "wj157", "100ms"),
+            ("line1", "zh", 2, "yl67", "100ms"),
+            ("line1", "good", 3, "wj157", "100ms"),
+        ],
+        "",
+    )
+    .await;
+    let gateway = Gateway::start(&s.config);
+    for dev in ["yl", "zh"] {
+        let topic = format!("pulsegate/test/{dev}/status");
+        s.sub
+            .wait_for(&topic, Duration::from_secs(5), |m| m.payload == "wrong_model")
+            .await
+            .unwrap_or_else(|| panic!("{dev}: status wrong_model"));
+        // A subscriber arriving later gets it from the broker: retained.
+        let late = Subscriber::start(s.broker.port, &topic).await;
+        let m = late
+            .wait_for(&topic, Duration::from_secs(2), |_| true)
+            .await
+            .expect("a retained status");
+        assert_eq!((m.payload.as_str(), m.retain), ("wrong_model", true));
+    }
+    // The right model next to them publishes as usual.
+    reading_after(&s.sub, "pulsegate/test/good/enc0", Instant::now()).await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let from_wrong: Vec<_> = s
+        .sub
+        .all()
+        .into_iter()
+        .filter(|m| {
+            (m.topic.starts_with("pulsegate/test/yl/") || m.topic.starts_with("pulsegate/test/zh/"))
+                && !m.topic.ends_with("/status")
+        })
+        .collect();
+    assert!(from_wrong.is_empty(), "readings from a wrong model: {from_wrong:?}");
+    let statuses: Vec<String> = s
+        .sub
+        .on("pulsegate/test/yl/status")
+        .into_iter()
+        .map(|m| m.payload)
+        .collect();
+    assert!(!statuses.contains(&"online".to_string()), "{statuses:?}");
+    let log = gateway.log_text();
+    assert!(
+        log.contains("the module says [0x0067] at register 210") && log.contains("yl67 (ibf67)"),
+        "the log names what the module said and what it is"
+    );
+    assert!(log.contains("identifies as zh-yx1600"), "the ZH-YX1600 is named");
+    let _ = (&s.broker, &s.dir);
+}
