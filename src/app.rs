@@ -36,7 +36,7 @@ pub async fn run_with_reloads(
     let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
-    for bus in &config.buses {
+    for bus in config.buses.iter().filter(|b| b.enabled) {
         let r = start_bus(bus, &config, &health, &out_tx, &shutdown);
         running.insert(bus.name.clone(), r);
     }
@@ -151,7 +151,7 @@ async fn apply(
         health.forget(&format!("bus/{name}"));
         tracing::info!(bus = %name, "bus stopped for the new config");
     }
-    for bus in &new.buses {
+    for bus in new.buses.iter().filter(|b| b.enabled) {
         if !running.contains_key(&bus.name) {
             // The gateway and MQTT settings stay those the gateway started with.
             let mut cfg = new.clone();

@@ -86,6 +86,7 @@ impl BusTask {
         let mut devices: Vec<DeviceRt> = bus
             .devices
             .iter()
+            .filter(|d| d.enabled)
             .map(|d| {
                 DeviceRt::new(
                     bus,
@@ -101,7 +102,7 @@ impl BusTask {
         for d in &mut devices {
             d.known = known.clone();
         }
-        log_dropped_state(&name, &saved, &devices);
+        let orphans = unclaimed(&name, &saved, &devices);
 
         let start = Instant::now();
         let mut slots: Vec<Slot> = devices
@@ -148,7 +149,7 @@ impl BusTask {
             }
             let now = Instant::now();
             if now >= flush_at {
-                let state = snapshot(&devices);
+                let state = snapshot(&devices, &orphans);
                 let path = self.state_path.clone();
                 let bus_name = name.clone();
                 tokio::task::spawn_blocking(move || {
@@ -223,7 +224,7 @@ impl BusTask {
                 }
             }
         }
-        let state = snapshot(&devices);
+        let state = snapshot(&devices, &orphans);
         let path = self.state_path.clone();
         match tokio::task::spawn_blocking(move || state.save(&path)).await {
             Ok(Err(e)) => tracing::error!(bus = %name, "{e}"),
@@ -289,8 +290,10 @@ async fn run_commands(
     *pending = waiting;
 }
 
-fn snapshot(devices: &[DeviceRt]) -> BusState {
-    let mut s = BusState::default();
+/// The bus's state to save: every device's, plus the saved state no configured device claims
+/// (kept, never attached to another meter).
+fn snapshot(devices: &[DeviceRt], orphans: &BusState) -> BusState {
+    let mut s = orphans.clone();
     for d in devices {
         s.channels.extend(d.counter_states());
         if !d.holes.is_empty() {
@@ -303,17 +306,28 @@ fn snapshot(devices: &[DeviceRt]) -> BusState {
     s
 }
 
-/// Saved channels that no configured device can have are not attached to anything: say so.
-fn log_dropped_state(bus: &str, saved: &BusState, devices: &[DeviceRt]) {
-    let kept: std::collections::BTreeSet<String> = devices
+/// Saved state that no configured (and enabled) device can have: kept as it is, so a device
+/// taken out of the config or disabled resumes its total, with a gap, when it comes back.
+/// `pulsegate state prune` removes it.
+fn unclaimed(bus: &str, saved: &BusState, devices: &[DeviceRt]) -> BusState {
+    let claimed: std::collections::BTreeSet<String> = devices
         .iter()
         .flat_map(|d| d.counter_states().into_keys())
         .collect();
+    let holes: std::collections::BTreeSet<String> = devices.iter().map(|d| d.holes_key()).collect();
+    let mut out = BusState::default();
     for (key, state) in &saved.channels {
-        if !kept.contains(key) {
-            tracing::warn!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; dropped");
+        if !claimed.contains(key) {
+            tracing::info!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; kept for when it comes back");
+            out.channels.insert(key.clone(), state.clone());
         }
     }
+    for (key, h) in &saved.holes {
+        if !holes.contains(key) {
+            out.holes.insert(key.clone(), h.clone());
+        }
+    }
+    out
 }
 
 fn percentile(sorted: &[f64], p: f64) -> Option<f64> {

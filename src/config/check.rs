@@ -360,6 +360,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let slow_poll = t
         .duration("slow_poll", errs)
         .unwrap_or(Duration::from_secs(60));
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
 
     let mut devices = Vec::new();
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
@@ -392,6 +393,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         backoff_min,
         backoff_max,
         slow_poll,
+        enabled,
         devices,
     })
 }
@@ -446,6 +448,7 @@ fn device(
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration("timeout", errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -465,5 +468,6 @@ fn device(
         timeout,
         commands,
         channels,
+        enabled,
     })
 }

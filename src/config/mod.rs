@@ -136,6 +136,8 @@ pub struct Bus {
     pub backoff_max: Duration,
     /// How often slow registers (mode, pulses per revolution) are re-read.
     pub slow_poll: Duration,
+    /// `false`: the bus is not opened; its devices' saved state is kept.
+    pub enabled: bool,
     pub devices: Vec<Device>,
 }
 
@@ -200,6 +202,8 @@ pub struct Device {
     pub commands: bool,
     /// Per-channel settings keyed by channel name.
     pub channels: BTreeMap<String, ChannelConfig>,
+    /// `false`: not polled or published; its saved state is kept.
+    pub enabled: bool,
 }
 
 impl PartialEq for Device {
@@ -211,6 +215,9 @@ impl PartialEq for Device {
             && self.timeout == other.timeout
             && self.commands == other.commands
             && self.channels == other.channels
+            && self.enabled == other.enabled
+            // A profile file edited since: the bus restarts with the new profile.
+            && self.profile.fingerprint == other.profile.fingerprint
     }
 }
 

@@ -127,6 +127,8 @@ pub struct Profile {
     pub bauds: Vec<u32>,
     pub identify: Option<(u16, Vec<u16>)>,
     pub autosave: Option<u16>,
+    /// A hash of the profile's text: a reload sees an edited profile file.
+    pub fingerprint: u64,
     groups: Vec<raw::Group>,
 }
 
@@ -146,6 +148,12 @@ impl Profile {
             bauds: raw.bauds,
             identify: raw.identify.map(|i| (i.address, i.words)),
             autosave: raw.autosave.map(|a| a.address),
+            fingerprint: {
+                use std::hash::{Hash, Hasher};
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                text.hash(&mut h);
+                h.finish()
+            },
             groups: raw.groups,
         };
         profile.check().map_err(|message| ProfileError::Invalid {

@@ -188,3 +188,82 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
     assert!(log.contains("identifies as zh-yx1600"), "the ZH-YX1600 is named");
     let _ = (&s.broker, &s.dir);
 }
+
+/// Waits until the gateway's log has said `needle` `n` times.
+async fn wait_log(gateway: &Gateway, needle: &str, n: usize) {
+    let t = Instant::now();
+    while gateway.log_text().matches(needle).count() < n {
+        assert!(t.elapsed() < Duration::from_secs(10), "log: {needle} x{n}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_device_removed_by_sighup_or_disabled_and_put_back_continues_its_total_with_a_gap() {
+    let s = setup(
+        "come-and-go",
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\n\
+         [buses.line1.devices.other]\nunit = 2\nmodel = \"wj157\"\n",
+        &[
+            ("line1", "meter", 1, "yl67", "100ms"),
+            ("line1", "other", 2, "wj157", "100ms"),
+        ],
+        "",
+    )
+    .await;
+    let full = std::fs::read_to_string(&s.config).unwrap();
+    let without = gateway_toml(
+        &s.plant,
+        s.broker.port,
+        &s.dir,
+        &[("line1", "other", 2, "wj157", "100ms")],
+        "",
+    );
+    let disabled = format!("{full}\n[buses.line1.devices.meter.channels.a1]\nenabled = true\n")
+        .replace("model = \"yl67\"\n", "model = \"yl67\"\nenabled = false\n");
+    let topic = "pulsegate/test/meter/a0";
+    let gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, topic, Instant::now()).await;
+    let plant = &s.plant;
+    let generated = || {
+        plant
+            .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
+            .unwrap()
+    };
+    async fn pulses(plant: &Plant) {
+        set_rate(plant, 1, "a0", 300.0);
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        set_rate(plant, 1, "a0", 0.0);
+    }
+    pulses(plant).await;
+    let before = reading_after(&s.sub, topic, Instant::now() + Duration::from_millis(300)).await;
+    assert_eq!(before["total"].as_i64().unwrap(), generated());
+
+    let mut reloads = 0;
+    for (round, away) in [("removed", &without), ("disabled", &disabled)] {
+        std::fs::write(&s.config, away).unwrap();
+        gateway.signal("HUP");
+        reloads += 1;
+        wait_log(&gateway, "config reloaded", reloads).await;
+        let gone = Instant::now();
+        // Pulses while the device is away, and state flushes (every 500 ms) meanwhile.
+        pulses(plant).await;
+        tokio::time::sleep(Duration::from_millis(1200)).await;
+        assert!(
+            s.sub.on(topic).iter().all(|m| m.at < gone),
+            "{round}: no readings while away"
+        );
+        std::fs::write(&s.config, &full).unwrap();
+        gateway.signal("HUP");
+        reloads += 1;
+        wait_log(&gateway, "config reloaded", reloads).await;
+        let back = reading_after(&s.sub, topic, gone).await;
+        assert_eq!(back["event"], "gap", "{round}: {back}");
+        assert_eq!(
+            back["total"].as_i64().unwrap(),
+            generated(),
+            "{round}: the total continues from where it was, with the pulses counted meanwhile"
+        );
+    }
+    let _ = &s.broker;
+}
