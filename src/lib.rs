@@ -24,6 +24,7 @@ pub mod plan;
 pub mod profile;
 pub mod publish;
 pub mod reading;
+pub mod saved;
 pub mod report;
 pub mod sim;
 pub mod state;

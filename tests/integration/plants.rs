@@ -267,3 +267,42 @@ async fn a_device_removed_by_sighup_or_disabled_and_put_back_continues_its_total
     }
     let _ = &s.broker;
 }
+
+#[test]
+fn state_list_shows_what_is_saved_and_prune_removes_the_unmatched_only_with_apply() {
+    let dir = temp_dir("state-cli");
+    let config = write_config(
+        &dir,
+        &format!(
+            "[gateway]\nid = \"t\"\nstate_dir = {dir:?}\n[buses.line1]\nport = \"/dev/ttyS0\"\n\
+             [buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n"
+        ),
+    );
+    let file = dir.join("bus-line1.json");
+    std::fs::write(
+        &file,
+        r#"{"version":1,"channels":{
+            "1/yl67/a0":{"count":200,"at_ms":1795300723123,"total":200,"seq":9},
+            "7/wj157/a0":{"count":75,"at_ms":1795300723123,"total":75,"seq":3}},"holes":{}}"#,
+    )
+    .unwrap();
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(bin())
+            .args(args)
+            .arg("--config")
+            .arg(&config)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{args:?}: {out:?}");
+        String::from_utf8(out.stdout).unwrap()
+    };
+    let list = run(&["state", "list"]);
+    assert!(list.contains("1/yl67/a0") && list.contains("device meter"), "{list}");
+    assert!(list.contains("7/wj157/a0") && list.contains("matches no configured device"), "{list}");
+    let dry = run(&["state", "prune"]);
+    assert!(dry.contains("would remove") && dry.contains("7/wj157/a0"), "{dry}");
+    assert!(std::fs::read_to_string(&file).unwrap().contains("7/wj157/a0"), "a dry run");
+    run(&["state", "prune", "--apply"]);
+    let after = std::fs::read_to_string(&file).unwrap();
+    assert!(!after.contains("7/wj157/a0") && after.contains("1/yl67/a0"), "{after}");
+}
