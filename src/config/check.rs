@@ -270,8 +270,8 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let has_host = t.has("host");
     let link = if has_host {
         let host = t.req::<String>("host", errs);
-        let port = t.int::<u16>("port", errs).unwrap_or(502);
-        if port == 0 {
+        let port = t.int::<u16>("port", errs).unwrap_or(0);
+        if port == 0 && has_port {
             errs.push(
                 &join(&path, "port"),
                 t.origin(),
@@ -325,6 +325,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         None
     };
 
+    let t_origin = t.origin().map(str::to_string);
     let timeout = t.duration("timeout", errs);
     let guard = t.opt::<String>("guard", errs).map_or(Duration::ZERO, |s| {
         humantime::parse_duration(&s).unwrap_or_else(|e| {
@@ -384,9 +385,15 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         }
     }
     t.finish(errs);
+    let mut link = link?;
+    if let Link::Tcp { port, .. } = &mut link
+        && *port == 0
+    {
+        *port = default_tcp_port(&path, &devices, t_origin.as_deref(), errs);
+    }
     Some(Bus {
         name: name.to_string(),
-        link: link?,
+        link,
         timeout,
         guard,
         offline_after,
@@ -470,4 +477,30 @@ fn device(
         channels,
         enabled,
     })
+}
+
+/// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:
+/// 20108), or Modbus's 502 when none gives one. Devices whose datasheets disagree need `port`.
+fn default_tcp_port(path: &str, devices: &[Device], origin: Option<&str>, errs: &mut Errors) -> u16 {
+    let given: std::collections::BTreeSet<(u16, &str)> = devices
+        .iter()
+        .map(|d| (d.profile.tcp_port.unwrap_or(502), d.profile.model.as_str()))
+        .collect();
+    let ports: std::collections::BTreeSet<u16> = given.iter().map(|(p, _)| *p).collect();
+    match ports.len() {
+        0 => 502,
+        1 => *ports.first().expect("one"),
+        _ => {
+            let list: Vec<String> = given
+                .iter()
+                .map(|(p, m)| format!("{m} listens on {p}"))
+                .collect();
+            errs.push(
+                &join(path, "port"),
+                origin,
+                format!("missing, and the datasheets disagree: {}", list.join(", ")),
+            );
+            502
+        }
+    }
 }

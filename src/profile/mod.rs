@@ -92,11 +92,18 @@ pub struct ChannelSpec {
     pub max_rate_hz: f64,
     /// The clear-all write that covers this channel, where the mode has one.
     pub clear_all: Option<CodeWrite>,
+    /// Values a preset may write (inclusive), where the datasheet narrows the register's range.
+    pub preset_range: Option<(i64, i64)>,
 }
 
 impl ChannelSpec {
     /// Whether a preset value fits the channel's count register.
     pub fn accepts_preset(&self, value: i64) -> bool {
+        if let Some((lo, hi)) = self.preset_range
+            && !(lo..=hi).contains(&value)
+        {
+            return false;
+        }
         match self.count.ty {
             ValueType::I32 => i32::try_from(value).is_ok(),
             ValueType::U32 => u32::try_from(value).is_ok(),
@@ -125,6 +132,8 @@ pub struct Profile {
     pub word_order: WordOrder,
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
+    /// The factory Modbus TCP port of the Ethernet model, where the datasheet gives one.
+    pub tcp_port: Option<u16>,
     pub identify: Option<(u16, Vec<u16>)>,
     pub autosave: Option<u16>,
     /// A hash of the profile's text: a reload sees an edited profile file.
@@ -146,6 +155,7 @@ impl Profile {
             word_order: raw.word_order,
             answer_timeout: raw.answer_timeout,
             bauds: raw.bauds,
+            tcp_port: raw.tcp_port,
             identify: raw.identify.map(|i| (i.address, i.words)),
             autosave: raw.autosave.map(|a| a.address),
             fingerprint: {
@@ -285,6 +295,7 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             register: c.address,
             code: c.code,
         }),
+        preset_range: ch.preset_range.map(|[lo, hi]| (lo, hi)),
     }
 }
 

@@ -56,6 +56,9 @@ pub(super) struct Profile {
     #[serde(with = "humantime_serde")]
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
+    /// The port the Ethernet model listens on at the factory (Modbus TCP).
+    #[serde(default)]
+    pub tcp_port: Option<u16>,
     pub identify: Option<Identify>,
     pub autosave: Option<Autosave>,
     pub groups: Vec<Group>,
@@ -125,6 +128,9 @@ pub(super) struct ChannelTemplate {
     pub clear: ClearTemplate,
     pub retains_count: bool,
     pub max_rate_hz: f64,
+    /// Values a preset may write, where the datasheet narrows the register's range.
+    #[serde(default)]
+    pub preset_range: Option<[i64; 2]>,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]

@@ -129,6 +129,20 @@ fn presets_must_fit_the_count_register() {
 }
 
 #[test]
+fn encoder_presets_follow_the_datasheets_range_of_plus_minus_2147483647() {
+    // YL67 and WJ157 datasheets: encoder counts -2147483647..+2147483647.
+    for (model, modes) in [("yl67", &[0u16, 0, 0, 0][..]), ("wj157", &[0][..])] {
+        let enc = &profile(model).channels(modes).unwrap()[0];
+        assert!(enc.accepts_preset(-2_147_483_647), "{model}");
+        assert!(enc.accepts_preset(2_147_483_647), "{model}");
+        assert!(!enc.accepts_preset(-2_147_483_648), "{model}");
+    }
+    // The ZH-YX1600 counter takes the whole i32 range (0x8000_0000..0x7FFF_FFFF).
+    let zh = &profile("zh-yx1600").channels(&[0]).unwrap()[0];
+    assert!(zh.accepts_preset(-2_147_483_648));
+}
+
+#[test]
 fn a_broken_user_profile_is_an_error_naming_the_file() {
     let err = Profile::from_toml(
         "model = \"x\"\nword_order = \"sideways\"",

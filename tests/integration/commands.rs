@@ -213,6 +213,7 @@ async fn a_thousand_malformed_payloads_get_a_thousand_error_results_and_no_write
         ("yl/enc0/cmd", r#"{"op":"preset"}"#),
         ("yl/enc0/cmd", r#"{"op":"preset","value":"12"}"#),
         ("yl/enc0/cmd", r#"{"op":"preset","value":2147483648}"#),
+        ("yl/enc0/cmd", r#"{"op":"preset","value":-2147483648}"#),
         ("yl/a1/cmd", r#"{"op":"preset","value":-1}"#),
         ("yl/enc9/cmd", r#"{"op":"clear"}"#),
         ("nobody/enc0/cmd", r#"{"op":"clear"}"#),
