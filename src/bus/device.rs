@@ -66,6 +66,10 @@ pub(super) struct ChannelRt {
     pub(super) run: Run,
     /// The command register, where the module starts and stops counters by register.
     pub(super) command: Option<Register>,
+    /// The counting window of a frequency register that holds pulses per window, in seconds;
+    /// `None` while unknown (then no frequency is published).
+    pub(super) window_s: Option<f64>,
+    window_bad: bool,
 }
 
 impl ChannelRt {
@@ -295,7 +299,12 @@ impl DeviceRt {
                 .freq
                 .and_then(|r| snapshot.get(&r))
                 .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
-                .filter(|f| f.is_finite());
+                .filter(|f| f.is_finite())
+                .and_then(|f| match ch.spec.freq_window {
+                    // Pulses in the module's counting window → Hz.
+                    Some(_) => ch.window_s.map(|s| f / s),
+                    None => Some(f),
+                });
             let rpm = match (freq_hz, ch.ppr) {
                 (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
                 _ => None,
@@ -385,8 +394,43 @@ impl DeviceRt {
                 ch.ppr = configured.or(read.filter(|p| *p > 0.0));
             }
         }
+        self.read_windows(link, preempt).await?;
         self.replan_with_turnaround(link);
         self.last_slow = Some(Instant::now());
+        Ok(())
+    }
+
+    /// Reads the counting windows of frequency registers that count pulses per window.
+    async fn read_windows(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        let regs: Vec<Register> = self
+            .channels
+            .iter()
+            .filter_map(|c| c.spec.freq_window.map(|w| w.register))
+            .collect();
+        if regs.is_empty() {
+            return Ok(());
+        }
+        let snap = self.read_registers(link, &regs, preempt).await?;
+        let order = self.profile.word_order;
+        for ch in &mut self.channels {
+            let Some(w) = ch.spec.freq_window else {
+                continue;
+            };
+            let Some((words, _)) = snap.get(&w.register) else {
+                continue;
+            };
+            let raw = decode(words, w.register.ty, order).as_i64() as u64;
+            let seconds = w.seconds(raw);
+            if seconds.is_none() && !std::mem::replace(&mut ch.window_bad, true) {
+                tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
+            }
+            ch.window_bad = seconds.is_none();
+            ch.window_s = seconds;
+        }
         Ok(())
     }
 
@@ -421,6 +465,8 @@ impl DeviceRt {
                 ppr: overrides.ppr,
                 run: overrides.run,
                 command: super::run::command_register(&spec),
+                window_s: None,
+                window_bad: false,
                 spec,
                 counter,
             });

@@ -94,6 +94,33 @@ pub struct ChannelSpec {
     pub clear_all: Option<CodeWrite>,
     /// Values a preset may write (inclusive), where the datasheet narrows the register's range.
     pub preset_range: Option<(i64, i64)>,
+    /// The frequency register counts pulses over this window (ZH-YX1600), not Hz.
+    pub freq_window: Option<FreqWindow>,
+}
+
+/// A frequency register that holds the pulses counted in a window set by another register.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FreqWindow {
+    pub register: Register,
+    pub unit_ms: u32,
+    pub zero_ms: u32,
+}
+
+/// Longest window taken as real: a day. A larger value is not a window the module was set to
+/// (the ZH-YX1600 datasheet puts live lower limits, 0x8000_0000 at the factory, at addresses
+/// that overlap the windows).
+pub const LONGEST_WINDOW_MS: u64 = 24 * 3600 * 1000;
+
+impl FreqWindow {
+    /// The window in seconds for a register value, or `None` when the value cannot be a window.
+    pub fn seconds(&self, raw: u64) -> Option<f64> {
+        let ms = if raw == 0 {
+            u64::from(self.zero_ms)
+        } else {
+            raw.checked_mul(u64::from(self.unit_ms))?
+        };
+        (ms > 0 && ms <= LONGEST_WINDOW_MS).then(|| ms as f64 / 1000.0)
+    }
 }
 
 impl ChannelSpec {
@@ -296,6 +323,14 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             code: c.code,
         }),
         preset_range: ch.preset_range.map(|[lo, hi]| (lo, hi)),
+        freq_window: ch.freq_window.map(|w| FreqWindow {
+            register: Register {
+                address: w.address + i * w.stride,
+                ty: w.ty,
+            },
+            unit_ms: w.unit_ms,
+            zero_ms: w.zero_ms,
+        }),
     }
 }
 

@@ -131,6 +131,23 @@ pub(super) struct ChannelTemplate {
     /// Values a preset may write, where the datasheet narrows the register's range.
     #[serde(default)]
     pub preset_range: Option<[i64; 2]>,
+    /// Where the frequency register holds pulses per window rather than Hz: the window.
+    #[serde(default)]
+    pub freq_window: Option<WindowTemplate>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct WindowTemplate {
+    pub address: u16,
+    #[serde(default)]
+    pub stride: u16,
+    #[serde(rename = "type")]
+    pub ty: ValueType,
+    /// Milliseconds per unit of the register.
+    pub unit_ms: u32,
+    /// The window when the register reads 0.
+    pub zero_ms: u32,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]

@@ -306,3 +306,38 @@ fn state_list_shows_what_is_saved_and_prune_removes_the_unmatched_only_with_appl
     let after = std::fs::read_to_string(&file).unwrap();
     assert!(!after.contains("7/wj157/a0") && after.contains("1/yl67/a0"), "{after}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_zh_yx1600_frequency_is_published_in_hz_from_its_counting_window() {
+    let s = setup(
+        "zh-window",
+        "[buses.line1.devices.zh]\nunit = 1\nmodel = \"zh-yx1600\"\nchannels.di1 = { rate = 400 }\n",
+        &[("line1", "zh", 1, "zh-yx1600", "200ms")],
+        "",
+    )
+    .await;
+    // Counter 1's window at 0x1140:0x1141 = 50 × 10 ms: the register holds pulses per 0.5 s.
+    s.plant
+        .with_module("line1", 1, |m, now| m.write_many(now, 0x1140, &[0, 50]))
+        .unwrap()
+        .unwrap();
+    let _gateway = Gateway::start(&s.config);
+    let topic = "pulsegate/test/zh/di1";
+    let t = Instant::now() + Duration::from_millis(800);
+    let r = s
+        .sub
+        .wait_for(topic, Duration::from_secs(5), |m| {
+            m.at > t && m.json()["freq_hz"].is_number()
+        })
+        .await
+        .expect("a reading with a frequency")
+        .json();
+    let raw = s
+        .plant
+        .with_module("line1", 1, |m, now| m.read(now, 0x1180, 2))
+        .unwrap()
+        .unwrap();
+    assert_eq!(raw, vec![0, 200], "the module's register: pulses in 0.5 s");
+    assert_eq!(r["freq_hz"].as_f64().unwrap(), 400.0, "{r}");
+    let _ = (&s.broker, &s.dir);
+}
