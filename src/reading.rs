@@ -28,8 +28,12 @@ pub enum Output {
         device: Arc<str>,
         online: bool,
     },
-    /// The module is not the configured model: `<root>/<device>/status` = `wrong_model`.
-    WrongModel { device: Arc<str> },
+    /// The device has a problem that stops some or all of its readings:
+    /// `<root>/<device>/status` = `status` (`wrong_model`, `mode_mismatch`).
+    DeviceProblem {
+        device: Arc<str>,
+        status: &'static str,
+    },
     /// Health of a bus, as JSON.
     BusStats {
         bus: Arc<str>,

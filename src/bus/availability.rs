@@ -81,7 +81,27 @@ pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &Unboun
     d.online = None;
     d.failures = 0;
     d.mark_gap();
-    let _ = out.send(Output::WrongModel {
+    let _ = out.send(Output::DeviceProblem {
         device: d.name.clone(),
+        status: "wrong_model",
     });
+}
+
+/// A quadrature pair's mode words disagree (or agree again): status `mode_mismatch` while they
+/// do, `online` again after.
+pub(super) fn mode_mismatch(d: &mut DeviceRt, out: &UnboundedSender<Output>) {
+    let Some(now) = d.take_mismatch_change() else {
+        return;
+    };
+    let status = match now {
+        Some(_) => Output::DeviceProblem {
+            device: d.name.clone(),
+            status: "mode_mismatch",
+        },
+        None => Output::DeviceStatus {
+            device: d.name.clone(),
+            online: true,
+        },
+    };
+    let _ = out.send(status);
 }

@@ -168,6 +168,10 @@ pub struct DeviceRt {
     /// Why the device is out of service, when its module is the wrong model.
     pub wrong_model: Option<String>,
     unidentified_warned: bool,
+    /// Quadrature pairs whose two mode words disagree, described; and its last change, not
+    /// yet published.
+    pub mode_mismatch: Option<String>,
+    mismatch_changed: Option<Option<String>>,
 }
 
 impl DeviceRt {
@@ -209,6 +213,8 @@ impl DeviceRt {
             known: Arc::from(Vec::new()),
             wrong_model: None,
             unidentified_warned: false,
+            mode_mismatch: None,
+            mismatch_changed: None,
             config: config.clone(),
         }
     }
@@ -278,6 +284,7 @@ impl DeviceRt {
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
         let mut stopped = Vec::new();
+        let mut restarted = false;
         for (i, ch) in self.channels.iter_mut().enumerate() {
             let Some((words, at)) = snapshot.get(&ch.spec.count) else {
                 continue;
@@ -315,13 +322,15 @@ impl DeviceRt {
                 continue;
             };
             if update.event == Some(crate::counter::Event::Reset) {
-                // A module that restarted may be another module now.
-                self.identify_due = true;
+                restarted = true;
             }
             readings.push(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update));
         }
         for (i, count, at) in stopped {
             readings.extend(self.start_stopped(link, i, count, at).await);
+        }
+        if restarted {
+            self.module_restarted();
         }
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
@@ -330,6 +339,31 @@ impl DeviceRt {
                 Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
         }
         Ok(readings)
+    }
+
+    /// The module restarted (or was reset by someone else): it may be another module now, and
+    /// mode words written before take effect at a restart. Both are read again next poll.
+    pub(super) fn module_restarted(&mut self) {
+        self.identify_due = true;
+        self.last_slow = None;
+    }
+
+    /// Records the mode-word mismatch found now (logged once per change).
+    fn set_mismatch(&mut self, now: Option<String>) {
+        if self.mode_mismatch == now {
+            return;
+        }
+        match &now {
+            Some(why) => tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)"),
+            None => tracing::info!(device = %self.name, "mode words agree again"),
+        }
+        self.mode_mismatch = now.clone();
+        self.mismatch_changed = Some(now);
+    }
+
+    /// The mode-word mismatch, when it changed since the last call.
+    pub(super) fn take_mismatch_change(&mut self) -> Option<Option<String>> {
+        self.mismatch_changed.take()
     }
 
     /// Checks the module's identity (due at discovery and after a reset).
@@ -357,22 +391,46 @@ impl DeviceRt {
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<(), PollError> {
         let mode_regs = self.profile.mode_registers();
+        let word = |address| Register {
+            address,
+            ty: ValueType::U16,
+        };
+        // The mode words, then the partner words that must agree with them.
         let regs: Vec<Register> = mode_regs
             .iter()
-            .map(|m| Register {
-                address: m.address,
-                ty: ValueType::U16,
-            })
+            .map(|m| word(m.address))
+            .chain(mode_regs.iter().filter_map(|m| m.partner.map(word)))
             .collect();
         let snap = self.read_registers(link, &regs, preempt).await?;
         let modes: Vec<u16> = regs
             .iter()
             .filter_map(|r| snap.get(r).map(|(w, _)| w[0]))
             .collect();
-        let specs = self
+        let mut specs = self
             .profile
             .channels(&modes)
             .map_err(|e| PollError::Profile(e.to_string()))?;
+        let value = |a| snap.get(&word(a)).map(|(w, _)| w[0]);
+        // (mode word, description) of each pair whose two words disagree.
+        let mismatched: Vec<(u16, String)> = mode_regs
+            .iter()
+            .filter_map(|m| {
+                let (own, partner) = (value(m.address)?, value(m.partner?)?);
+                ((own ^ partner) & m.mask != 0).then(|| {
+                    let why = format!(
+                        "mode words {:#06x} = {own:#06x} and {:#06x} = {partner:#06x} disagree on bits {:#06x}",
+                        m.address,
+                        m.partner.expect("checked"),
+                        m.mask
+                    );
+                    (m.address, why)
+                })
+            })
+            .collect();
+        // The module does not count such a pair: publish no channel that never moves.
+        specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
+        let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
+        self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
         if self.modes.as_ref() != Some(&modes) {
             if self.modes.is_some() {
                 tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");

@@ -202,6 +202,7 @@ impl BusTask {
                     self.heart.set_up(true);
                     let d = &mut devices[i];
                     availability::answered(d, &name, &self.out);
+                    availability::mode_mismatch(d, &self.out);
                     for r in readings {
                         let _ = self.out.send(Output::Reading(r));
                     }

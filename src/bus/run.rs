@@ -93,7 +93,7 @@ impl DeviceRt {
             ch.counter.spec.direction = d;
         }
         let update = ch.counter.rebase(count, at.stamp, Event::Reset);
-        self.identify_due = true;
+        self.module_restarted();
         let ch = &self.channels[i];
         Some(ch.reading(&self.name, at.wall, count, None, None, update))
     }

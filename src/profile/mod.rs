@@ -96,6 +96,8 @@ pub struct ChannelSpec {
     pub preset_range: Option<(i64, i64)>,
     /// The frequency register counts pulses over this window (ZH-YX1600), not Hz.
     pub freq_window: Option<FreqWindow>,
+    /// The mode word this channel's existence depends on.
+    pub mode_register: u16,
 }
 
 /// A frequency register that holds the pulses counted in a window set by another register.
@@ -148,6 +150,8 @@ pub struct ModeRegister {
     pub instance: u16,
     pub address: u16,
     pub mask: u16,
+    /// A second mode word that must agree with this one under `mask`.
+    pub partner: Option<u16>,
 }
 
 /// A checked module profile.
@@ -210,6 +214,10 @@ impl Profile {
                     instance: i,
                     address: group.mode.address + i * group.mode.stride,
                     mask: group.mode.mask,
+                    partner: group
+                        .mode
+                        .partner
+                        .map(|o| group.mode.address + i * group.mode.stride + o),
                 });
             }
         }
@@ -234,7 +242,9 @@ impl Profile {
                     value,
                 })?;
             for ch in &mode.channels {
-                out.push(resolve(ch, reg.instance, mode.clear_all));
+                let mut c = resolve(ch, reg.instance, mode.clear_all);
+                c.mode_register = reg.address;
+                out.push(c);
             }
         }
         Ok(out)
@@ -248,7 +258,9 @@ impl Profile {
             for i in 0..group.instances {
                 for mode in &group.modes {
                     for ch in &mode.channels {
-                        out.push(resolve(ch, i, mode.clear_all));
+                        let mut c = resolve(ch, i, mode.clear_all);
+                        c.mode_register = group.mode.address + i * group.mode.stride;
+                        out.push(c);
                     }
                 }
             }
@@ -331,6 +343,7 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             unit_ms: w.unit_ms,
             zero_ms: w.zero_ms,
         }),
+        mode_register: 0,
     }
 }
 

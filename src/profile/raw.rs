@@ -94,6 +94,10 @@ pub(super) struct ModeTemplate {
     pub stride: u16,
     #[serde(default = "all_bits")]
     pub mask: u16,
+    /// Offset of a second mode word that must agree under `mask` (a ZH-YX1600 quadrature
+    /// pair counts only when both of its mode words select quadrature).
+    #[serde(default)]
+    pub partner: Option<u16>,
 }
 
 fn all_bits() -> u16 {

@@ -279,13 +279,13 @@ pub async fn run(
                     None,
                 )
             }
-            Output::WrongModel { device } => {
+            Output::DeviceProblem { device, status } => {
                 health.device(&device, false);
                 (
                     topics.device_status(&device),
                     true,
                     1,
-                    "wrong_model".to_string(),
+                    status.to_string(),
                     None,
                 )
             }

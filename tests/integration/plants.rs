@@ -341,3 +341,56 @@ async fn a_zh_yx1600_frequency_is_published_in_hz_from_its_counting_window() {
     assert_eq!(r["freq_hz"].as_f64().unwrap(), 400.0, "{r}");
     let _ = (&s.broker, &s.dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_zh_yx1600_quadrature_pair_with_disagreeing_mode_words_is_reported_not_published() {
+    // Pair 1 (counters 1+2) in quadrature on both words; pair 2: only counter 3's word.
+    let s = setup(
+        "zh-mismatch",
+        "[buses.line1.devices.zh]\nunit = 1\nmodel = \"zh-yx1600\"\nmodes = [2, 2]\n",
+        &[("line1", "zh", 1, "zh-yx1600", "200ms")],
+        "",
+    )
+    .await;
+    s.plant
+        .with_module("line1", 1, |m, now| {
+            m.write_one(now, 0x0703, 0x0000).unwrap();
+            m.power_cycle(now);
+        })
+        .unwrap();
+    let gateway = Gateway::start(&s.config);
+    s.sub
+        .wait_for("pulsegate/test/zh/status", Duration::from_secs(5), |m| {
+            m.payload == "mode_mismatch"
+        })
+        .await
+        .expect("status mode_mismatch");
+    reading_after(&s.sub, "pulsegate/test/zh/di1", Instant::now()).await;
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    assert!(
+        s.sub.on("pulsegate/test/zh/di3").is_empty(),
+        "the dead pair is not published as a channel that never moves"
+    );
+    assert!(
+        gateway
+            .log_text()
+            .contains("mode words 0x0702 = 0x0002 and 0x0703 = 0x0000 disagree"),
+        "the log says which words"
+    );
+    // Fixed, and the module restarted: the pair counts and the device is online again.
+    s.plant
+        .with_module("line1", 1, |m, now| {
+            m.write_one(now, 0x0703, 0x0002).unwrap();
+            m.power_cycle(now);
+        })
+        .unwrap();
+    let fixed = Instant::now();
+    s.sub
+        .wait_for("pulsegate/test/zh/status", Duration::from_secs(5), |m| {
+            m.at > fixed && m.payload == "online"
+        })
+        .await
+        .expect("online again");
+    reading_after(&s.sub, "pulsegate/test/zh/di3", fixed).await;
+    let _ = (&s.broker, &s.dir);
+}
