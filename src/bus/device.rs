@@ -70,6 +70,8 @@ pub(super) struct ChannelRt {
     /// `None` while unknown (then no frequency is published).
     pub(super) window_s: Option<f64>,
     window_bad: bool,
+    /// The power-on state was checked (and set where configured) in this run.
+    pub(super) power_on_done: bool,
 }
 
 impl ChannelRt {
@@ -402,9 +404,15 @@ impl DeviceRt {
             .chain(mode_regs.iter().filter_map(|m| m.partner.map(word)))
             .collect();
         let snap = self.read_registers(link, &regs, preempt).await?;
+        // Masked: bits outside the mask (a counter's power-on state) are no work mode.
+        let masks = mode_regs
+            .iter()
+            .map(|m| m.mask)
+            .chain(mode_regs.iter().filter(|m| m.partner.is_some()).map(|m| m.mask));
         let modes: Vec<u16> = regs
             .iter()
-            .filter_map(|r| snap.get(r).map(|(w, _)| w[0]))
+            .zip(masks)
+            .filter_map(|(r, mask)| snap.get(r).map(|(w, _)| w[0] & mask))
             .collect();
         let mut specs = self
             .profile
@@ -453,6 +461,7 @@ impl DeviceRt {
             }
         }
         self.read_windows(link, preempt).await?;
+        self.set_power_on(link).await;
         self.replan_with_turnaround(link);
         self.last_slow = Some(Instant::now());
         Ok(())
@@ -525,6 +534,7 @@ impl DeviceRt {
                 command: super::run::command_register(&spec),
                 window_s: None,
                 window_bad: false,
+                power_on_done: false,
                 spec,
                 counter,
             });

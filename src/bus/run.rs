@@ -56,6 +56,45 @@ pub(super) fn start_code(spec: &ChannelSpec, run: Run) -> Option<u16> {
 }
 
 impl DeviceRt {
+    /// Sets the power-on state of channels configured with `power_on = true` to their run
+    /// direction, once per run and only where it differs: the module keeps it in flash and
+    /// applies it after its next restart, so it counts after a power cut without waiting for
+    /// the gateway. Failures are logged and tried again at the next slow poll.
+    pub(super) async fn set_power_on(&mut self, link: &mut Link) {
+        let timeout = self.timeout_for(link, 1);
+        for i in 0..self.channels.len() {
+            let ch = &self.channels[i];
+            let configured = self
+                .config
+                .channels
+                .get(&*ch.name)
+                .is_some_and(|c| c.power_on);
+            let (Some(p), true, false) = (ch.spec.power_on, configured, ch.power_on_done) else {
+                continue;
+            };
+            let down = ch.run == Run::Down && ch.spec.kind == ChannelKind::Counter;
+            let name = ch.name.clone();
+            let word = match link.read(self.unit, p.address, 1, timeout).await {
+                Ok(Ok(w)) => w[0],
+                other => {
+                    tracing::warn!(device = %self.name, channel = %name, "power-on state not read: {other:?}");
+                    continue;
+                }
+            };
+            let wanted = p.apply(word, down);
+            if wanted != word {
+                match link.write_register(self.unit, p.address, wanted, timeout).await {
+                    Ok(Ok(())) => tracing::info!(device = %self.name, channel = %name, "power-on state set: register {:#06x} {word:#06x} → {wanted:#06x}; the module counts by itself after its next restart", p.address),
+                    other => {
+                        tracing::warn!(device = %self.name, channel = %name, "power-on state not set: {other:?}");
+                        continue;
+                    }
+                }
+            }
+            self.channels[i].power_on_done = true;
+        }
+    }
+
     /// Starts channel `i`, found stopped with `count` at `at`: writes the start code, then books
     /// the restart (the total stays; the count since power-up or the stop was cleared by the
     /// module). `None` when it is left stopped or the write failed (tried again next poll).

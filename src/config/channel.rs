@@ -29,6 +29,9 @@ pub struct ChannelConfig {
     pub run: Run,
     /// `false`: not polled or published; its saved state is kept.
     pub enabled: bool,
+    /// Set the module's power-on state (ZH-YX1600 mode word pAuto bits) to `run`, once, so the
+    /// counter counts by itself after a power cut; the module applies it after a restart.
+    pub power_on: bool,
 }
 
 impl Default for ChannelConfig {
@@ -38,6 +41,7 @@ impl Default for ChannelConfig {
             max_rate_hz: None,
             run: Run::Up,
             enabled: true,
+            power_on: false,
         }
     }
 }
@@ -72,11 +76,30 @@ pub(super) fn channel(
     }
     let run = ct.opt::<Run>("run", errs).unwrap_or_default();
     let enabled = ct.opt::<bool>("enabled", errs).unwrap_or(true);
+    let power_on = ct.opt::<bool>("power_on", errs).unwrap_or(false);
+    if power_on && run == Run::Leave {
+        errs.push(
+            &join(&cpath, "power_on"),
+            ct.origin(),
+            "needs run = \"up\" or \"down\" (the power-on state is set to the run direction)",
+        );
+    }
+    if power_on
+        && let Some(p) = profile
+        && !p.all_channels().iter().any(|c| c.name == cname && c.power_on.is_some())
+    {
+        errs.push(
+            &join(&cpath, "power_on"),
+            ct.origin(),
+            format!("model {} has no power-on state to set", p.model),
+        );
+    }
     ct.finish(errs);
     ChannelConfig {
         ppr,
         max_rate_hz,
         run,
         enabled,
+        power_on,
     }
 }

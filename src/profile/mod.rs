@@ -98,6 +98,24 @@ pub struct ChannelSpec {
     pub freq_window: Option<FreqWindow>,
     /// The mode word this channel's existence depends on.
     pub mode_register: u16,
+    /// Where the module keeps the counter's run state after power-up.
+    pub power_on: Option<PowerOn>,
+}
+
+/// The power-on run state of a counter: `mask` bits of the word at `address`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PowerOn {
+    pub address: u16,
+    pub mask: u16,
+    pub up: u16,
+    pub down: u16,
+}
+
+impl PowerOn {
+    /// `word` with its power-on bits set to count up (`down == false`) or down; other bits kept.
+    pub fn apply(&self, word: u16, down: bool) -> u16 {
+        (word & !self.mask) | if down { self.down } else { self.up }
+    }
 }
 
 /// A frequency register that holds the pulses counted in a window set by another register.
@@ -344,6 +362,12 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             zero_ms: w.zero_ms,
         }),
         mode_register: 0,
+        power_on: ch.power_on.map(|p| PowerOn {
+            address: p.address + i * p.stride,
+            mask: p.mask,
+            up: p.up,
+            down: p.down,
+        }),
     }
 }
 
@@ -423,3 +447,4 @@ impl Profiles {
 
 #[cfg(test)]
 mod tests;
+

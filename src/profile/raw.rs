@@ -138,6 +138,20 @@ pub(super) struct ChannelTemplate {
     /// Where the frequency register holds pulses per window rather than Hz: the window.
     #[serde(default)]
     pub freq_window: Option<WindowTemplate>,
+    /// The bits of a settings word that say how the counter runs after power-up.
+    #[serde(default)]
+    pub power_on: Option<PowerOnTemplate>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct PowerOnTemplate {
+    pub address: u16,
+    #[serde(default)]
+    pub stride: u16,
+    pub mask: u16,
+    pub up: u16,
+    pub down: u16,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]

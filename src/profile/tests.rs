@@ -180,3 +180,15 @@ fn zh_yx1600_frequency_is_pulses_per_window_set_at_0x1140_in_units_of_10ms() {
     assert_eq!(w1.seconds(0x8000_0000), None);
     assert!(profile("yl67").all_channels().iter().all(|c| c.freq_window.is_none()));
 }
+
+#[test]
+fn zh_yx1600_power_on_state_is_the_pauto_bits_9_8_of_each_counters_mode_word() {
+    let p = profile("zh-yx1600");
+    let chans = p.channels(&[0]).unwrap();
+    let (di1, di2) = (chans[0].power_on.unwrap(), chans[1].power_on.unwrap());
+    assert_eq!((di1.address, di2.address), (0x0700, 0x0701));
+    // Section 8.5: pAuto = 1 counts up, 2 counts down; the other bits are kept.
+    assert_eq!(di1.apply(0x0000, false), 0x0100);
+    assert_eq!(di1.apply(0x0002, true), 0x0202);
+    assert_eq!(di1.apply(0x0302, false), 0x0102);
+}

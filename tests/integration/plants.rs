@@ -394,3 +394,35 @@ async fn a_zh_yx1600_quadrature_pair_with_disagreeing_mode_words_is_reported_not
     reading_after(&s.sub, "pulsegate/test/zh/di3", fixed).await;
     let _ = (&s.broker, &s.dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_power_on_state_is_set_once_and_the_module_counts_by_itself_after_a_power_cut() {
+    let s = setup(
+        "zh-power-on",
+        "[buses.line1.devices.zh]\nunit = 1\nmodel = \"zh-yx1600\"\nmodes = [2]\n",
+        &[("line1", "zh", 1, "zh-yx1600", "200ms")],
+        "[buses.line1.devices.zh.channels.di3]\npower_on = true\nrun = \"down\"\n\
+         [buses.line1.devices.zh.channels.di1]\npower_on = true\n",
+    )
+    .await;
+    let word = |a: u16| {
+        s.plant
+            .with_module("line1", 1, |m, now| m.read(now, a, 1).unwrap()[0])
+            .unwrap()
+    };
+    let gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, "pulsegate/test/zh/di3", Instant::now()).await;
+    // di1 is a quadrature pair (bit 1 kept): pAuto 1; di3 counts down: pAuto 2; di4 untouched.
+    assert_eq!(word(0x0700), 0x0102);
+    assert_eq!(word(0x0702), 0x0200);
+    assert_eq!(word(0x0703), 0x0000);
+    // The gateway is gone; the power is cut: the counters start by themselves.
+    drop(gateway);
+    s.plant
+        .with_module("line1", 1, |m, now| m.power_cycle(now))
+        .unwrap();
+    assert!(running(&s.plant, 1, "di1") && running(&s.plant, 1, "di3"));
+    assert!(!running(&s.plant, 1, "di4"), "not configured: stopped, as at the factory");
+    assert_eq!(word(0x1102), 0x00A3, "di3 counts down after power-up");
+    let _ = (&s.broker, &s.dir);
+}
