@@ -510,7 +510,14 @@ mod tests {
         let start = 10 * HOUR;
         let mid = poll_steady(&mut c, 0, start, 2000, 50, 0);
         // The same monotonic time goes on; the wall clock is an hour behind from here.
-        let end = poll_steady(&mut c, mid + 400, start + 50 * 200, 2000, 50, -(HOUR as i64));
+        let end = poll_steady(
+            &mut c,
+            mid + 400,
+            start + 50 * 200,
+            2000,
+            50,
+            -(HOUR as i64),
+        );
         assert_eq!(c.state.total, end);
     }
 
@@ -543,7 +550,10 @@ mod tests {
     fn a_fast_channel_that_really_wrapped_during_a_long_absence_still_books_the_wrap() {
         let mut c = di(50_000.0);
         // 20 kHz, seen by the gateway.
-        booked(&mut c, &[(0, 0), (20_000, 1000), (4_000_000_000, 200_000_000)]);
+        booked(
+            &mut c,
+            &[(0, 0), (20_000, 1000), (4_000_000_000, 200_000_000)],
+        );
         assert_eq!(c.state.peak_hz, 20_000);
         let saved = c.state.clone();
         let mut c = Counter::resume(c.spec, saved);
@@ -573,7 +583,10 @@ mod tests {
         let two_days = spec.plausible_wrap(2 * DAY, 5);
         assert!((3_000_000..4_500_000).contains(&two_days), "{two_days}");
         // Never more than the datasheet's maximum.
-        assert_eq!(spec.plausible_wrap(2 * DAY, 1_000_000), spec.plausible(2 * DAY));
+        assert_eq!(
+            spec.plausible_wrap(2 * DAY, 1_000_000),
+            spec.plausible(2 * DAY)
+        );
     }
 
     #[test]
@@ -611,6 +624,10 @@ mod tests {
         });
         let u = booked(&mut c, &[(0, 0), (-300, 500)]);
         assert_eq!((u[1].delta, u[1].event), (-300, None));
-        assert_eq!(c.update(-100, Stamp::at(600)), None, "a rise is not counting down");
+        assert_eq!(
+            c.update(-100, Stamp::at(600)),
+            None,
+            "a rise is not counting down"
+        );
     }
 }

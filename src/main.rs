@@ -264,7 +264,9 @@ fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCod
     if let StateAction::Prune { apply: false } = action
         && unmatched > 0
     {
-        println!("dry run: {unmatched} saved channel(s) match no configured device; --apply removes them");
+        println!(
+            "dry run: {unmatched} saved channel(s) match no configured device; --apply removes them"
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -21,7 +21,11 @@ pub struct Entry {
 /// The bus name of a state file `bus-<name>.json`.
 fn bus_of(path: &Path) -> Option<String> {
     let name = path.file_name()?.to_str()?;
-    Some(name.strip_prefix("bus-")?.strip_suffix(".json")?.to_string())
+    Some(
+        name.strip_prefix("bus-")?
+            .strip_suffix(".json")?
+            .to_string(),
+    )
 }
 
 /// The state files in `dir`, sorted.
@@ -141,7 +145,11 @@ mod tests {
         // Sorted keys: 1/wj157/a0, 1/yl67/a0, 1/yl67/enc0, 2/yl67/a0.
         let meter = Some("meter".to_string());
         assert_eq!(owners, [None, meter.clone(), meter, None]);
-        assert!(entries(&c, "line2", &state()).iter().all(|e| e.device.is_none()));
+        assert!(
+            entries(&c, "line2", &state())
+                .iter()
+                .all(|e| e.device.is_none())
+        );
     }
 
     #[test]
@@ -154,7 +162,10 @@ mod tests {
 
     #[test]
     fn state_files_are_named_by_bus() {
-        assert_eq!(bus_of(Path::new("/x/bus-line1.json")).as_deref(), Some("line1"));
+        assert_eq!(
+            bus_of(Path::new("/x/bus-line1.json")).as_deref(),
+            Some("line1")
+        );
         assert_eq!(bus_of(Path::new("/x/bus-line1.json.tmp")), None);
         assert_eq!(bus_of(Path::new("/x/spool")), None);
     }

@@ -46,7 +46,10 @@ pub(super) fn failed(
     }
     if e.device_answered() {
         // It is there (an exception, a garbled answer on a noisy line): not a step towards
-        // offline.
+        // offline. A module refusing registers it answered before may be another module.
+        if matches!(e, PollError::Refused { .. }) && d.discovered() {
+            d.identify_due = true;
+        }
         d.failures = 0;
         return None;
     }
@@ -58,6 +61,8 @@ pub(super) fn failed(
         tracing::warn!(bus = bus_name, device = %d.name, failures = d.failures, "device offline");
         d.online = Some(false);
         d.mark_gap();
+        // Whatever answers at this address next may be another module.
+        d.identify_due = true;
         let _ = out.send(Output::DeviceStatus {
             device: d.name.clone(),
             online: false,

@@ -8,8 +8,8 @@ use std::time::{Duration, SystemTime};
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::link::{Link, LinkError};
 use super::identity::{Identity, Verdict};
+use super::link::{Link, LinkError};
 use super::run::RunState;
 use super::schedule::Backoff;
 use crate::config::{Bus, ChannelConfig, Device, Run};
@@ -356,7 +356,9 @@ impl DeviceRt {
             return;
         }
         match &now {
-            Some(why) => tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)"),
+            Some(why) => {
+                tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
+            }
             None => tracing::info!(device = %self.name, "mode words agree again"),
         }
         self.mode_mismatch = now.clone();
@@ -405,10 +407,12 @@ impl DeviceRt {
             .collect();
         let snap = self.read_registers(link, &regs, preempt).await?;
         // Masked: bits outside the mask (a counter's power-on state) are no work mode.
-        let masks = mode_regs
-            .iter()
-            .map(|m| m.mask)
-            .chain(mode_regs.iter().filter(|m| m.partner.is_some()).map(|m| m.mask));
+        let masks = mode_regs.iter().map(|m| m.mask).chain(
+            mode_regs
+                .iter()
+                .filter(|m| m.partner.is_some())
+                .map(|m| m.mask),
+        );
         let modes: Vec<u16> = regs
             .iter()
             .zip(masks)

@@ -109,13 +109,18 @@ impl DeviceRt {
         let Some(expected) = self.profile.identify.clone() else {
             return Ok(Verdict::Confirmed);
         };
-        let own = self.read_identity(link, expected.0, expected.1.len()).await?;
+        let own = self
+            .read_identity(link, expected.0, expected.1.len())
+            .await?;
         if matches!(&own, Ok(w) if *w == expected.1) {
             return Ok(Verdict::Confirmed);
         }
         let known = self.known.clone();
         let mut others = Vec::new();
-        for id in known.iter().filter(|i| i.words != expected.1 || i.address != expected.0) {
+        for id in known
+            .iter()
+            .filter(|i| i.words != expected.1 || i.address != expected.0)
+        {
             let answer = if id.address == expected.0 && id.words.len() == expected.1.len() {
                 own.clone()
             } else {
@@ -154,11 +159,20 @@ mod tests {
 
     #[test]
     fn the_seed_models_identify_as_their_datasheets_say() {
-        assert_eq!((id("yl67").address, id("yl67").words.clone()), (210, vec![0x0067]));
+        assert_eq!(
+            (id("yl67").address, id("yl67").words.clone()),
+            (210, vec![0x0067])
+        );
         assert_eq!(id("yl67").model, "yl67 (ibf67)");
-        assert_eq!((id("wj157").address, id("wj157").words.clone()), (210, vec![0x0150]));
+        assert_eq!(
+            (id("wj157").address, id("wj157").words.clone()),
+            (210, vec![0x0150])
+        );
         let zh = id("zh-yx1600");
-        assert_eq!((zh.address, zh.words), (0x0055, vec![0x5958, 0x3136, 0x3030]));
+        assert_eq!(
+            (zh.address, zh.words),
+            (0x0055, vec![0x5958, 0x3136, 0x3030])
+        );
     }
 
     #[test]
@@ -168,7 +182,10 @@ mod tests {
         let Verdict::Wrong(msg) = v else {
             panic!("{v:?}")
         };
-        assert!(msg.contains("0x0067") && msg.contains("yl67 (ibf67)"), "{msg}");
+        assert!(
+            msg.contains("0x0067") && msg.contains("yl67 (ibf67)"),
+            "{msg}"
+        );
     }
 
     #[test]

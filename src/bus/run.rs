@@ -37,7 +37,11 @@ pub(super) fn run_state(spec: &ChannelSpec, word: u16) -> RunState {
     } else if spec.clear.restart.first() == Some(&word) {
         RunState::Running(if both { Direction::Both } else { Direction::Up })
     } else if spec.clear.restart.get(1) == Some(&word) {
-        RunState::Running(if both { Direction::Both } else { Direction::Down })
+        RunState::Running(if both {
+            Direction::Both
+        } else {
+            Direction::Down
+        })
     } else {
         RunState::Other
     }
@@ -83,8 +87,13 @@ impl DeviceRt {
             };
             let wanted = p.apply(word, down);
             if wanted != word {
-                match link.write_register(self.unit, p.address, wanted, timeout).await {
-                    Ok(Ok(())) => tracing::info!(device = %self.name, channel = %name, "power-on state set: register {:#06x} {word:#06x} → {wanted:#06x}; the module counts by itself after its next restart", p.address),
+                match link
+                    .write_register(self.unit, p.address, wanted, timeout)
+                    .await
+                {
+                    Ok(Ok(())) => {
+                        tracing::info!(device = %self.name, channel = %name, "power-on state set: register {:#06x} {word:#06x} → {wanted:#06x}; the module counts by itself after its next restart", p.address)
+                    }
                     other => {
                         tracing::warn!(device = %self.name, channel = %name, "power-on state not set: {other:?}");
                         continue;
@@ -109,7 +118,10 @@ impl DeviceRt {
         let code = start_code(&ch.spec, ch.run)?;
         let register = ch.spec.clear.register;
         let timeout = self.timeout_for(link, 1);
-        match link.write_register(self.unit, register, code, timeout).await {
+        match link
+            .write_register(self.unit, register, code, timeout)
+            .await
+        {
             Ok(Ok(())) => {}
             failed => {
                 let why = match failed {

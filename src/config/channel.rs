@@ -86,7 +86,10 @@ pub(super) fn channel(
     }
     if power_on
         && let Some(p) = profile
-        && !p.all_channels().iter().any(|c| c.name == cname && c.power_on.is_some())
+        && !p
+            .all_channels()
+            .iter()
+            .any(|c| c.name == cname && c.power_on.is_some())
     {
         errs.push(
             &join(&cpath, "power_on"),

@@ -481,7 +481,12 @@ fn device(
 
 /// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:
 /// 20108), or Modbus's 502 when none gives one. Devices whose datasheets disagree need `port`.
-fn default_tcp_port(path: &str, devices: &[Device], origin: Option<&str>, errs: &mut Errors) -> u16 {
+fn default_tcp_port(
+    path: &str,
+    devices: &[Device],
+    origin: Option<&str>,
+    errs: &mut Errors,
+) -> u16 {
     let given: std::collections::BTreeSet<(u16, &str)> = devices
         .iter()
         .map(|d| (d.profile.tcp_port.unwrap_or(502), d.profile.model.as_str()))

@@ -226,7 +226,10 @@ fn a_tcp_bus_of_zh_yx1600_modules_needs_no_port_the_datasheet_gives_20108() {
          [buses.gw.devices.doors]\nunit = 2\nmodel = \"zh-yx1600\"\n",
     )
     .join("\n");
-    assert!(e.contains("buses.gw.port") && e.contains("zh-yx1600 listens on 20108"), "{e}");
+    assert!(
+        e.contains("buses.gw.port") && e.contains("zh-yx1600 listens on 20108"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -246,5 +249,8 @@ fn enabled_and_run_are_read_at_bus_device_and_channel_level() {
         "[buses.hall]\nhost = \"h\"\n[buses.hall.devices.doors]\nunit = 1\nmodel = \"zh-yx1600\"\nchannels.di1 = { run = \"sideways\" }\n",
     )
     .join("\n");
-    assert!(e.contains("buses.hall.devices.doors.channels.di1.run"), "{e}");
+    assert!(
+        e.contains("buses.hall.devices.doors.channels.di1.run"),
+        "{e}"
+    );
 }

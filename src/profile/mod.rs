@@ -447,4 +447,3 @@ impl Profiles {
 
 #[cfg(test)]
 mod tests;
-

@@ -175,10 +175,19 @@ fn zh_yx1600_frequency_is_pulses_per_window_set_at_0x1140_in_units_of_10ms() {
     let w2 = chans[1].freq_window.unwrap();
     assert_eq!((w1.register.address, w2.register.address), (0x1140, 0x1142));
     assert_eq!(w1.seconds(0), Some(1.0), "0 means one second");
-    assert_eq!(w1.seconds(6000), Some(60.0), "the datasheet's one-minute example");
+    assert_eq!(
+        w1.seconds(6000),
+        Some(60.0),
+        "the datasheet's one-minute example"
+    );
     // A factory live lower limit (0x8000_0000) read from the overlapping address is no window.
     assert_eq!(w1.seconds(0x8000_0000), None);
-    assert!(profile("yl67").all_channels().iter().all(|c| c.freq_window.is_none()));
+    assert!(
+        profile("yl67")
+            .all_channels()
+            .iter()
+            .all(|c| c.freq_window.is_none())
+    );
 }
 
 #[test]

@@ -8,18 +8,18 @@ pub fn factory_registers(model: &str) -> Vec<(u16, Vec<u16>)> {
     match model {
         // YL67 / IBF67 register tables.
         "yl67" | "ibf67" => vec![
-            (88, vec![0]),        // factory reset (write 0xFF00)
-            (200, vec![1, 6]),    // address 01, baud code 6 = 9600
+            (88, vec![0]),       // factory reset (write 0xFF00)
+            (200, vec![1, 6]),   // address 01, baud code 6 = 9600
             (210, vec![0x0067]), // module name
         ],
         // WJ157 register table.
         "wj157" => vec![
-            (40, vec![60, 60]),  // pulses per revolution of A0, B0: default 60
-            (80, vec![1]),       // keep counts across power loss: 1 (default)
+            (40, vec![60, 60]), // pulses per revolution of A0, B0: default 60
+            (80, vec![1]),      // keep counts across power loss: 1 (default)
             (88, vec![0]),
-            (180, vec![0, 0]),   // input filter of A0, B0, ms: default 0
+            (180, vec![0, 0]),    // input filter of A0, B0, ms: default 0
             (200, vec![1, 6, 0]), // address, baud code, parity none
-            (210, vec![0x0150]), // module name
+            (210, vec![0x0150]),  // module name
         ],
         "zh-yx1600" => {
             let mut v = vec![

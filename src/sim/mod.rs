@@ -5,8 +5,8 @@
 //! the gateway talks to it over the wire like to real modules.
 
 mod config;
-pub mod line;
 mod datasheet;
+pub mod line;
 pub mod model;
 mod server;
 

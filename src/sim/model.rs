@@ -66,7 +66,11 @@ impl SimChannel {
     }
 
     fn freq(&self) -> f64 {
-        if self.counting() { self.rate.abs() } else { 0.0 }
+        if self.counting() {
+            self.rate.abs()
+        } else {
+            0.0
+        }
     }
 
     fn counting(&self) -> bool {
@@ -563,7 +567,11 @@ mod zh_yx1600_datasheet_tests {
         assert_eq!(m.read(0.0, 0x0700, 16), Ok(vec![0; 16]));
         assert_eq!(m.read(0.0, 0x1100, 1), Ok(vec![0x0000]), "command: stopped");
         m.set_rate(0.0, "di1", 100.0);
-        assert_eq!(m.read(2.0, 0x1160, 2), Ok(vec![0, 0]), "a stopped counter does not count");
+        assert_eq!(
+            m.read(2.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "a stopped counter does not count"
+        );
         m.write_one(2.0, 0x1100, 0x00A2).unwrap();
         assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]));
     }
@@ -582,7 +590,11 @@ mod zh_yx1600_datasheet_tests {
         m.set_rate(0.0, "di1", 100.0);
         // pAuto (bits 9:8) = 1: count up after power-up.
         m.write_one(0.0, 0x0700, 0x0100).unwrap();
-        assert_eq!(m.read(1.0, 0x1160, 2), Ok(vec![0, 0]), "not before a restart");
+        assert_eq!(
+            m.read(1.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "not before a restart"
+        );
         m.power_cycle(1.0);
         assert_eq!(m.read(1.0, 0x1100, 1), Ok(vec![0x00A2]));
         assert_eq!(m.read(2.0, 0x1160, 2), Ok(vec![0, 100]));
@@ -596,7 +608,11 @@ mod zh_yx1600_datasheet_tests {
         m.write_one(1.0, 0x1100, 0x0001).unwrap();
         assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]), "paused, kept");
         m.write_one(3.0, 0x1100, 0x0000).unwrap();
-        assert_eq!(m.read(4.0, 0x1160, 2), Ok(vec![0, 0]), "stopped and cleared");
+        assert_eq!(
+            m.read(4.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "stopped and cleared"
+        );
     }
 
     #[test]
@@ -605,7 +621,11 @@ mod zh_yx1600_datasheet_tests {
         m.set_rate(0.0, "di1", 100.0);
         m.write_one(0.0, 0x1100, 0x00A2).unwrap();
         m.write_one(0.0, 0x1100, 0x00A3).unwrap();
-        assert_eq!(m.read(0.0, 0x1100, 1), Ok(vec![0x00A2]), "0xA3 has no effect");
+        assert_eq!(
+            m.read(0.0, 0x1100, 1),
+            Ok(vec![0x00A2]),
+            "0xA3 has no effect"
+        );
         assert_eq!(m.read(1.0, 0x1160, 2), Ok(vec![0, 100]));
         // Bit 1 only on counter 1: the pair does not count after the next power-up.
         m.write_one(1.0, 0x0701, 0x0000).unwrap();

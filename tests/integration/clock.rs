@@ -43,7 +43,9 @@ fn set_rate(plant: &Plant, unit: u8, ch: &str, rate: f64) {
 
 fn generated(plant: &Plant, unit: u8, ch: &str) -> i64 {
     plant
-        .with_module("line1", unit, |m, now| m.channel(ch).unwrap().generated(now))
+        .with_module("line1", unit, |m, now| {
+            m.channel(ch).unwrap().generated(now)
+        })
         .unwrap()
 }
 

@@ -90,7 +90,10 @@ async fn a_zh_yx1600_at_factory_defaults_power_cycled_while_polled_counts_on_wit
     let first = reading_after(&s.sub, topic, Instant::now()).await;
     assert_eq!(first["event"], "reset", "the start is said: {first}");
     assert!(running(&s.plant, 1, "di1"), "the gateway started it");
-    assert!(!running(&s.plant, 1, "di3"), "run = \"leave\" is left stopped");
+    assert!(
+        !running(&s.plant, 1, "di3"),
+        "run = \"leave\" is left stopped"
+    );
 
     set_rate(&s.plant, 1, "di1", 500.0);
     tokio::time::sleep(Duration::from_secs(2)).await;
@@ -149,7 +152,9 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
     for dev in ["yl", "zh"] {
         let topic = format!("pulsegate/test/{dev}/status");
         s.sub
-            .wait_for(&topic, Duration::from_secs(5), |m| m.payload == "wrong_model")
+            .wait_for(&topic, Duration::from_secs(5), |m| {
+                m.payload == "wrong_model"
+            })
             .await
             .unwrap_or_else(|| panic!("{dev}: status wrong_model"));
         // A subscriber arriving later gets it from the broker: retained.
@@ -172,7 +177,10 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
                 && !m.topic.ends_with("/status")
         })
         .collect();
-    assert!(from_wrong.is_empty(), "readings from a wrong model: {from_wrong:?}");
+    assert!(
+        from_wrong.is_empty(),
+        "readings from a wrong model: {from_wrong:?}"
+    );
     let statuses: Vec<String> = s
         .sub
         .on("pulsegate/test/yl/status")
@@ -185,7 +193,10 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
         log.contains("the module says [0x0067] at register 210") && log.contains("yl67 (ibf67)"),
         "the log names what the module said and what it is"
     );
-    assert!(log.contains("identifies as zh-yx1600"), "the ZH-YX1600 is named");
+    assert!(
+        log.contains("identifies as zh-yx1600"),
+        "the ZH-YX1600 is named"
+    );
     let _ = (&s.broker, &s.dir);
 }
 
@@ -221,6 +232,7 @@ async fn a_device_removed_by_sighup_or_disabled_and_put_back_continues_its_total
     );
     let disabled = format!("{full}\n[buses.line1.devices.meter.channels.a1]\nenabled = true\n")
         .replace("model = \"yl67\"\n", "model = \"yl67\"\nenabled = false\n");
+    let channel_off = format!("{full}\n[buses.line1.devices.meter.channels.a0]\nenabled = false\n");
     let topic = "pulsegate/test/meter/a0";
     let gateway = Gateway::start(&s.config);
     reading_after(&s.sub, topic, Instant::now()).await;
@@ -240,7 +252,11 @@ async fn a_device_removed_by_sighup_or_disabled_and_put_back_continues_its_total
     assert_eq!(before["total"].as_i64().unwrap(), generated());
 
     let mut reloads = 0;
-    for (round, away) in [("removed", &without), ("disabled", &disabled)] {
+    for (round, away) in [
+        ("removed", &without),
+        ("disabled", &disabled),
+        ("channel disabled", &channel_off),
+    ] {
         std::fs::write(&s.config, away).unwrap();
         gateway.signal("HUP");
         reloads += 1;
@@ -297,14 +313,31 @@ fn state_list_shows_what_is_saved_and_prune_removes_the_unmatched_only_with_appl
         String::from_utf8(out.stdout).unwrap()
     };
     let list = run(&["state", "list"]);
-    assert!(list.contains("1/yl67/a0") && list.contains("device meter"), "{list}");
-    assert!(list.contains("7/wj157/a0") && list.contains("matches no configured device"), "{list}");
+    assert!(
+        list.contains("1/yl67/a0") && list.contains("device meter"),
+        "{list}"
+    );
+    assert!(
+        list.contains("7/wj157/a0") && list.contains("matches no configured device"),
+        "{list}"
+    );
     let dry = run(&["state", "prune"]);
-    assert!(dry.contains("would remove") && dry.contains("7/wj157/a0"), "{dry}");
-    assert!(std::fs::read_to_string(&file).unwrap().contains("7/wj157/a0"), "a dry run");
+    assert!(
+        dry.contains("would remove") && dry.contains("7/wj157/a0"),
+        "{dry}"
+    );
+    assert!(
+        std::fs::read_to_string(&file)
+            .unwrap()
+            .contains("7/wj157/a0"),
+        "a dry run"
+    );
     run(&["state", "prune", "--apply"]);
     let after = std::fs::read_to_string(&file).unwrap();
-    assert!(!after.contains("7/wj157/a0") && after.contains("1/yl67/a0"), "{after}");
+    assert!(
+        !after.contains("7/wj157/a0") && after.contains("1/yl67/a0"),
+        "{after}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -422,7 +455,131 @@ async fn the_power_on_state_is_set_once_and_the_module_counts_by_itself_after_a_
         .with_module("line1", 1, |m, now| m.power_cycle(now))
         .unwrap();
     assert!(running(&s.plant, 1, "di1") && running(&s.plant, 1, "di3"));
-    assert!(!running(&s.plant, 1, "di4"), "not configured: stopped, as at the factory");
+    assert!(
+        !running(&s.plant, 1, "di4"),
+        "not configured: stopped, as at the factory"
+    );
     assert_eq!(word(0x1102), 0x00A3, "di3 counts down after power-up");
+    let _ = (&s.broker, &s.dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_module_swapped_for_another_model_while_offline_is_refused_when_it_answers() {
+    let s = setup(
+        "swap",
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\n\
+         channels.a0 = { count = 5000 }\n",
+        &[("line1", "meter", 1, "yl67", "100ms")],
+        "",
+    )
+    .await;
+    let _gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, "pulsegate/test/meter/a0", Instant::now()).await;
+    // Someone takes the module out (the gateway sees it go offline) and puts a WJ157 in at the
+    // same address.
+    s.plant
+        .with_module("line1", 1, |m, _| m.silent = true)
+        .unwrap();
+    s.sub
+        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
+            m.payload == "offline"
+        })
+        .await
+        .expect("offline while out");
+    let profiles = pulsegate::profile::Profiles::builtin();
+    let wj = pulsegate::sim::SimModule::new(profiles.get("wj157").unwrap(), &[1]).unwrap();
+    s.plant
+        .bus("line1")
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(1, wj);
+    let swapped = Instant::now();
+    s.sub
+        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
+            m.at > swapped && m.payload == "wrong_model"
+        })
+        .await
+        .expect("wrong_model after the reset");
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let after: Vec<Value> = s
+        .sub
+        .on("pulsegate/test/meter/a0")
+        .into_iter()
+        .filter(|m| m.at > swapped + Duration::from_millis(300))
+        .map(|m| m.json())
+        .collect();
+    assert!(
+        after.is_empty(),
+        "no readings from the wrong model: {after:?}"
+    );
+    let _ = (&s.broker, &s.dir);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sighup_after_a_profile_file_changed_restarts_the_bus_with_the_new_profile() {
+    let s = setup(
+        "profile-edit",
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\n",
+        &[("line1", "meter", 1, "mine", "100ms")],
+        "",
+    )
+    .await;
+    let dir = s.dir.join("profiles");
+    std::fs::create_dir_all(&dir).unwrap();
+    let yl67 = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/profiles/yl67.toml"))
+        .unwrap()
+        .replace("model = \"yl67\"", "model = \"mine\"")
+        .replace("aliases = [\"ibf67\"]\n", "");
+    std::fs::write(dir.join("mine.toml"), &yl67).unwrap();
+    let gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, "pulsegate/test/meter/a0", Instant::now()).await;
+    std::fs::write(
+        dir.join("mine.toml"),
+        yl67.replace("name = \"a{}\"", "name = \"in{}\""),
+    )
+    .unwrap();
+    gateway.signal("HUP");
+    wait_log(&gateway, "config reloaded", 1).await;
+    reading_after(&s.sub, "pulsegate/test/meter/in0", Instant::now()).await;
+    assert!(
+        gateway
+            .log_text()
+            .contains("bus stopped for the new config")
+    );
+    let _ = &s.broker;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_reset_the_identity_is_read_again_and_a_swapped_in_wrong_model_is_refused() {
+    let s = setup(
+        "swap-reset",
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"wj157\"\nmodes = [1]\n\
+         channels.a0 = { count = 5000 }\n",
+        &[("line1", "meter", 1, "wj157", "100ms")],
+        "",
+    )
+    .await;
+    let _gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, "pulsegate/test/meter/a0", Instant::now()).await;
+    // A YL67 in DI mode answers every register the WJ157's counts use (32..35, 108, 144..147)
+    // and its A0 reads 0: to the counters it looks like a module that restarted.
+    let profiles = pulsegate::profile::Profiles::builtin();
+    let yl = pulsegate::sim::SimModule::new(profiles.get("yl67").unwrap(), &[1, 1, 1, 1]).unwrap();
+    s.plant
+        .bus("line1")
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(1, yl);
+    let swapped = Instant::now();
+    s.sub
+        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
+            m.at > swapped && m.payload == "wrong_model"
+        })
+        .await
+        .expect("wrong_model after the reset");
     let _ = (&s.broker, &s.dir);
 }
