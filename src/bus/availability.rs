@@ -46,9 +46,10 @@ pub(super) fn failed(
     }
     if e.device_answered() {
         // It is there (an exception, a garbled answer on a noisy line): not a step towards
-        // offline. A module refusing registers it answered before may be another module.
+        // offline. A module refusing registers it answered before may be another module, or
+        // have restarted in another work mode: identity and modes are read again.
         if matches!(e, PollError::Refused { .. }) && d.discovered() {
-            d.identify_due = true;
+            d.module_restarted();
         }
         d.failures = 0;
         return None;

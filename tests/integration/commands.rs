@@ -60,6 +60,16 @@ impl Rig {
                 "{d} online"
             );
         }
+        // The ZH-YX1600 starts with its counters stopped (factory state): the gateway starts
+        // them; tests that count writes begin once it has.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !plant
+            .with_module("line1", 4, |m, _| m.channels.iter().all(|c| c.running()))
+            .unwrap()
+        {
+            assert!(Instant::now() < deadline, "the gateway started the counters");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
         Rig {
             _broker: broker,
             plant,

@@ -583,3 +583,55 @@ async fn after_a_reset_the_identity_is_read_again_and_a_swapped_in_wrong_model_i
         .expect("wrong_model after the reset");
     let _ = (&s.broker, &s.dir);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_work_mode_change_keeps_the_state_of_channels_that_disappear_until_they_return() {
+    let s = setup(
+        "mode-change",
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\n",
+        &[("line1", "meter", 1, "yl67", "100ms")],
+        "",
+    )
+    .await;
+    let gateway = Gateway::start(&s.config);
+    let a0 = "pulsegate/test/meter/a0";
+    reading_after(&s.sub, a0, Instant::now()).await;
+    set_rate(&s.plant, 1, "a0", 400.0);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    set_rate(&s.plant, 1, "a0", 0.0);
+    let before = reading_after(&s.sub, a0, Instant::now() + Duration::from_millis(300)).await;
+    let total = before["total"].as_i64().unwrap();
+    assert!(total > 300, "{before}");
+    // Encoder 0 switched to quadrature (register 0 = 0), effective after the module restarts.
+    let switch = |mode: u16| {
+        s.plant
+            .with_module("line1", 1, |m, now| {
+                m.write_one(now, 0, mode).unwrap();
+                m.power_cycle(now);
+            })
+            .unwrap()
+    };
+    switch(0);
+    let switched = Instant::now();
+    reading_after(&s.sub, "pulsegate/test/meter/enc0", switched).await;
+    tokio::time::sleep(Duration::from_secs(1)).await; // state flushes every 500 ms
+    let saved = std::fs::read_to_string(s.dir.join("bus-line1.json")).unwrap();
+    assert!(
+        saved.contains("\"1/yl67/a0\""),
+        "a0's state is kept: {saved}"
+    );
+    // Back to two counters: a0 continues from its total.
+    switch(1);
+    set_rate(&s.plant, 1, "a0", 400.0);
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    set_rate(&s.plant, 1, "a0", 0.0);
+    let back = reading_after(&s.sub, a0, Instant::now() + Duration::from_millis(300)).await;
+    let module_count = count(&s.plant, 1, "a0");
+    assert_eq!(
+        back["total"].as_i64().unwrap(),
+        total + module_count,
+        "the total continues: {back}"
+    );
+    drop(gateway);
+    let _ = &s.broker;
+}
