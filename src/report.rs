@@ -29,7 +29,7 @@ pub fn poll_plan(config: &Config) -> String {
             let channels = d.profile.channels(&modes).unwrap_or_default();
             let values: Vec<Register> = channels
                 .iter()
-                .flat_map(|c| std::iter::once(c.count).chain(c.freq))
+                .flat_map(|c| c.polled())
                 .collect();
             let blocks = plan_reads(&values, &[], &wire);
             let regs: u16 = blocks.iter().map(|b| b.len).sum();

@@ -551,11 +551,7 @@ impl DeviceRt {
         self.fast = self
             .channels
             .iter()
-            .flat_map(|c| {
-                std::iter::once(c.spec.count)
-                    .chain(c.spec.freq)
-                    .chain(c.command)
-            })
+            .flat_map(|c| c.spec.polled())
             .collect();
     }
 

@@ -8,15 +8,12 @@ use super::device::{At, DeviceRt};
 use super::link::Link;
 use crate::config::Run;
 use crate::counter::{Direction, Event};
-use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
+use crate::profile::{ChannelKind, ChannelSpec, Register};
 use crate::reading::Reading;
 
 /// The command register of a channel that has one.
 pub(super) fn command_register(spec: &ChannelSpec) -> Option<Register> {
-    (!spec.clear.restart.is_empty()).then_some(Register {
-        address: spec.clear.register,
-        ty: ValueType::U16,
-    })
+    spec.command_register()
 }
 
 /// What a command word means for a channel.

@@ -144,6 +144,23 @@ impl FreqWindow {
 }
 
 impl ChannelSpec {
+    /// The register that starts and stops the counter, where the module has one (ZH-YX1600):
+    /// the clear register of a channel whose clear restarts it.
+    pub fn command_register(&self) -> Option<Register> {
+        (!self.clear.restart.is_empty()).then_some(Register {
+            address: self.clear.register,
+            ty: ValueType::U16,
+        })
+    }
+
+    /// The registers every poll reads for this channel: count, frequency and run state. `check`
+    /// prints the plan of these, and the bus executes it.
+    pub fn polled(&self) -> impl Iterator<Item = Register> + '_ {
+        std::iter::once(self.count)
+            .chain(self.freq)
+            .chain(self.command_register())
+    }
+
     /// Whether a preset value fits the channel's count register.
     pub fn accepts_preset(&self, value: i64) -> bool {
         if let Some((lo, hi)) = self.preset_range
