@@ -112,6 +112,7 @@ async fn a_zh_yx1600_at_factory_defaults_power_cycled_while_polled_counts_on_wit
         running(&s.plant, 1, "di1")
     })
     .await;
+    eprintln!("counting resumed {took:?} after the power cut (poll 200 ms)");
     // One poll interval plus one transaction (with room for a loaded test machine).
     assert!(took <= Duration::from_millis(200 + 300), "took {took:?}");
     tokio::time::sleep(Duration::from_secs(2)).await;
