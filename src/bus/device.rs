@@ -548,11 +548,7 @@ impl DeviceRt {
             tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
             self.saved.insert(key, gone.state);
         }
-        self.fast = self
-            .channels
-            .iter()
-            .flat_map(|c| c.spec.polled())
-            .collect();
+        self.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
     }
 
     /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole

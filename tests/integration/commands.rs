@@ -67,7 +67,10 @@ impl Rig {
             .with_module("line1", 4, |m, _| m.channels.iter().all(|c| c.running()))
             .unwrap()
         {
-            assert!(Instant::now() < deadline, "the gateway started the counters");
+            assert!(
+                Instant::now() < deadline,
+                "the gateway started the counters"
+            );
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         Rig {
