@@ -64,6 +64,8 @@ pub(super) struct ChannelRt {
     pub(super) ppr: Option<f64>,
     /// What to do when the counter is found stopped (modules with a command register).
     pub(super) run: Run,
+    /// Resume the counter when it is found paused.
+    pub(super) resume_paused: bool,
     /// The command register, where the module starts and stops counters by register.
     pub(super) command: Option<Register>,
     /// The counting window of a frequency register that holds pulses per window, in seconds;
@@ -286,6 +288,7 @@ impl DeviceRt {
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
         let mut stopped = Vec::new();
+        let mut paused = Vec::new();
         let mut restarted = false;
         for (i, ch) in self.channels.iter_mut().enumerate() {
             let Some((words, at)) = snapshot.get(&ch.spec.count) else {
@@ -300,6 +303,7 @@ impl DeviceRt {
                         continue;
                     }
                     RunState::Running(d) => ch.counter.spec.direction = d,
+                    RunState::Paused if ch.resume_paused => paused.push(i),
                     _ => {}
                 }
             }
@@ -330,6 +334,9 @@ impl DeviceRt {
         }
         for (i, count, at) in stopped {
             readings.extend(self.start_stopped(link, i, count, at).await);
+        }
+        for i in paused {
+            self.resume_paused(link, i).await;
         }
         if restarted {
             self.module_restarted();
@@ -535,6 +542,7 @@ impl DeviceRt {
                 name: Arc::from(spec.name.as_str()),
                 ppr: overrides.ppr,
                 run: overrides.run,
+                resume_paused: overrides.resume_paused,
                 command: super::run::command_register(&spec),
                 window_s: None,
                 window_bad: false,

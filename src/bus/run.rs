@@ -21,7 +21,9 @@ pub(super) fn command_register(spec: &ChannelSpec) -> Option<Register> {
 pub(super) enum RunState {
     Stopped,
     Running(Direction),
-    /// Paused, or a value the profile does not name: left alone.
+    /// Paused: the count is kept, nothing is counted.
+    Paused,
+    /// A value the profile does not name: left alone.
     Other,
 }
 
@@ -39,6 +41,8 @@ pub(super) fn run_state(spec: &ChannelSpec, word: u16) -> RunState {
         } else {
             Direction::Down
         })
+    } else if spec.clear.pause == Some(word) {
+        RunState::Paused
     } else {
         RunState::Other
     }
@@ -57,6 +61,28 @@ pub(super) fn start_code(spec: &ChannelSpec, run: Run) -> Option<u16> {
 }
 
 impl DeviceRt {
+    /// Resumes channel `i`, found paused, where configured (`resume_paused`): the count was
+    /// kept, so nothing is rebased; the next reads count on.
+    pub(super) async fn resume_paused(&mut self, link: &mut Link, i: usize) {
+        let ch = &self.channels[i];
+        let Some(code) = start_code(&ch.spec, ch.run) else {
+            return;
+        };
+        let (name, register) = (ch.name.clone(), ch.spec.clear.register);
+        let timeout = self.timeout_for(link, 1);
+        match link
+            .write_register(self.unit, register, code, timeout)
+            .await
+        {
+            Ok(Ok(())) => {
+                tracing::info!(device = %self.name, channel = %name, "counter was paused; resumed with {code:#06x} as configured (resume_paused)")
+            }
+            other => {
+                tracing::warn!(device = %self.name, channel = %name, "paused counter not resumed: {other:?}")
+            }
+        }
+    }
+
     /// Sets the power-on state of channels configured with `power_on = true` to their run
     /// direction, once per run and only where it differs: the module keeps it in flash and
     /// applies it after its next restart, so it counts after a power cut without waiting for
@@ -165,7 +191,8 @@ mod tests {
     fn zh_yx1600_command_words_read_as_the_datasheet_says() {
         let di1 = zh(&[0], "di1");
         assert_eq!(run_state(&di1, 0x0000), RunState::Stopped);
-        assert_eq!(run_state(&di1, 0x0001), RunState::Other, "paused");
+        assert_eq!(run_state(&di1, 0x0001), RunState::Paused);
+        assert_eq!(run_state(&di1, 0x0042), RunState::Other);
         assert_eq!(run_state(&di1, 0x00A2), RunState::Running(Direction::Up));
         assert_eq!(run_state(&di1, 0x00A3), RunState::Running(Direction::Down));
         assert_eq!(command_register(&di1).unwrap().address, 0x1100);

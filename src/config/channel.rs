@@ -32,6 +32,9 @@ pub struct ChannelConfig {
     /// Set the module's power-on state (ZH-YX1600 mode word pAuto bits) to `run`, once, so the
     /// counter counts by itself after a power cut; the module applies it after a restart.
     pub power_on: bool,
+    /// A counter found paused (ZH-YX1600 0x0001) is resumed in the `run` direction; by default
+    /// a pause set by someone is left alone.
+    pub resume_paused: bool,
 }
 
 impl Default for ChannelConfig {
@@ -42,6 +45,7 @@ impl Default for ChannelConfig {
             run: Run::Up,
             enabled: true,
             power_on: false,
+            resume_paused: false,
         }
     }
 }
@@ -77,6 +81,14 @@ pub(super) fn channel(
     let run = ct.opt::<Run>("run", errs).unwrap_or_default();
     let enabled = ct.opt::<bool>("enabled", errs).unwrap_or(true);
     let power_on = ct.opt::<bool>("power_on", errs).unwrap_or(false);
+    let resume_paused = ct.opt::<bool>("resume_paused", errs).unwrap_or(false);
+    if resume_paused && run == Run::Leave {
+        errs.push(
+            &join(&cpath, "resume_paused"),
+            ct.origin(),
+            "needs run = \"up\" or \"down\" (a paused counter is resumed in the run direction)",
+        );
+    }
     if power_on && run == Run::Leave {
         errs.push(
             &join(&cpath, "power_on"),
@@ -104,5 +116,6 @@ pub(super) fn channel(
         run,
         enabled,
         power_on,
+        resume_paused,
     }
 }

@@ -67,6 +67,8 @@ pub struct ClearSpec {
     pub register: u16,
     pub code: u16,
     pub restart: Vec<u16>,
+    /// The code that pauses the counter, where the register runs it.
+    pub pause: Option<u16>,
 }
 
 /// A single register write of a fixed code (clear-all).
@@ -362,6 +364,7 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             register: ch.clear.address + i * ch.clear.stride,
             code: ch.clear.code + i * ch.clear.code_stride,
             restart: ch.clear.restart.clone(),
+            pause: ch.clear.pause,
         },
         retains_count: ch.retains_count,
         max_rate_hz: ch.max_rate_hz,

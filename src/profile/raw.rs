@@ -196,4 +196,7 @@ pub(super) struct ClearTemplate {
     pub code_stride: u16,
     #[serde(default)]
     pub restart: Vec<u16>,
+    /// The code that pauses the counter (kept, not counting), where the register runs it.
+    #[serde(default)]
+    pub pause: Option<u16>,
 }

@@ -636,3 +636,50 @@ async fn a_work_mode_change_keeps_the_state_of_channels_that_disappear_until_the
     drop(gateway);
     let _ = &s.broker;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_paused_counter_is_left_paused_unless_configured_to_resume() {
+    let s = setup(
+        "zh-pause",
+        "[buses.line1.devices.zh]\nunit = 1\nmodel = \"zh-yx1600\"\n",
+        &[("line1", "zh", 1, "zh-yx1600", "200ms")],
+        "[buses.line1.devices.zh.channels.di2]\nresume_paused = true\n",
+    )
+    .await;
+    let _gateway = Gateway::start(&s.config);
+    reading_after(&s.sub, "pulsegate/test/zh/di2", Instant::now()).await;
+    set_rate(&s.plant, 1, "di1", 100.0);
+    set_rate(&s.plant, 1, "di2", 100.0);
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    // Someone pauses both (0x0001: kept, not counting).
+    s.plant
+        .with_module("line1", 1, |m, now| {
+            m.write_one(now, 0x1100, 0x0001).unwrap();
+            m.write_one(now, 0x1101, 0x0001).unwrap();
+        })
+        .unwrap();
+    wait_until("di2 resumed", Duration::from_secs(2), || {
+        running(&s.plant, 1, "di2")
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(600)).await;
+    assert!(!running(&s.plant, 1, "di1"), "di1 is left paused");
+    set_rate(&s.plant, 1, "di2", 0.0);
+    let last = reading_after(
+        &s.sub,
+        "pulsegate/test/zh/di2",
+        Instant::now() + Duration::from_millis(400),
+    )
+    .await;
+    assert_eq!(
+        last["total"].as_i64().unwrap(),
+        count(&s.plant, 1, "di2"),
+        "a pause keeps the count: no reset"
+    );
+    let resets = readings(&s.sub, "pulsegate/test/zh/di2")
+        .iter()
+        .filter(|r| r["event"] == "reset")
+        .count();
+    assert_eq!(resets, 1, "only the first start");
+    let _ = (&s.broker, &s.dir);
+}
