@@ -40,15 +40,17 @@ pub(super) fn failed(
     out: &UnboundedSender<Output>,
 ) -> Option<Duration> {
     let message = e.to_string();
-    if d.last_error.as_deref() != Some(message.as_str()) {
+    let new_error = d.last_error.as_deref() != Some(message.as_str());
+    if new_error {
         tracing::warn!(bus = bus_name, device = %d.name, unit = d.unit, "{message}");
         d.last_error = Some(message);
     }
     if e.device_answered() {
         // It is there (an exception, a garbled answer on a noisy line): not a step towards
-        // offline. A module refusing registers it answered before may be another module, or
-        // have restarted in another work mode: identity and modes are read again.
-        if matches!(e, PollError::Refused { .. }) && d.discovered() {
+        // offline. A module that starts refusing registers it answered before may be another
+        // module, or have restarted in another work mode: identity and modes are read again
+        // (once per new refusal, so a device that keeps refusing costs no extra reads).
+        if new_error && matches!(e, PollError::Refused { .. }) && d.discovered() {
             d.module_restarted();
         }
         d.failures = 0;
