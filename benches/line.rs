@@ -300,6 +300,9 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
                     freq_hz: Some(1.0),
                     rpm: None,
                     update,
+                    kind: ch.kind,
+                    units: None,
+                    after_seq: None,
                 };
                 let body = pulsegate::publish::payload::reading(&r);
                 std::hint::black_box(body);

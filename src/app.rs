@@ -12,6 +12,7 @@ use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
 use crate::health::Health;
+use crate::metrics::Metrics;
 use crate::reading::Output;
 
 /// A bus task and what it takes to stop it or talk to it.
@@ -20,6 +21,7 @@ struct Running {
     stop: CancellationToken,
     task: JoinHandle<()>,
     commands: UnboundedSender<BusCommand>,
+    scans: tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>,
 }
 
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
@@ -32,16 +34,24 @@ pub async fn run_with_reloads(
 ) {
     let health = Arc::new(Health::default());
     let (out_tx, out_rx) = unbounded_channel();
-    let (incoming_tx, incoming_rx) = unbounded_channel();
+    let (incoming_tx, incoming_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
     let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
+    let metrics = match config.metrics {
+        Some(_) => Metrics::new(),
+        None => Metrics::disabled(),
+    };
+    let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
     for bus in config.buses.iter().filter(|b| b.enabled) {
-        let r = start_bus(bus, &config, &health, &out_tx, &shutdown);
+        let r = start_bus(bus, &config, &health, &metrics, &out_tx, &shutdown);
         running.insert(bus.name.clone(), r);
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
+    let (out_rx, incoming_rx, discovery) = discovery_stage(&config, out_rx, incoming_rx);
+    let scans = router.scans();
+    *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
     let mqtt_config = config.mqtt.clone();
@@ -50,6 +60,11 @@ pub async fn run_with_reloads(
     let mqtt_shutdown = shutdown.clone();
     let mqtt_heart = health.heart("mqtt");
     let mqtt_health = health.clone();
+    let mqtt_metrics = metrics.clone();
+    let boot_dir = config.gateway.state_dir.clone();
+    let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
+        .await
+        .unwrap_or_default();
     let mqtt = tokio::spawn(async move {
         crate::publish::mqtt::run(
             mqtt_config,
@@ -59,6 +74,8 @@ pub async fn run_with_reloads(
             incoming_tx,
             mqtt_heart,
             mqtt_health,
+            boot,
+            mqtt_metrics,
             mqtt_shutdown,
         )
         .await
@@ -73,8 +90,12 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
-                apply(&mut current, new, &mut running, &health, &out_tx, &shutdown).await;
+                if let Some(d) = &discovery {
+                    let _ = d.send(new.clone());
+                }
+                apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
+                *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
             }
         }
     }
@@ -89,6 +110,64 @@ pub async fn run_with_reloads(
         tracing::error!("MQTT task failed: {e}");
     }
     let _ = supervisor.await;
+    if let Some(e) = endpoint {
+        let _ = e.await;
+    }
+}
+
+/// Serves `/metrics` and `/healthz` when `[metrics]` is configured. A port that cannot be bound
+/// is logged and the gateway runs on without the endpoint: polling matters more.
+async fn start_metrics(
+    config: &Config,
+    metrics: &Metrics,
+    health: &Arc<Health>,
+    shutdown: &CancellationToken,
+) -> Option<JoinHandle<()>> {
+    let listen = config.metrics.as_ref()?.listen;
+    if !listen.ip().is_loopback() {
+        tracing::warn!(%listen, "metrics endpoint is not on loopback: keep it behind a firewall");
+    }
+    match crate::metrics::server::bind(listen).await {
+        Ok(l) => {
+            tracing::info!(%listen, "metrics endpoint: /metrics, /healthz");
+            let serve =
+                crate::metrics::server::serve(l, metrics.clone(), health.clone(), shutdown.clone());
+            Some(tokio::spawn(serve))
+        }
+        Err(e) => {
+            tracing::error!("{e}; running without it");
+            None
+        }
+    }
+}
+
+/// With `[homeassistant] discovery`, puts the discovery stage between the buses and MQTT (and
+/// between MQTT and the command router); returns what MQTT and the router read from then, and
+/// where reloaded configs go.
+fn discovery_stage(
+    config: &Config,
+    out_rx: UnboundedReceiver<Output>,
+    incoming_rx: tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
+) -> (
+    UnboundedReceiver<Output>,
+    tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
+    Option<UnboundedSender<Config>>,
+) {
+    if !config.homeassistant.discovery {
+        return (out_rx, incoming_rx, None);
+    }
+    let (to_mqtt, mqtt_rx) = unbounded_channel();
+    let (to_router, router_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
+    let (reload_tx, reload_rx) = unbounded_channel();
+    tokio::spawn(crate::publish::discovery::run(
+        config.clone(),
+        out_rx,
+        to_mqtt,
+        incoming_rx,
+        to_router,
+        reload_rx,
+    ));
+    (mqtt_rx, router_rx, Some(reload_tx))
 }
 
 /// Runs the gateway until `shutdown` (no reloads).
@@ -101,19 +180,34 @@ fn start_bus(
     bus: &Bus,
     config: &Config,
     health: &Health,
+    metrics: &Metrics,
     out: &UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) -> Running {
     let (cmd_tx, cmd_rx) = unbounded_channel();
+    // One scan runs, one may wait: further requests are answered "busy" (bounded).
+    let (scan_tx, scan_rx) = tokio::sync::mpsc::channel(1);
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
-    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart);
+    let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
+        .with_scans(scan_rx)
+        .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
         task: tokio::spawn(task.run(stop.clone())),
         stop,
         commands: cmd_tx,
+        scans: scan_tx,
     }
+}
+
+fn scan_senders(
+    running: &BTreeMap<String, Running>,
+) -> HashMap<String, tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>> {
+    running
+        .iter()
+        .map(|(n, r)| (n.clone(), r.scans.clone()))
+        .collect()
 }
 
 fn senders(running: &BTreeMap<String, Running>) -> HashMap<String, UnboundedSender<BusCommand>> {
@@ -128,6 +222,7 @@ async fn apply(
     new: Config,
     running: &mut BTreeMap<String, Running>,
     health: &Health,
+    metrics: &Metrics,
     out: &UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) {
@@ -158,7 +253,7 @@ async fn apply(
             cfg.gateway = current.gateway.clone();
             running.insert(
                 bus.name.clone(),
-                start_bus(bus, &cfg, health, out, shutdown),
+                start_bus(bus, &cfg, health, metrics, out, shutdown),
             );
             tracing::info!(bus = %bus.name, "bus started for the new config");
         }

@@ -4,7 +4,7 @@
 //!
 //! Nothing here writes to a module: a request reaches a bus only after every check passed.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use serde_json::{Map, Value, json};
@@ -81,6 +81,16 @@ pub enum CommandError {
     WriteFailed(String),
     #[error("read back {got} after the write, expected {expected}")]
     ReadBack { expected: i64, got: i64 },
+    #[error("{what} is {size} bytes, more than the {limit} allowed")]
+    TooLarge {
+        what: &'static str,
+        size: usize,
+        limit: usize,
+    },
+    #[error("response topic refused: {0}")]
+    BadResponseTopic(&'static str),
+    #[error("device {device} is busy: {why}; try again later")]
+    Busy { device: String, why: &'static str },
 }
 
 impl CommandError {
@@ -101,8 +111,41 @@ impl CommandError {
             CommandError::Offline(_) => "offline",
             CommandError::WriteFailed(_) => "write_failed",
             CommandError::ReadBack { .. } => "readback_mismatch",
+            CommandError::TooLarge { .. } => "too_large",
+            CommandError::BadResponseTopic(_) => "bad_response_topic",
+            CommandError::Busy { .. } => "busy",
         }
     }
+}
+
+/// Longest command payload taken (a command is a few dozen bytes of JSON).
+pub const MAX_PAYLOAD: usize = 1024;
+/// Longest command `id` (bytes), so the dedupe memory and the echoed results stay small.
+pub const MAX_ID: usize = 128;
+/// Longest MQTT v5 response topic and correlation data taken (bytes).
+pub const MAX_RESPONSE_TOPIC: usize = 256;
+pub const MAX_CORRELATION: usize = 256;
+
+/// Checks an MQTT v5 response topic before anything is published to it: a topic the gateway
+/// could not publish to (a wildcard, empty, too long) would otherwise sit in the spool.
+pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
+    let bad = |why| Err(CommandError::BadResponseTopic(why));
+    if topic.is_empty() {
+        return bad("it is empty");
+    }
+    if topic.len() > MAX_RESPONSE_TOPIC {
+        return bad("it is longer than 256 bytes");
+    }
+    if topic.contains(['+', '#']) {
+        return bad("it contains a wildcard ('+' or '#')");
+    }
+    if topic.contains('\0') {
+        return bad("it contains a NUL character");
+    }
+    if topic.starts_with('$') {
+        return bad("it starts with '$' (reserved for the broker)");
+    }
+    Ok(())
 }
 
 /// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
@@ -132,6 +175,16 @@ pub fn parse_payload(
     payload: &[u8],
     channel: bool,
 ) -> Result<Parsed, (Option<String>, CommandError)> {
+    if payload.len() > MAX_PAYLOAD {
+        return Err((
+            None,
+            CommandError::TooLarge {
+                what: "the payload",
+                size: payload.len(),
+                limit: MAX_PAYLOAD,
+            },
+        ));
+    }
     let value: Value = serde_json::from_slice(payload)
         .map_err(|e| (None, CommandError::NotJson(e.to_string())))?;
     let Value::Object(map) = value else {
@@ -139,7 +192,17 @@ pub fn parse_payload(
     };
     let id = match map.get("id") {
         None => None,
-        Some(Value::String(s)) => Some(s.clone()),
+        Some(Value::String(s)) if s.len() <= MAX_ID => Some(s.clone()),
+        Some(Value::String(s)) => {
+            return Err((
+                None,
+                CommandError::TooLarge {
+                    what: "\"id\"",
+                    size: s.len(),
+                    limit: MAX_ID,
+                },
+            ));
+        }
         Some(_) => return Err((None, CommandError::BadId)),
     };
     let fail = |e| Err((id.clone(), e));
@@ -205,10 +268,20 @@ pub fn result_json(
 /// How long an answered id is remembered.
 pub const DEDUPE_WINDOW: Duration = Duration::from_secs(600);
 
-/// Recently seen command ids (per topic) and their results.
+/// Most ids remembered at once, and most bytes their keys and results may take: a flood of
+/// distinct ids evicts the oldest instead of growing the gateway.
+pub const DEDUPE_ENTRIES: usize = 4096;
+pub const DEDUPE_BYTES: usize = 2 << 20;
+
+type Key = (String, String);
+
+/// Recently seen command ids (per topic) and their results, bounded in entries and bytes.
 #[derive(Debug, Default)]
 pub struct Dedupe {
-    seen: HashMap<(String, String), (Instant, Option<Value>)>,
+    seen: HashMap<Key, (Instant, Option<Value>, usize)>,
+    /// Keys in the order they were first seen (the oldest is evicted first).
+    order: VecDeque<(Key, Instant)>,
+    bytes: usize,
 }
 
 /// What to do with a command whose id may have been seen.
@@ -225,24 +298,64 @@ pub enum Seen {
 impl Dedupe {
     /// Records `id` on `topic` at `now` and says whether it is new.
     pub fn check(&mut self, topic: &str, id: &str, now: Instant) -> Seen {
-        self.seen
-            .retain(|_, (t, _)| now.duration_since(*t) < DEDUPE_WINDOW);
+        while let Some((_, t)) = self.order.front() {
+            if now.duration_since(*t) < DEDUPE_WINDOW {
+                break;
+            }
+            self.evict_oldest();
+        }
         let key = (topic.to_string(), id.to_string());
         match self.seen.get(&key) {
-            Some((_, Some(result))) => Seen::Answered(result.clone()),
-            Some((_, None)) => Seen::InFlight,
+            Some((_, Some(result), _)) => Seen::Answered(result.clone()),
+            Some((_, None, _)) => Seen::InFlight,
             None => {
-                self.seen.insert(key, (now, None));
+                let size = topic.len() + id.len() + 64;
+                self.bytes += size;
+                self.order.push_back((key.clone(), now));
+                self.seen.insert(key, (now, None, size));
+                // `order` may hold keys already forgotten: bound it too.
+                while self.seen.len() > DEDUPE_ENTRIES
+                    || self.bytes > DEDUPE_BYTES
+                    || self.order.len() > 2 * DEDUPE_ENTRIES
+                {
+                    self.evict_oldest();
+                }
                 Seen::New
             }
+        }
+    }
+
+    fn evict_oldest(&mut self) {
+        if let Some((key, at)) = self.order.pop_front()
+            && let Some((t, _, size)) = self.seen.get(&key)
+            && *t == at
+        {
+            self.bytes -= size;
+            self.seen.remove(&key);
         }
     }
 
     /// Stores the result of a command so a repeat is answered with it.
     pub fn answered(&mut self, topic: &str, id: &str, result: Value) {
         if let Some(entry) = self.seen.get_mut(&(topic.to_string(), id.to_string())) {
+            let extra = result.to_string().len();
+            self.bytes += extra;
+            entry.2 += extra;
             entry.1 = Some(result);
         }
+    }
+
+    /// Forgets an id whose command was refused before it did anything, so a retry is judged
+    /// afresh.
+    pub fn forget(&mut self, topic: &str, id: &str) {
+        if let Some((_, _, size)) = self.seen.remove(&(topic.to_string(), id.to_string())) {
+            self.bytes -= size;
+        }
+    }
+
+    /// Ids remembered, and the bytes they take.
+    pub fn size(&self) -> (usize, usize) {
+        (self.seen.len(), self.bytes)
     }
 }
 
@@ -342,6 +455,50 @@ mod tests {
         );
         assert_eq!(d.check("t", "1", t0 + Duration::from_secs(601)), Seen::New);
         assert_eq!(d.check("other", "1", t0), Seen::New);
+    }
+
+    #[test]
+    fn a_flood_of_distinct_ids_evicts_the_oldest_instead_of_growing() {
+        let mut d = Dedupe::default();
+        let t0 = Instant::now();
+        let long = "x".repeat(MAX_ID);
+        for i in 0..50_000 {
+            d.check("pg/e1/ghost/cmd", &format!("{long}{i}"), t0);
+        }
+        let (entries, bytes) = d.size();
+        assert!(entries <= DEDUPE_ENTRIES, "{entries} entries");
+        assert!(bytes <= DEDUPE_BYTES, "{bytes} bytes");
+        assert_eq!(
+            d.check("pg/e1/ghost/cmd", &format!("{long}49999"), t0),
+            Seen::InFlight,
+            "the newest are remembered"
+        );
+        assert_eq!(
+            d.check("pg/e1/ghost/cmd", &format!("{long}0"), t0),
+            Seen::New
+        );
+    }
+
+    #[test]
+    fn oversized_payloads_and_ids_are_refused_before_parsing() {
+        let big = format!(r#"{{"op":"clear","pad":"{}"}}"#, "a".repeat(11 * 1024));
+        assert_eq!(err(&big, true), "too_large");
+        let id = format!(r#"{{"op":"clear","id":"{}"}}"#, "i".repeat(200));
+        let (echo, e) = parse_payload(id.as_bytes(), true).unwrap_err();
+        assert_eq!((echo, e.code()), (None, "too_large"));
+    }
+
+    #[test]
+    fn response_topics_with_wildcards_or_no_length_limit_are_refused() {
+        for bad in ["evil/#", "a/+/b", "", "$SYS/x", "a\0b"] {
+            assert_eq!(
+                check_response_topic(bad).unwrap_err().code(),
+                "bad_response_topic",
+                "{bad:?}"
+            );
+        }
+        assert!(check_response_topic(&"a".repeat(300)).is_err());
+        assert!(check_response_topic("app/replies/42").is_ok());
     }
 }
 

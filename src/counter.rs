@@ -260,6 +260,23 @@ impl Counter {
         self.outcome(0, Some(event), None)
     }
 
+    /// The gateway wrote `written` (0 for a clear, the preset value) and read back `count`: the
+    /// pulses counted between the write and the read-back are booked (the movement from
+    /// `written` to `count`), so a clear while counting loses nothing it could see.
+    pub fn rebase_from(&mut self, written: i64, count: i64, at: Stamp, event: Event) -> Update {
+        let (delta, _) = self.spec.movement(written, count);
+        let s = &mut self.state;
+        s.seq += 1;
+        s.count = Some(count);
+        s.at_ms = at.wall_ms;
+        s.total += delta;
+        s.suspect = None;
+        s.gap = false;
+        self.mono = Some(at.mono_ms);
+        self.suspect_mono = None;
+        self.outcome(delta, Some(event), None)
+    }
+
     fn book(
         &mut self,
         count: i64,
@@ -628,6 +645,27 @@ mod tests {
             c.update(-100, Stamp::at(600)),
             None,
             "a rise is not counting down"
+        );
+    }
+
+    #[test]
+    fn a_clear_books_the_pulses_counted_between_the_write_and_the_read_back() {
+        let mut c = di(1000.0);
+        booked(&mut c, &[(500, 0), (700, 200)]);
+        let u = c.rebase_from(0, 7, Stamp::at(210), Event::Cleared);
+        assert_eq!((u.delta, u.total, u.event), (7, 207, Some(Event::Cleared)));
+        let next = c.update(57, Stamp::at(260)).expect("booked");
+        assert_eq!((next.delta, next.total), (50, 257));
+    }
+
+    #[test]
+    fn a_preset_of_an_encoder_books_its_movement_both_ways() {
+        let mut c = encoder(1000.0);
+        booked(&mut c, &[(10, 0)]);
+        assert_eq!(
+            c.rebase_from(3000, 2996, Stamp::at(10), Event::Preset)
+                .delta,
+            -4
         );
     }
 }

@@ -197,7 +197,9 @@ max_inflight_count = 100
 #[cfg(not(feature = "embedded-broker"))]
 fn start_embedded_broker(_listen: &str) -> Result<(), DemoError> {
     Err(DemoError::Broker(
-        "built without the embedded-broker feature; pass --mqtt HOST:PORT".into(),
+        "this build has no embedded broker (the package leaves it out); pass --mqtt HOST:PORT, \
+         or run `cargo run --release --features embedded-broker -- demo`"
+            .into(),
     ))
 }
 

@@ -7,11 +7,13 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use bytes::Bytes;
-use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+use tokio::sync::mpsc::{Receiver, UnboundedSender};
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 
+use crate::admission::{Admission, LogBudget};
 use crate::bus::BusCommand;
+use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::reading::Output;
@@ -55,11 +57,18 @@ pub struct Target {
     channels: BTreeSet<String>,
 }
 
+/// Command messages between the MQTT connection and the router: when full, the connection
+/// waits (TCP pushes back on the sender) instead of the gateway buffering without bound.
+pub const INCOMING_QUEUE: usize = 256;
+
 /// How long a command waits for an offline device.
 pub const EXPIRY: Duration = Duration::from_secs(10);
 
 /// Devices by name, swapped whole when the config is reloaded.
 pub type Targets = Arc<std::sync::RwLock<HashMap<String, Target>>>;
+
+/// Where each bus takes scan requests, swapped whole when the config is reloaded.
+pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender<ScanRequest>>>>;
 
 /// The command router of a gateway.
 pub struct Router {
@@ -67,6 +76,13 @@ pub struct Router {
     targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
+    admission: Arc<Mutex<Admission>>,
+    log_budget: Mutex<LogBudget>,
+    scans: Scans,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl Router {
@@ -81,6 +97,66 @@ impl Router {
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
+            admission: Arc::default(),
+            log_budget: Mutex::new(LogBudget::new(20)),
+            scans: Arc::default(),
+        }
+    }
+
+    /// The router's table of bus scan channels, to fill at start and after a reload.
+    pub fn scans(&self) -> Scans {
+        self.scans.clone()
+    }
+
+    /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
+    fn scan(&self, bus: &str, msg: &Incoming) {
+        let mut reply = Reply {
+            topics: vec![format!("{}/result", msg.topic)],
+            correlation: None,
+        };
+        let refuse = |reply: &Reply, error: &str, message: String| {
+            self.warn(&msg.topic, &format!("scan refused: {message}"));
+            self.send(
+                reply,
+                serde_json::json!({"bus": bus, "error": error, "message": message}),
+            );
+        };
+        // The same checks as for commands: nothing unsendable reaches the spool.
+        if msg.payload.len() > command::MAX_PAYLOAD {
+            let size = msg.payload.len();
+            return refuse(&reply, "too_large", format!("the payload is {size} bytes"));
+        }
+        if let Some(c) = &msg.correlation
+            && c.len() > command::MAX_CORRELATION
+        {
+            return refuse(&reply, "too_large", "correlation data too long".into());
+        }
+        if let Some(rt) = &msg.response_topic {
+            if let Err(e) = command::check_response_topic(rt) {
+                return refuse(&reply, e.code(), e.to_string());
+            }
+            reply.topics.push(rt.clone());
+            reply.correlation = msg.correlation.clone();
+        }
+        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+            Ok(p) => p,
+            Err(e) => return refuse(&reply, "bad_payload", e),
+        };
+        let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
+        let Some(tx) = scans.get(bus) else {
+            return refuse(&reply, "unknown_bus", format!("no bus {bus:?}"));
+        };
+        let req = ScanRequest {
+            units,
+            id,
+            reply: reply.clone(),
+        };
+        if tx.try_send(req).is_err() {
+            refuse(
+                &reply,
+                "busy",
+                "a scan of this bus is already waiting".into(),
+            );
         }
     }
 
@@ -99,7 +175,7 @@ impl Router {
     }
 
     /// Handles messages until the MQTT side closes the channel.
-    pub async fn run(self, mut incoming: UnboundedReceiver<Incoming>) {
+    pub async fn run(self, mut incoming: Receiver<Incoming>) {
         while let Some(msg) = incoming.recv().await {
             self.handle(msg);
         }
@@ -107,41 +183,46 @@ impl Router {
 
     fn handle(&self, msg: Incoming) {
         if msg.retain {
-            tracing::info!(topic = %msg.topic, "ignoring a retained command message");
+            self.warn(&msg.topic, "ignoring a retained command message");
             return;
+        }
+        if let Some(bus) = survey::parse_scan_topic(&self.root, &msg.topic) {
+            return self.scan(bus, &msg);
         }
         let Some((device, channel)) = command::parse_topic(&self.root, &msg.topic) else {
             return;
         };
         let mut reply = Reply {
             topics: vec![format!("{}/result", msg.topic)],
-            correlation: msg.correlation.clone(),
+            correlation: None,
         };
+        // MQTT v5 properties are checked before anything is published to them: a response
+        // topic the gateway cannot publish to must not reach the spool.
+        if let Some(c) = &msg.correlation
+            && c.len() > command::MAX_CORRELATION
+        {
+            let e = CommandError::TooLarge {
+                what: "the correlation data",
+                size: c.len(),
+                limit: command::MAX_CORRELATION,
+            };
+            return self.refuse(&msg.topic, &reply, None, None, e);
+        }
         if let Some(rt) = &msg.response_topic {
+            if let Err(e) = command::check_response_topic(rt) {
+                return self.refuse(&msg.topic, &reply, None, None, e);
+            }
             reply.topics.push(rt.clone());
+            reply.correlation = msg.correlation.clone();
         }
         let parsed = match command::parse_payload(&msg.payload, channel.is_some()) {
             Ok(p) => p,
-            Err((id, e)) => {
-                tracing::warn!(topic = %msg.topic, "command refused: {e}");
-                return self.answer(&reply, id.as_deref(), None, &Err(e));
-            }
+            Err((id, e)) => return self.refuse(&msg.topic, &reply, id.as_deref(), None, e),
         };
         let op = parsed.op.name();
         let id = parsed.id.as_deref();
-        if let Some(id) = id {
-            let seen = self.dedupe.lock().unwrap_or_else(|e| e.into_inner()).check(
-                &msg.topic,
-                id,
-                std::time::Instant::now(),
-            );
-            match seen {
-                Seen::New => {}
-                Seen::InFlight => return,
-                Seen::Answered(result) => return self.send(&reply, result),
-            }
-        }
-        let refuse = |e: CommandError| self.finish(&msg.topic, &reply, id, op, &Err(e));
+        let refuse = |e: CommandError| self.refuse(&msg.topic, &reply, id, Some(op), e);
+        // Refusals that need no module are not remembered: a retry is judged afresh.
         let targets = self.targets.read().unwrap_or_else(|e| e.into_inner());
         let Some(target) = targets.get(device) else {
             return refuse(CommandError::UnknownDevice(device.into()));
@@ -157,6 +238,20 @@ impl Router {
                 channel: ch.into(),
             });
         }
+        if let Some(id) = id {
+            let seen = lock(&self.dedupe).check(&msg.topic, id, std::time::Instant::now());
+            match seen {
+                Seen::New => {}
+                Seen::InFlight => return,
+                Seen::Answered(result) => return self.send(&reply, result),
+            }
+        }
+        if let Err(e) = lock(&self.admission).admit(device, std::time::Instant::now()) {
+            if let Some(id) = id {
+                lock(&self.dedupe).forget(&msg.topic, id);
+            }
+            return refuse(e);
+        }
         let now = Instant::now();
         let (done, result) = oneshot::channel();
         let request = Request {
@@ -169,22 +264,29 @@ impl Router {
             expires: now + EXPIRY,
         };
         if target.bus.send(BusCommand { request, done }).is_err() {
-            return refuse(CommandError::Offline(device.into()));
+            lock(&self.admission).done(device);
+            return self.finish(
+                &msg.topic,
+                &reply,
+                id,
+                op,
+                &Err(CommandError::Offline(device.into())),
+            );
         }
         let out = self.out.clone();
         let dedupe = self.dedupe.clone();
+        let admission = self.admission.clone();
         let topic = msg.topic.clone();
         let id = parsed.id.clone();
+        let device = device.to_string();
         tokio::spawn(async move {
             let outcome = result
                 .await
                 .unwrap_or_else(|_| Err(CommandError::Offline("gateway stopping".into())));
+            lock(&admission).done(&device);
             let json = command::result_json(id.as_deref(), Some(op), &outcome);
             if let Some(id) = &id {
-                dedupe
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .answered(&topic, id, json.clone());
+                lock(&dedupe).answered(&topic, id, json.clone());
             }
             let _ = out.send(Output::CommandResult {
                 topics: reply.topics,
@@ -192,6 +294,34 @@ impl Router {
                 payload: json,
             });
         });
+    }
+
+    /// Answers a command refused before it reached a bus; logs within the budget.
+    fn refuse(
+        &self,
+        topic: &str,
+        reply: &Reply,
+        id: Option<&str>,
+        op: Option<&str>,
+        e: CommandError,
+    ) {
+        self.warn(topic, &format!("command refused: {e}"));
+        self.send(reply, command::result_json(id, op, &Err(e)));
+    }
+
+    /// A warning about a command message, at most 20 lines a minute (a flood is counted).
+    fn warn(&self, topic: &str, text: &str) {
+        let (allowed, suppressed) = lock(&self.log_budget).allow(std::time::Instant::now());
+        if let Some(n) = suppressed {
+            tracing::warn!(
+                "{n} more command messages were refused in the last minute (not logged one by one)"
+            );
+        }
+        if allowed {
+            // The topic may come from anyone who can publish: cut it for the log.
+            let shown: String = topic.chars().take(200).collect();
+            tracing::warn!(topic = %shown, "{text}");
+        }
     }
 
     fn finish(
@@ -203,26 +333,13 @@ impl Router {
         outcome: &Result<Option<i64>, CommandError>,
     ) {
         if let Err(e) = outcome {
-            tracing::warn!(%topic, "command refused: {e}");
+            self.warn(topic, &format!("command failed: {e}"));
         }
         let json = command::result_json(id, Some(op), outcome);
         if let Some(id) = id {
-            self.dedupe
-                .lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .answered(topic, id, json.clone());
+            lock(&self.dedupe).answered(topic, id, json.clone());
         }
         self.send(reply, json);
-    }
-
-    fn answer(
-        &self,
-        reply: &Reply,
-        id: Option<&str>,
-        op: Option<&str>,
-        outcome: &Result<Option<i64>, CommandError>,
-    ) {
-        self.send(reply, command::result_json(id, op, outcome));
     }
 
     fn send(&self, reply: &Reply, payload: serde_json::Value) {

@@ -18,6 +18,8 @@ pub struct Beat {
     up: AtomicBool,
     /// The loop has made its first attempt (opened its port or tried to).
     started: AtomicBool,
+    /// Why the loop refuses to work (shown in the status line), e.g. a state file moved aside.
+    problem: Mutex<Option<String>>,
 }
 
 /// Shared health of a running gateway.
@@ -59,6 +61,11 @@ impl Heart {
         self.beat.up.store(up, Ordering::Relaxed);
         self.beat.started.store(true, Ordering::Relaxed);
     }
+
+    /// The loop refuses to work, and why (for `systemctl status`).
+    pub fn set_problem(&self, problem: Option<String>) {
+        *lock(&self.beat.problem) = problem;
+    }
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -72,6 +79,7 @@ impl Health {
             at_ms: AtomicU64::new(self.start.elapsed().as_millis() as u64),
             up: AtomicBool::new(false),
             started: AtomicBool::new(false),
+            problem: Mutex::new(None),
         });
         lock(&self.loops).insert(name.to_string(), beat.clone());
         Heart {
@@ -137,11 +145,17 @@ impl Health {
             .unwrap_or("MQTT not started");
         let devices = lock(&self.devices);
         let online = devices.values().filter(|o| **o).count();
-        format!(
+        let mut line = format!(
             "{up}/{} buses up, {online}/{} devices online, {mqtt}",
             buses.len(),
             devices.len()
-        )
+        );
+        for (name, b) in loops.iter() {
+            if let Some(p) = lock(&b.problem).as_ref() {
+                line += &format!("; {name}: {p}");
+            }
+        }
+        line
     }
 }
 

@@ -11,15 +11,19 @@
 //!
 //! [`sim`] is a simulated plant of every supported model, served over real Modbus.
 
+pub mod admission;
 pub mod app;
+pub mod boot;
 pub mod bus;
 pub mod command;
+pub mod commission;
 pub mod config;
 pub mod counter;
 pub mod decode;
 pub mod demo;
 pub mod dispatch;
 pub mod health;
+pub mod metrics;
 pub mod plan;
 pub mod profile;
 pub mod publish;

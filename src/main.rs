@@ -75,18 +75,19 @@ enum Command {
         #[arg(long)]
         duration: Option<humantime::Duration>,
     },
+    #[command(flatten)]
+    Commission(Box<pulsegate::commission::Commission>),
 }
 
 /// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
 /// readable text on stderr otherwise (colours only on a terminal), or as JSON lines with
 /// `--log-format json`.
-fn init_logging(format: LogFormat) {
+fn init_logging(format: LogFormat, default_filter: &'static str) {
     use std::io::IsTerminal;
     use tracing_subscriber::prelude::*;
     let filter = || {
-        tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-            tracing_subscriber::EnvFilter::new("info,tokio_modbus=error,rumqttc=warn,rumqttd=off")
-        })
+        tracing_subscriber::EnvFilter::try_from_default_env()
+            .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_filter))
     };
     if matches!(format, LogFormat::Human)
         && std::env::var_os("JOURNAL_STREAM").is_some()
@@ -98,7 +99,10 @@ fn init_logging(format: LogFormat) {
             .init();
         return;
     }
+    // A closed stderr (a pipe whose reader went away) must not panic the gateway: write errors
+    // are dropped, not reported on the very stderr that failed.
     let builder = tracing_subscriber::fmt()
+        .log_internal_errors(false)
         .with_env_filter(filter())
         .with_ansi(std::io::stderr().is_terminal())
         .with_writer(std::io::stderr);
@@ -148,9 +152,15 @@ fn on_hangup(path: PathBuf) -> anyhow::Result<tokio::sync::mpsc::UnboundedReceiv
     Ok(rx)
 }
 
+/// Writes to stderr, ignoring failure (`eprint!` panics when stderr is closed).
+fn say_err(text: std::fmt::Arguments<'_>) {
+    use std::io::Write as _;
+    let _ = std::io::stderr().write_fmt(text);
+}
+
 fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
     Config::load(path).map_err(|e| {
-        eprint!("{e}");
+        say_err(format_args!("{e}"));
         ExitCode::from(2)
     })
 }
@@ -160,21 +170,26 @@ fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
 /// measures this). Blocking work (state files, precise sleeps) goes to tokio's blocking pool.
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    init_logging(cli.log_format);
+    // Commissioning commands talk to a person: the poller's info logs would only be noise.
+    let default_filter = match cli.command {
+        Command::Commission(_) => "warn,tokio_modbus=error",
+        _ => "info,tokio_modbus=error,rumqttc=warn,rumqttd=off",
+    };
+    init_logging(cli.log_format, default_filter);
     let runtime = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
     {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("error: cannot start the async runtime: {e}");
+            say_err(format_args!("error: cannot start the async runtime: {e}\n"));
             return ExitCode::FAILURE;
         }
     };
     match runtime.block_on(run(cli.command)) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            say_err(format_args!("error: {e:#}\n"));
             ExitCode::FAILURE
         }
     }
@@ -182,12 +197,19 @@ fn main() -> ExitCode {
 
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
+        Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
         Command::Check { config } | Command::Plan { config } => {
             let config = match load(&config) {
                 Ok(c) => c,
                 Err(code) => return Ok(code),
             };
             print!("{}", pulsegate::report::poll_plan(&config));
+            if let Some(host) = &config.gateway.id_from_hostname {
+                println!(
+                    "gateway.id is not set: \"{}\" (from the hostname {host:?})",
+                    config.gateway.id
+                );
+            }
             println!("config {} is valid", config.source.display());
             Ok(ExitCode::SUCCESS)
         }
@@ -200,6 +222,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             on_signals(shutdown.clone())?;
             let reloads = on_hangup(path)?;
             tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
+            if let Some(host) = &config.gateway.id_from_hostname {
+                tracing::warn!(hostname = %host, gateway = %config.gateway.id, "gateway.id is not set: using one derived from the hostname; set gateway.id to make it explicit");
+            }
             pulsegate::app::run_with_reloads(config, shutdown, reloads).await;
             Ok(ExitCode::SUCCESS)
         }
@@ -225,6 +250,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Demo { mqtt, duration } => {
+            if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
+                anyhow::bail!("--duration: at most 7 days");
+            }
             let shutdown = CancellationToken::new();
             on_signals(shutdown.clone())?;
             pulsegate::demo::run(mqtt.as_deref(), duration.map(Into::into), shutdown).await?;

@@ -17,12 +17,34 @@ pub struct Reading {
     pub freq_hz: Option<f64>,
     pub rpm: Option<f64>,
     pub update: Update,
+    /// On the first reading after a crash: the seq its delta counts from. Readings of the
+    /// crashed run with a higher seq are superseded (their pulses are in this delta).
+    pub after_seq: Option<u64>,
+    /// What the channel counts in the module's current work mode (a ZH-YX1600 `di1` is an
+    /// input counter in one mode and an encoder in another).
+    pub kind: crate::profile::ChannelKind,
+    /// Engineering units of the channel, when it has a `scale`.
+    pub units: Option<Arc<crate::config::channel::ChannelUnits>>,
 }
 
 /// Everything a bus task reports.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output {
     Reading(Reading),
+    /// The readings of one device's poll, published as one message (`payload = "device"`).
+    DeviceReadings {
+        device: Arc<str>,
+        readings: Vec<Reading>,
+    },
+    /// A ready message (Home Assistant discovery).
+    Message {
+        topic: String,
+        payload: String,
+        retain: bool,
+    },
+    /// A topic filter the MQTT task subscribes to (now and after every reconnect); what
+    /// arrives on it goes to the incoming channel with the commands.
+    Subscribe(String),
     /// A device became available (first good read) or stopped answering.
     DeviceStatus {
         device: Arc<str>,

@@ -1,6 +1,10 @@
 //! Persisted state of one bus: counter state per channel and the register holes its devices
 //! refused. One JSON file per bus in `gateway.state_dir`, written atomically (temp file, fsync,
 //! rename, fsync of the directory) so a power cut leaves either the old or the new file.
+//!
+//! A file that cannot be read, does not parse, or was written by a newer version is never
+//! overwritten: it is moved aside (`bus-<name>.json.bad-<unix time>`) and the bus refuses to
+//! start from zero on its own guess. The operator restores it or deletes the moved-aside file.
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -26,6 +30,10 @@ pub struct BusState {
     /// Register ranges each unit refused (exception 02), keyed by `unit/model`.
     #[serde(default)]
     pub holes: BTreeMap<String, Vec<(u16, u16)>>,
+    /// Written at a clean shutdown, after the last reading was published: seq can go on from
+    /// here. Any other save may be followed by readings the crash did not let us save.
+    #[serde(default)]
+    pub clean: bool,
 }
 
 /// A state file could not be read or written.
@@ -36,11 +44,40 @@ pub enum StateError {
         path: String,
         source: std::io::Error,
     },
-    #[error("state file {path} is not valid state ({source}); starting from empty state")]
+    #[error("state file {path} is not valid state ({source})")]
     Corrupt {
         path: String,
         source: serde_json::Error,
     },
+    #[error(
+        "state file {path} was written by a newer pulsegate (format {found}, this one reads up to {VERSION})"
+    )]
+    Newer { path: String, found: u32 },
+    #[error(
+        "{cause}; it was moved aside to {moved} (never overwritten). This bus does not start from zero totals on its own: restore the file as {path}, or delete {moved} to start from zero, then restart"
+    )]
+    MovedAside {
+        cause: Box<StateError>,
+        path: String,
+        moved: String,
+    },
+    #[error(
+        "{cause}; it could not be moved aside ({rename}). This bus does not start: fix or remove the file, then restart"
+    )]
+    Stuck {
+        cause: Box<StateError>,
+        rename: std::io::Error,
+    },
+    #[error(
+        "an earlier state file of this bus was moved aside to {moved}. This bus does not start from zero totals on its own: restore it as {path}, or delete {moved} to start from zero, then restart"
+    )]
+    Quarantined { path: String, moved: String },
+}
+
+/// Makes a create, rename or delete in `dir` durable: without it a power cut can undo the
+/// directory entry even though the file's data was synced.
+pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    std::fs::File::open(dir)?.sync_all()
 }
 
 /// The key of a channel's state.
@@ -58,19 +95,102 @@ pub fn bus_path(state_dir: &Path, bus: &str) -> PathBuf {
     state_dir.join(format!("bus-{bus}.json"))
 }
 
+/// Files a bad state file at `path` was moved aside to, oldest first.
+fn moved_aside(path: &Path) -> Vec<PathBuf> {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return Vec::new();
+    };
+    let prefix = format!("{}.bad-", name.to_string_lossy());
+    let mut found: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| {
+                    p.file_name()
+                        .is_some_and(|n| n.to_string_lossy().starts_with(&prefix))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort();
+    found
+}
+
 impl BusState {
-    /// Loads a bus's state; a missing file is empty state.
+    /// Reads and checks a bus's state file; a missing file is empty state.
+    fn read(path: &Path) -> Result<BusState, StateError> {
+        let shown = || path.display().to_string();
+        let bytes = match std::fs::read(path) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(BusState::default()),
+            Err(source) => {
+                return Err(StateError::Io {
+                    path: shown(),
+                    source,
+                });
+            }
+        };
+        // The version first: a newer format may not parse, and must say so, not "corrupt".
+        #[derive(Deserialize)]
+        struct Version {
+            #[serde(default)]
+            version: u32,
+        }
+        if let Ok(v) = serde_json::from_slice::<Version>(&bytes)
+            && v.version > VERSION
+        {
+            return Err(StateError::Newer {
+                path: shown(),
+                found: v.version,
+            });
+        }
+        serde_json::from_slice(&bytes).map_err(|source| StateError::Corrupt {
+            path: shown(),
+            source,
+        })
+    }
+
+    /// Loads a bus's state. A file that cannot be read, parsed, or is of a newer format is moved
+    /// aside and the error says where; an earlier moved-aside file with no state file in its
+    /// place is an error too, until the operator decides. Blocking: call off the runtime thread.
     pub fn load(path: &Path) -> Result<BusState, StateError> {
-        match std::fs::read(path) {
-            Ok(bytes) => serde_json::from_slice(&bytes).map_err(|source| StateError::Corrupt {
-                path: path.display().to_string(),
-                source,
-            }),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(BusState::default()),
-            Err(source) => Err(StateError::Io {
-                path: path.display().to_string(),
-                source,
-            }),
+        match Self::read(path) {
+            Ok(s) if path.exists() => Ok(s),
+            Ok(s) => match moved_aside(path).pop() {
+                Some(moved) => Err(StateError::Quarantined {
+                    path: path.display().to_string(),
+                    moved: moved.display().to_string(),
+                }),
+                None => Ok(s),
+            },
+            Err(cause) => {
+                let stamp = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map(|d| d.as_secs())
+                    .unwrap_or(0);
+                let mut moved = PathBuf::from(format!("{}.bad-{stamp}", path.display()));
+                let mut n = 1;
+                while moved.exists() {
+                    moved = PathBuf::from(format!("{}.bad-{stamp}-{n}", path.display()));
+                    n += 1;
+                }
+                match std::fs::rename(path, &moved) {
+                    Ok(()) => {
+                        if let Some(dir) = path.parent() {
+                            let _ = sync_dir(dir);
+                        }
+                        Err(StateError::MovedAside {
+                            cause: Box::new(cause),
+                            path: path.display().to_string(),
+                            moved: moved.display().to_string(),
+                        })
+                    }
+                    Err(rename) => Err(StateError::Stuck {
+                        cause: Box::new(cause),
+                        rename,
+                    }),
+                }
+            }
         }
     }
 
@@ -92,9 +212,7 @@ impl BusState {
             f.sync_all().map_err(io)?;
         }
         std::fs::rename(&tmp, path).map_err(io)?;
-        if let Ok(d) = std::fs::File::open(dir) {
-            let _ = d.sync_all();
-        }
+        sync_dir(dir).map_err(io)?;
         Ok(())
     }
 
@@ -141,13 +259,48 @@ mod tests {
         assert!(s.channels.is_empty());
     }
 
+    fn fresh_dir(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("pulsegate-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
     #[test]
-    fn a_corrupt_file_is_an_error_naming_the_file() {
-        let path =
-            std::env::temp_dir().join(format!("pulsegate-corrupt-{}.json", std::process::id()));
+    fn a_corrupt_file_is_moved_aside_and_stays_an_error_until_someone_decides() {
+        let dir = fresh_dir("corrupt");
+        let path = bus_path(&dir, "line1");
         std::fs::write(&path, b"{not json").unwrap();
         let err = BusState::load(&path).unwrap_err().to_string();
         assert!(err.contains(&path.display().to_string()), "{err}");
-        std::fs::remove_file(&path).unwrap();
+        assert!(err.contains("moved aside"), "{err}");
+        assert!(!path.exists());
+        let moved = moved_aside(&path);
+        assert_eq!(moved.len(), 1);
+        assert_eq!(
+            std::fs::read(&moved[0]).unwrap(),
+            b"{not json",
+            "kept as it was"
+        );
+        // The next start still refuses to begin from zero…
+        assert!(matches!(
+            BusState::load(&path),
+            Err(StateError::Quarantined { .. })
+        ));
+        // …until the moved-aside file is removed (or the state restored).
+        std::fs::remove_file(&moved[0]).unwrap();
+        assert!(BusState::load(&path).unwrap().channels.is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_file_of_a_newer_version_is_not_read_and_not_overwritten() {
+        let dir = fresh_dir("newer");
+        let path = bus_path(&dir, "line1");
+        std::fs::write(&path, br#"{"version":99,"channels":{"x":"new shape"}}"#).unwrap();
+        let err = BusState::load(&path).unwrap_err().to_string();
+        assert!(err.contains("newer pulsegate (format 99"), "{err}");
+        assert_eq!(moved_aside(&path).len(), 1);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

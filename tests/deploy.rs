@@ -121,12 +121,46 @@ fn the_service_unit_keeps_what_the_daemon_needs() {
         .filter(|(k, _)| k == "DeviceAllow")
         .map(|(_, v)| v.as_str())
         .collect();
-    for dev in ["char-ttyUSB rw", "char-ttyACM rw", "char-ttyS rw"] {
+    for dev in [
+        "char-ttyUSB rw",
+        "char-ttyACM rw",
+        "char-ttyS rw",
+        // Raspberry Pi PL011, SC16IS7xx RS-485 HATs, i.MX boards (issue 11).
+        "char-ttyAMA rw",
+        "char-ttySC rw",
+        "char-ttymxc rw",
+    ] {
         assert!(
             allowed.contains(&dev),
             "DeviceAllow={dev} missing: {allowed:?}"
         );
     }
+}
+
+/// A bad config exits with status 2 (see `main`): systemd must not restart it every 5 s forever.
+#[test]
+fn a_bad_config_is_not_restarted_forever() {
+    let prevent = unit_value("RestartPreventExitStatus");
+    assert!(
+        prevent.split_whitespace().any(|s| s == "2"),
+        "RestartPreventExitStatus={prevent}"
+    );
+    let dir = std::env::temp_dir().join(format!("pulsegate-deploy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = dir.join("bad.toml");
+    std::fs::write(&config, "[gateway]\nidd = 1\n").unwrap();
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_pulsegate"))
+        .args(["run", "--config"])
+        .arg(&config)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert_eq!(
+        status.code(),
+        Some(2),
+        "a bad config exits with the status systemd is told"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

@@ -86,6 +86,7 @@ pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &Unboun
     }
     tracing::error!(bus, device = %d.name, unit = d.unit, "module taken out of service: {why}");
     d.wrong_model = Some(why);
+    d.metrics.wrong_model(true);
     d.online = None;
     d.failures = 0;
     d.mark_gap();

@@ -15,6 +15,7 @@ use super::schedule::Backoff;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, CounterState, Direction, Stamp};
 use crate::decode::decode;
+use crate::metrics::DeviceMetrics;
 use crate::plan::{Block, Wire, plan_reads};
 use crate::profile::{ChannelKind, ChannelSpec, Profile, Register, ValueType};
 use crate::reading::Reading;
@@ -95,6 +96,9 @@ impl ChannelRt {
             freq_hz,
             rpm,
             update,
+            kind: self.spec.kind,
+            units: None,
+            after_seq: None,
         }
     }
 }
@@ -115,6 +119,9 @@ impl At {
         }
     }
 }
+
+/// Times a read of an online device is asked again after noise (timeout, garbled, mismatch).
+const NOISE_RETRIES: u32 = 2;
 
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
@@ -176,9 +183,19 @@ pub struct DeviceRt {
     /// yet published.
     pub mode_mismatch: Option<String>,
     mismatch_changed: Option<Option<String>>,
+    /// This device's Prometheus handles.
+    pub metrics: DeviceMetrics,
 }
 
 impl DeviceRt {
+    /// A reading of `channel` was not published: its sequence number goes back, so `seq`
+    /// counts published readings only.
+    pub(super) fn withdraw_seq(&mut self, channel: &str) {
+        if let Some(c) = self.channels.iter_mut().find(|c| &*c.name == channel) {
+            c.counter.state.seq = c.counter.state.seq.saturating_sub(1);
+        }
+    }
+
     pub fn new(
         bus: &Bus,
         config: &Device,
@@ -219,8 +236,15 @@ impl DeviceRt {
             unidentified_warned: false,
             mode_mismatch: None,
             mismatch_changed: None,
+            metrics: DeviceMetrics::disabled(),
             config: config.clone(),
         }
+    }
+
+    /// Records into the gateway's metrics (without: nothing is recorded).
+    pub fn with_metrics(mut self, metrics: DeviceMetrics) -> DeviceRt {
+        self.metrics = metrics;
+        self
     }
 
     /// The key under which this device's holes are saved.
@@ -295,18 +319,6 @@ impl DeviceRt {
                 continue;
             };
             let count = decode(words, ch.spec.count.ty, order).as_i64();
-            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
-                match super::run::run_state(&ch.spec, w[0]) {
-                    // The module cleared it; the gateway starts it after this read.
-                    RunState::Stopped if ch.run != Run::Leave => {
-                        stopped.push((i, count, at));
-                        continue;
-                    }
-                    RunState::Running(d) => ch.counter.spec.direction = d,
-                    RunState::Paused if ch.resume_paused => paused.push(i),
-                    _ => {}
-                }
-            }
             let freq_hz = ch
                 .spec
                 .freq
@@ -322,6 +334,18 @@ impl DeviceRt {
                 (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
                 _ => None,
             };
+            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
+                match super::run::run_state(&ch.spec, w[0]) {
+                    // The module cleared it; the gateway starts it after this read.
+                    RunState::Stopped if ch.run != Run::Leave => {
+                        stopped.push((i, count, at, freq_hz, rpm));
+                        continue;
+                    }
+                    RunState::Running(d) => ch.counter.spec.direction = d,
+                    RunState::Paused if ch.resume_paused => paused.push(i),
+                    _ => {}
+                }
+            }
             // A read the counter holds as suspect is not published.
             let Some(update) = ch.counter.update(count, at.stamp) else {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
@@ -330,10 +354,15 @@ impl DeviceRt {
             if update.event == Some(crate::counter::Event::Reset) {
                 restarted = true;
             }
-            readings.push(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update));
+            let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);
+            self.metrics.reading(&reading);
+            readings.push(reading);
         }
-        for (i, count, at) in stopped {
-            readings.extend(self.start_stopped(link, i, count, at).await);
+        for (i, count, at, freq_hz, rpm) in stopped {
+            if let Some(reading) = self.start_stopped(link, i, count, at, freq_hz, rpm).await {
+                self.metrics.reading(&reading);
+                readings.push(reading);
+            }
         }
         for i in paused {
             self.resume_paused(link, i).await;
@@ -391,6 +420,7 @@ impl DeviceRt {
         self.identify_due = false;
         if let Some(was) = self.wrong_model.take() {
             tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
+            self.metrics.wrong_model(false);
         }
         Ok(())
     }
@@ -570,6 +600,7 @@ impl DeviceRt {
         let mut blocks = self.plan(regs);
         let mut out = Vec::with_capacity(blocks.len());
         let mut i = 0;
+        let mut retries = 0;
         while i < blocks.len() {
             if preempt() {
                 return Err(PollError::Preempted);
@@ -577,7 +608,19 @@ impl DeviceRt {
             let b = blocks[i];
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
-            match link.read(self.unit, b.start, b.len, timeout).await? {
+            let answer = match link.read(self.unit, b.start, b.len, timeout).await {
+                // A device that is online and lost one request or answer to noise is asked
+                // again: on a noisy line a corrupted request gets no answer at all, and three
+                // of those in a row must not make a healthy device offline. An offline device
+                // is not asked twice (a dead one costs the others one timeout per probe).
+                Err(e) if e.is_noise() && self.online == Some(true) && retries < NOISE_RETRIES => {
+                    retries += 1;
+                    continue;
+                }
+                other => other?,
+            };
+            retries = 0;
+            match answer {
                 Ok(words) => {
                     self.record_latency(started.elapsed(), link, b.len);
                     out.push((b, words, At::now()));
@@ -625,7 +668,7 @@ impl DeviceRt {
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
-            .timing()
+            .timing_for(self.unit)
             .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
             .unwrap_or_default();
         self.answer_timeout + line
@@ -634,11 +677,12 @@ impl DeviceRt {
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
     /// the time the request and answer of `len` registers take on the line.
     fn record_latency(&mut self, d: Duration, link: &Link, len: u16) {
+        self.metrics.latency(d);
         if self.latencies.len() >= 256 {
             self.latencies.pop_front();
         }
         self.latencies.push_back(d.as_secs_f64());
-        if let Some(t) = link.timing() {
+        if let Some(t) = link.timing_for(self.unit) {
             let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.turnaround = Some(match self.turnaround {
@@ -656,7 +700,7 @@ impl DeviceRt {
     /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
     /// request really costs this device.
     fn replan_with_turnaround(&mut self, link: &Link) {
-        if let (Some(t), Some(ta)) = (link.timing(), self.turnaround) {
+        if let (Some(t), Some(ta)) = (link.timing_for(self.unit), self.turnaround) {
             self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
     }

@@ -132,10 +132,14 @@ impl DeviceRt {
             let got = decode(w, ch.spec.count.ty, order).as_i64();
             // Pulses keep coming while we write: allow what the input can count meanwhile.
             let slack = ch.counter.spec.plausible(elapsed_ms);
-            if (got - expected).abs() > slack {
+            let update = if (got - expected).abs() > slack {
+                // The write did not take as asked: book nothing, go on from what is there.
                 mismatch.get_or_insert(CommandError::ReadBack { expected, got });
-            }
-            let update = ch.counter.rebase(got, at.stamp, event);
+                ch.counter.rebase(got, at.stamp, event)
+            } else {
+                // Pulses counted between the write and the read-back are booked.
+                ch.counter.rebase_from(expected, got, at.stamp, event)
+            };
             readings.push(ch.reading(&self.name, at.wall, got, None, None, update));
             single = Some(got);
         }

@@ -53,6 +53,15 @@ impl LinkError {
         matches!(self, LinkError::Open { .. } | LinkError::Io(_))
     }
 
+    /// Worth asking again at once (a read only): the request or the answer may have been hit
+    /// by noise.
+    pub fn is_noise(&self) -> bool {
+        matches!(
+            self,
+            LinkError::Timeout(_) | LinkError::Garbled(..) | LinkError::Mismatch(_)
+        )
+    }
+
     /// Something answered: the device is alive even though this answer is unusable.
     pub fn device_answered(&self) -> bool {
         matches!(self, LinkError::Garbled(..))
@@ -89,6 +98,12 @@ pub struct Link {
     pub counters: WireCounters,
     /// Time the line was busy with our transactions (for utilisation).
     pub busy: Duration,
+    /// Units that answer at another baud rate than the bus's: one RS-485 wire can carry
+    /// several, so the port is switched to a unit's rate before its transaction.
+    unit_bauds: std::collections::HashMap<u8, u32>,
+    /// The rate the open port is set to.
+    speed: Option<u32>,
+    guard: Duration,
 }
 
 impl Link {
@@ -105,7 +120,44 @@ impl Link {
             last_io: None,
             counters: WireCounters::default(),
             busy: Duration::ZERO,
+            unit_bauds: std::collections::HashMap::new(),
+            speed: None,
+            guard,
         }
+    }
+
+    /// Character timing of the line while talking to `unit` (its own rate where it has one).
+    pub fn timing_for(&self, unit: u8) -> Option<LineTiming> {
+        let mut config = self.config.clone();
+        if let (LinkConfig::Rtu { baud, .. }, Some(own)) = (&mut config, self.unit_bauds.get(&unit))
+        {
+            *baud = *own;
+        }
+        crate::config::line_timing(&config, self.guard)
+    }
+
+    /// Talks to `unit` at `baud` instead of the bus's rate (RTU).
+    pub fn set_unit_baud(&mut self, unit: u8, baud: u32) {
+        self.unit_bauds.insert(unit, baud);
+    }
+
+    /// Switches the open port to the rate `unit` answers at, after the silent interval at the
+    /// old rate has passed.
+    fn switch_speed(&mut self, unit: u8) -> Result<(), LinkError> {
+        let LinkConfig::Rtu { baud, .. } = &self.config else {
+            return Ok(());
+        };
+        let want = self.unit_bauds.get(&unit).copied().unwrap_or(*baud);
+        if self.speed == Some(want) {
+            return Ok(());
+        }
+        if let Some(port) = &self.port {
+            port.with(|s| s.set_baud_rate(want))
+                .map_err(|e| LinkError::Io(io::Error::other(e)))?;
+        }
+        self.speed = Some(want);
+        self.timing = self.timing_for(unit);
+        Ok(())
     }
 
     /// Character timing of an RTU line.
@@ -117,6 +169,7 @@ impl Link {
     pub fn close(&mut self) {
         self.ctx = None;
         self.port = None;
+        self.speed = None;
     }
 
     /// Reads `len` holding registers from `start`.
@@ -224,6 +277,7 @@ impl Link {
             // RTU frames must be separated by the silent interval.
             wait_until(last + timing.silent_interval()).await;
         }
+        self.switch_speed(unit)?;
         let ctx = self.ctx.as_mut().expect("opened above");
         ctx.set_slave(Slave(unit));
         self.counters.transactions += 1;
@@ -250,6 +304,17 @@ impl Link {
                     self.counters.timeouts += 1;
                     Err(LinkError::Timeout(timeout))
                 }
+            }
+            // tokio-modbus reports a frame it could not decode (bad CRC, an impossible function
+            // code or length) as an I/O error of kind InvalidData: that is a garbled answer on
+            // a noisy line, not a line fault. Rebuild the client so decoding starts afresh.
+            Ok(Err(tokio_modbus::Error::Transport(e)))
+                if e.kind() == io::ErrorKind::InvalidData =>
+            {
+                self.counters.garbled += 1;
+                self.ctx = None;
+                let got = self.bytes_in.load(Ordering::Relaxed) - bytes_before;
+                Err(LinkError::Garbled(got.max(1), timeout))
             }
             Ok(Err(tokio_modbus::Error::Transport(e))) => {
                 self.counters.io_errors += 1;
@@ -284,6 +349,11 @@ impl Link {
                     None => {
                         let p = SharedPort::new(self.open_serial()?);
                         self.port = Some(p.clone());
+                        self.speed = match &self.config {
+                            LinkConfig::Rtu { baud, .. } => Some(*baud),
+                            LinkConfig::Tcp { .. } => None,
+                        };
+                        self.timing = crate::config::line_timing(&self.config, self.guard);
                         p
                     }
                 };
@@ -471,5 +541,32 @@ impl AsyncWrite for FlushingPort {
 
     fn poll_shutdown(self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<io::Result<()>> {
         self.get_mut().port.with(|s| Pin::new(s).poll_shutdown(cx))
+    }
+}
+
+#[cfg(test)]
+mod speed_tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn the_port_is_switched_to_a_units_own_baud_rate_and_back() {
+        let (_master, slave) = serialport::TTYPort::pair().unwrap();
+        let path = PathBuf::from(slave.name().unwrap());
+        let config = LinkConfig::Rtu {
+            port: path,
+            baud: 9600,
+            parity: Parity::None,
+            stop_bits: 1,
+        };
+        let mut link = Link::new(config, Duration::ZERO);
+        link.set_unit_baud(5, 19200);
+        let short = Duration::from_millis(20);
+        // Nobody answers on this pty; the speed the port was set to is what counts.
+        assert!(link.read(5, 210, 1, short).await.is_err());
+        assert_eq!(slave.baud_rate().unwrap(), 19200);
+        assert_eq!(link.timing().unwrap().baud, 19200);
+        assert!(link.read(1, 210, 1, short).await.is_err());
+        assert_eq!(slave.baud_rate().unwrap(), 9600);
+        assert_eq!(link.timing_for(5).unwrap().baud, 19200);
     }
 }

@@ -2,12 +2,16 @@
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
 mod availability;
-mod device;
+pub mod device;
+mod emit;
 mod execute;
 mod identity;
+mod ledger;
 pub mod link;
 mod run;
+mod saver;
 pub mod schedule;
+pub mod survey;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -22,6 +26,7 @@ use tokio_util::sync::CancellationToken;
 use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
+use crate::metrics::BusMetrics;
 use crate::plan::Wire;
 use crate::reading::Output;
 use crate::state::{BusState, bus_path};
@@ -45,6 +50,10 @@ pub struct BusTask {
     out: UnboundedSender<Output>,
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
+    metrics: BusMetrics,
+    /// Scan requests from MQTT, asked in idle line time.
+    scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
+    emitter: emit::Emitter,
 }
 
 impl BusTask {
@@ -59,11 +68,26 @@ impl BusTask {
             state_path: bus_path(&gateway.state_dir, &bus.name),
             state_flush: gateway.state_flush,
             stats_interval: gateway.stats_interval,
+            emitter: emit::Emitter::new(gateway),
             bus,
             out,
             commands,
             heart,
+            metrics: BusMetrics::default(),
+            scans: None,
         }
+    }
+
+    /// Records into the gateway's metrics (without: into a registry nobody serves).
+    pub fn with_metrics(mut self, metrics: BusMetrics) -> BusTask {
+        self.metrics = metrics;
+        self
+    }
+
+    /// Takes scan requests from `scans` (see [`survey`]).
+    pub fn with_scans(mut self, scans: tokio::sync::mpsc::Receiver<survey::ScanRequest>) -> Self {
+        self.scans = Some(scans);
+        self
     }
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
@@ -71,14 +95,24 @@ impl BusTask {
     pub async fn run(mut self, shutdown: CancellationToken) {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
-        let saved = match BusState::load(&self.state_path) {
-            Ok(s) => s,
-            Err(e) => {
-                tracing::error!(bus = %name, "{e}");
-                BusState::default()
-            }
+        let Some(mut saved) = self.load_state(&name, &shutdown).await else {
+            return;
         };
+        let after_seq = if saved.clean {
+            Default::default()
+        } else {
+            ledger::after_crash(&mut saved.channels)
+        };
+        let mut durable = saver::Durable::new(
+            saver::Saver::new(self.state_path.clone(), name.clone()),
+            after_seq,
+        );
         let mut link = Link::new(bus.link.clone(), bus.guard);
+        for d in &bus.devices {
+            if let Some(baud) = d.baud {
+                link.set_unit_baud(d.unit, baud);
+            }
+        }
         let wire = match link.timing() {
             Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
             None => Wire::tcp(),
@@ -95,6 +129,7 @@ impl BusTask {
                     &saved.channels,
                     saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
                 )
+                .with_metrics(self.metrics.device(&d.name))
             })
             .collect();
         let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
@@ -102,7 +137,7 @@ impl BusTask {
         for d in &mut devices {
             d.known = known.clone();
         }
-        let orphans = unclaimed(&name, &saved, &devices);
+        durable.orphans = unclaimed(&name, &saved, &devices);
 
         let start = Instant::now();
         let mut slots: Vec<Slot> = devices
@@ -118,6 +153,11 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
 
         let mut pending: Vec<BusCommand> = Vec::new();
+        // Polls due when the last command ended: they go before the next command, so a burst
+        // of commands slows commands, never polling (each poll waits for at most one command).
+        let mut owed: Option<Instant> = None;
+        let mut scan: Option<survey::Survey> = None;
+        let configured: Vec<u8> = bus.devices.iter().map(|d| d.unit).collect();
         let stall = stall_hook(&bus.name);
         while let Some(i) = earliest(&slots) {
             self.heart.beat();
@@ -129,19 +169,49 @@ impl BusTask {
             while let Ok(c) = self.commands.try_recv() {
                 pending.push(c);
             }
-            run_commands(&mut pending, &mut devices, &mut link, &self.out).await;
+            let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
+            durable.collect(&devices, &self.out).await;
+            if !poll_owed {
+                owed = None;
+                if let Some((from, readings)) =
+                    run_one_command(&mut pending, &mut devices, &mut link).await
+                {
+                    let outputs = self.emitter.emit(&mut devices[from], readings);
+                    durable.publish(outputs, from, &devices, &self.out);
+                    owed = Some(Instant::now());
+                    continue;
+                }
+            }
+            let idle_until = slots[i].due;
+            if !poll_owed
+                && survey::idle_step(
+                    &mut scan,
+                    &mut self.scans,
+                    &mut link,
+                    idle_until,
+                    &configured,
+                    &name,
+                    &self.out,
+                    &shutdown,
+                )
+                .await
+            {
+                continue;
+            }
             let expiry = pending.iter().map(|c| c.request.expires).min();
             // Wake at least every second so the heart beats while the devices are slow.
+            // Held readings are released as soon as their save is done.
+            let soon = if durable.holding() { 20 } else { 1000 };
             let wake = slots[i]
                 .due
-                .min(Instant::now() + Duration::from_secs(1))
+                .min(Instant::now() + Duration::from_millis(soon))
                 .min(flush_at)
                 .min(stats_at)
                 .min(expiry.unwrap_or(flush_at));
             tokio::select! {
                 biased;
                 () = shutdown.cancelled() => break,
-                Some(c) = self.commands.recv() => {
+                Some(c) = self.commands.recv(), if !poll_owed => {
                     pending.push(c);
                     continue;
                 }
@@ -149,14 +219,9 @@ impl BusTask {
             }
             let now = Instant::now();
             if now >= flush_at {
-                let state = snapshot(&devices, &orphans);
-                let path = self.state_path.clone();
-                let bus_name = name.clone();
-                tokio::task::spawn_blocking(move || {
-                    if let Err(e) = state.save(&path) {
-                        tracing::error!(bus = %bus_name, "{e}");
-                    }
-                });
+                durable
+                    .saver
+                    .start(snapshot(&devices, &durable.orphans, false));
                 flush_at = now + self.state_flush;
             }
             if now >= stats_at {
@@ -171,6 +236,8 @@ impl BusTask {
                 );
                 counters_at_stats = link.counters;
                 tracing::info!(bus = %name, %stats, "bus stats");
+                self.metrics
+                    .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
                 let _ = self.out.send(Output::BusStats {
                     bus: name.clone(),
                     stats,
@@ -184,7 +251,13 @@ impl BusTask {
             }
             let d = &mut devices[i];
             let commands = &self.commands;
-            let result = d.poll(&mut link, &|| !commands.is_empty()).await;
+            // A poll owed after a command runs to its end; otherwise it gives way to a command.
+            let before = link.counters;
+            let result = d
+                .poll(&mut link, &|| !poll_owed && !commands.is_empty())
+                .await;
+            d.metrics.wire(&before, &link.counters);
+            self.metrics.wire(&link.counters, link.busy);
             let now = Instant::now();
             match result {
                 Err(e) if e.is_preempted() => continue,
@@ -203,9 +276,8 @@ impl BusTask {
                     let d = &mut devices[i];
                     availability::answered(d, &name, &self.out);
                     availability::mode_mismatch(d, &self.out);
-                    for r in readings {
-                        let _ = self.out.send(Output::Reading(r));
-                    }
+                    let outputs = self.emitter.emit(d, readings);
+                    durable.publish(outputs, i, &devices, &self.out);
                     slots[i].advance(now);
                 }
                 Err(PollError::WrongModel(why)) => {
@@ -217,6 +289,7 @@ impl BusTask {
                     self.heart.set_up(!line_fault);
                     if line_fault && !std::mem::replace(&mut line_down, true) {
                         tracing::error!(bus = %name, "line fault: {e}");
+                        self.metrics.line_fault();
                     }
                     match availability::failed(d, &e, bus, line_fault, &name, &self.out) {
                         Some(wait) => slots[i].defer_to(now + wait),
@@ -224,13 +297,10 @@ impl BusTask {
                     }
                 }
             }
+            devices[i].metrics.up(devices[i].online);
         }
-        let state = snapshot(&devices, &orphans);
-        let path = self.state_path.clone();
-        match tokio::task::spawn_blocking(move || state.save(&path)).await {
-            Ok(Err(e)) => tracing::error!(bus = %name, "{e}"),
-            Err(e) => tracing::error!(bus = %name, "state save task failed: {e}"),
-            Ok(Ok(())) => tracing::info!(bus = %name, "state saved"),
+        if durable.finish(&devices, &self.out).await {
+            tracing::info!(bus = %name, "state saved");
         }
         for d in &devices {
             if d.online == Some(true) {
@@ -244,6 +314,33 @@ impl BusTask {
     }
 }
 
+impl BusTask {
+    /// Loads the bus's state off the runtime thread. A state file that cannot be trusted (moved
+    /// aside, see [`crate::state`]) halts the bus with a clear log and status until shutdown:
+    /// it does not start from zero totals on a guess.
+    async fn load_state(&self, name: &Arc<str>, shutdown: &CancellationToken) -> Option<BusState> {
+        let path = self.state_path.clone();
+        let loaded = tokio::task::spawn_blocking(move || BusState::load(&path)).await;
+        let error = match loaded {
+            Ok(Ok(s)) => return Some(s),
+            Ok(Err(e)) => e.to_string(),
+            Err(e) => format!("state load task failed: {e}"),
+        };
+        tracing::error!(bus = %name, "{error}");
+        tracing::error!(bus = %name, "bus not started: its counter state cannot be trusted");
+        self.heart
+            .set_problem(Some("state file refused, not polling (see the log)".into()));
+        self.heart.set_up(false);
+        loop {
+            self.heart.beat();
+            tokio::select! {
+                () = shutdown.cancelled() => return None,
+                () = tokio::time::sleep(Duration::from_secs(1)) => {}
+            }
+        }
+    }
+}
+
 /// Fault injection for the watchdog test: `PULSEGATE_TEST_STALL_BUS=<bus>:<seconds>` makes that
 /// bus loop stop making progress after so long, as a stuck loop would.
 fn stall_hook(bus: &str) -> Option<Duration> {
@@ -252,28 +349,34 @@ fn stall_hook(bus: &str) -> Option<Duration> {
     (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
-/// Carries out the pending commands whose device can take them; answers expired ones with
-/// `offline`; keeps the rest waiting for their device.
-async fn run_commands(
+/// Carries out the first pending command whose device can take it (one command, so polls get
+/// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
+/// their device. Returns the device and readings of the command that went on the line, if one
+/// did.
+async fn run_one_command(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
     link: &mut Link,
-    out: &UnboundedSender<Output>,
-) {
+) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
     let mut waiting = Vec::new();
+    let mut ran = None;
     for c in pending.drain(..) {
-        let Some(d) = devices.iter_mut().find(|d| *d.name == c.request.device) else {
+        let Some((i, d)) = devices
+            .iter_mut()
+            .enumerate()
+            .find(|(_, d)| *d.name == c.request.device)
+        else {
             let _ = c
                 .done
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if d.online == Some(true) && d.discovered() {
+        if ran.is_none() && d.online == Some(true) && d.discovered() {
+            let before = link.counters;
             let executed = d.execute(link, &c.request).await;
-            for r in executed.readings {
-                let _ = out.send(Output::Reading(r));
-            }
+            d.metrics.wire(&before, &link.counters);
+            ran = Some((i, executed.readings));
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {
@@ -289,12 +392,17 @@ async fn run_commands(
         }
     }
     *pending = waiting;
+    ran
 }
 
-/// The bus's state to save: every device's, plus the saved state no configured device claims
-/// (kept, never attached to another meter).
-fn snapshot(devices: &[DeviceRt], orphans: &BusState) -> BusState {
-    let mut s = orphans.clone();
+/// The bus's state now: every device's, plus the saved state no configured device claims
+/// (kept, never attached to another meter); `clean` only for the save after the last reading
+/// at shutdown.
+fn snapshot(devices: &[DeviceRt], orphans: &BusState, clean: bool) -> BusState {
+    let mut s = BusState {
+        clean,
+        ..orphans.clone()
+    };
     for d in devices {
         s.channels.extend(d.counter_states());
         if !d.holes.is_empty() {

@@ -136,6 +136,8 @@ impl DeviceRt {
         i: usize,
         count: i64,
         at: At,
+        freq_hz: Option<f64>,
+        rpm: Option<f64>,
     ) -> Option<Reading> {
         let ch = &self.channels[i];
         let code = start_code(&ch.spec, ch.run)?;
@@ -169,7 +171,7 @@ impl DeviceRt {
         let update = ch.counter.rebase(count, at.stamp, Event::Reset);
         self.module_restarted();
         let ch = &self.channels[i];
-        Some(ch.reading(&self.name, at.wall, count, None, None, update))
+        Some(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update))
     }
 }
 

@@ -10,6 +10,12 @@ use super::walk::{Errors, Table, join};
 use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
+/// Longest answer timeout (a module that needs longer is not answering).
+pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
+pub const MAX_SPOOL_MB: u64 = 1 << 20;
+
 /// Baud rates the seed modules can be set to (their baud-code tables).
 pub const BAUDS: [u32; 7] = [2400, 4800, 9600, 19200, 38400, 57600, 115200];
 
@@ -32,6 +38,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
 
     let gateway = gateway(root.table("gateway", errs), &config_dir, errs);
     let mqtt = mqtt(root.table("mqtt", errs), &gateway.id, errs);
+    let metrics = super::metrics::check(root.table("metrics", errs), errs);
 
     let profiles = match Profiles::with_dir(&gateway.profile_dir) {
         Ok(p) => p,
@@ -53,6 +60,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
             buses.push(bus);
         }
     }
+    let homeassistant = super::publish::homeassistant(root.table("homeassistant", errs), errs);
     root.finish(errs);
 
     // Device names become topic levels, so they are unique across the gateway.
@@ -73,29 +81,56 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         source: path.to_path_buf(),
         gateway,
         mqtt,
+        metrics,
         buses,
+        homeassistant,
     })
 }
 
-fn host_name() -> String {
+/// The machine's hostname as the kernel has it.
+pub fn host_name_raw() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")
         .or_else(|_| std::fs::read_to_string("/etc/hostname"))
         .map(|s| s.trim().to_string())
-        .ok()
-        .filter(|s| super::is_topic_safe(s))
-        .unwrap_or_else(|| "pulsegate".to_string())
+        .unwrap_or_default()
+}
+
+/// The gateway id derived from a hostname: characters a topic level cannot hold (the dots of an
+/// FQDN) become '-'. `None` when nothing usable is left: then the id must be configured, never
+/// silently replaced by a shared default (two gateways with one id take each other's commands).
+pub fn id_from_host(host: &str) -> Option<String> {
+    let id: String = host
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    let id = id.trim_matches('-').to_string();
+    super::is_topic_safe(&id).then_some(id)
 }
 
 fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Gateway {
+    let host = host_name_raw();
     let mut g = Gateway {
-        id: host_name(),
+        id: id_from_host(&host).unwrap_or_default(),
+        id_from_hostname: Some(host),
         state_dir: PathBuf::from("/var/lib/pulsegate"),
         state_flush: Duration::from_secs(5),
         stats_interval: Duration::from_secs(60),
         profile_dir: config_dir.join("profiles"),
+        publish: Default::default(),
+        payload: Default::default(),
     };
-    let Some(mut t) = table else { return g };
+    let Some(mut t) = table else {
+        refuse_unusable_host(&g, errs);
+        return g;
+    };
     if let Some(id) = t.opt::<String>("id", errs) {
+        g.id_from_hostname = None;
         if super::is_topic_safe(&id) {
             g.id = id;
         } else {
@@ -122,8 +157,25 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
             config_dir.join(dir)
         };
     }
+    g.publish = super::publish::policy(&mut t, errs);
+    g.payload = super::publish::payload(&mut t, errs).unwrap_or_default();
     t.finish(errs);
+    refuse_unusable_host(&g, errs);
     g
+}
+
+fn refuse_unusable_host(g: &Gateway, errs: &mut Errors) {
+    if let Some(host) = &g.id_from_hostname
+        && g.id.is_empty()
+    {
+        errs.push(
+            "gateway.id",
+            None,
+            format!(
+                "not set, and the hostname {host:?} cannot be made a topic level: set gateway.id"
+            ),
+        );
+    }
 }
 
 /// A password read from a file: the line ending is not part of it.
@@ -144,8 +196,21 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         retain: false,
         topic_root: format!("pulsegate/{gateway_id}"),
         spool_bytes: 64 << 20,
+        commands: true,
+        protocol: super::MqttProtocol::V5,
     };
     let Some(mut t) = table else { return m };
+    if let Some(v) = t.opt::<String>("protocol", errs) {
+        match v.as_str() {
+            "5" => m.protocol = super::MqttProtocol::V5,
+            "3.1.1" => m.protocol = super::MqttProtocol::V311,
+            _ => errs.push(
+                &join(&t.path, "protocol"),
+                t.origin(),
+                format!("unknown MQTT protocol {v:?}: \"5\" or \"3.1.1\""),
+            ),
+        }
+    }
     if let Some(v) = t.opt("host", errs) {
         m.host = v;
     }
@@ -179,6 +244,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         }
     }
     if let Some(mut tt) = t.table("tls", errs) {
+        let tt_path = tt.path.clone();
         let ca_file = tt.req::<PathBuf>("ca_file", errs);
         let cert_file = tt.opt::<PathBuf>("cert_file", errs);
         let key_file = tt.opt::<PathBuf>("key_file", errs);
@@ -210,15 +276,19 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             cert_file,
             key_file,
         });
-    }
-    if let Some(v) = t.duration("keep_alive", errs) {
-        if v < Duration::from_secs(5) {
-            errs.push(
-                &join(&t.path, "keep_alive"),
-                t.origin(),
-                "must be at least 5s",
-            );
+        // Built here exactly as `run` builds it, so `check` (run as the service user) reports
+        // a file the service could not read, and the gateway never starts without TLS.
+        let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
+        if let Some(tls) = &m.tls
+            && files_exist
+            && let Err(e) = crate::publish::tls::client_config(tls)
+        {
+            errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
         }
+    }
+    // MQTT carries it in 16 bits of seconds.
+    let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
+    if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
         m.keep_alive = v;
     }
     if let Some(v) = t.int::<u8>("qos", errs) {
@@ -230,11 +300,18 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     if let Some(v) = t.opt("retain", errs) {
         m.retain = v;
     }
+    if let Some(v) = t.opt("commands", errs) {
+        m.commands = v;
+    }
     if let Some(mb) = t.int::<u64>("spool_mb", errs) {
-        if mb == 0 {
-            errs.push(&join(&t.path, "spool_mb"), t.origin(), "must be at least 1");
+        if !(1..=MAX_SPOOL_MB).contains(&mb) {
+            errs.push(
+                &join(&t.path, "spool_mb"),
+                t.origin(),
+                format!("must be 1..{MAX_SPOOL_MB}"),
+            );
         }
-        m.spool_bytes = mb << 20;
+        m.spool_bytes = mb.min(MAX_SPOOL_MB) << 20;
     }
     if let Some(v) = t.opt::<String>("topic_root", errs) {
         let ok = !v.is_empty()
@@ -326,17 +403,10 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     };
 
     let t_origin = t.origin().map(str::to_string);
-    let timeout = t.duration("timeout", errs);
-    let guard = t.opt::<String>("guard", errs).map_or(Duration::ZERO, |s| {
-        humantime::parse_duration(&s).unwrap_or_else(|e| {
-            errs.push(
-                &join(&path, "guard"),
-                t.origin(),
-                format!("bad duration {s:?}: {e}"),
-            );
-            Duration::ZERO
-        })
-    });
+    let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
+    let guard = t
+        .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
+        .unwrap_or(Duration::ZERO);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
         errs.push(
@@ -384,6 +454,15 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             devices.push(d);
         }
     }
+    if matches!(link, Some(Link::Tcp { .. })) {
+        for d in devices.iter().filter(|d| d.baud.is_some()) {
+            errs.push(
+                &format!("{path}.devices.{}.baud", d.name),
+                t.origin(),
+                "serial setting on a TCP bus",
+            );
+        }
+    }
     t.finish(errs);
     let mut link = link?;
     if let Link::Tcp { port, .. } = &mut link
@@ -414,11 +493,11 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd") {
+    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
         errs.push(
             &path,
             t.origin(),
-            "device name must be letters, digits, '-' or '_' and not status, bus or cmd \
+            "device name must be letters, digits, '-' or '_' and not status, bus, cmd or gateway \
              (it is a topic level)",
         );
     }
@@ -453,9 +532,24 @@ fn device(
         p
     });
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
-    let timeout = t.duration("timeout", errs);
+    let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
     let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
+    let baud = t.int::<u32>("baud", errs);
+    if let (Some(b), Some(p)) = (baud, &profile)
+        && !p.bauds.contains(&b)
+    {
+        errs.push(
+            &join(&path, "baud"),
+            t.origin(),
+            format!(
+                "model {} does not support {b} baud ({:?})",
+                p.model, p.bauds
+            ),
+        );
+    }
+    let publish = super::publish::policy(&mut t, errs);
+    let payload = super::publish::payload(&mut t, errs);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -474,8 +568,11 @@ fn device(
         poll,
         timeout,
         commands,
+        baud,
         channels,
         enabled,
+        publish,
+        payload,
     })
 }
 

@@ -4,8 +4,10 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
-mod channel;
+pub mod channel;
 mod check;
+mod metrics;
+pub mod publish;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -17,7 +19,11 @@ use std::time::Duration;
 use crate::profile::Profile;
 
 pub use channel::{ChannelConfig, Run};
-pub use check::from_tree;
+pub use check::{from_tree, host_name_raw, id_from_host};
+pub use metrics::Metrics as MetricsEndpoint;
+pub use publish::HomeAssistant;
+
+use crate::publish::policy::{PayloadMode, PolicyOverride};
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
@@ -64,14 +70,21 @@ pub struct Config {
     pub source: PathBuf,
     pub gateway: Gateway,
     pub mqtt: Mqtt,
+    /// `[metrics]`: the Prometheus endpoint, when configured.
+    pub metrics: Option<MetricsEndpoint>,
     /// Buses sorted by name.
     pub buses: Vec<Bus>,
+    /// `[homeassistant]`: MQTT discovery.
+    pub homeassistant: HomeAssistant,
 }
 
 /// `[gateway]`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Gateway {
     pub id: String,
+    /// The hostname the id was derived from, when `gateway.id` is not set (logged at start so
+    /// the derived id is never a surprise).
+    pub id_from_hostname: Option<String>,
     pub state_dir: PathBuf,
     /// How often counter state is written to disk (it is also written at shutdown).
     pub state_flush: Duration,
@@ -79,6 +92,10 @@ pub struct Gateway {
     pub stats_interval: Duration,
     /// Where user profiles (`*.toml`) are looked up.
     pub profile_dir: PathBuf,
+    /// Publish policy of every channel unless a device or channel says otherwise.
+    pub publish: PolicyOverride,
+    /// One message per channel or per device, unless a device says otherwise.
+    pub payload: PayloadMode,
 }
 
 /// A secret (the MQTT password): never printed, never logged.
@@ -118,6 +135,21 @@ pub struct Mqtt {
     pub topic_root: String,
     /// Bound of the store-and-forward spool (memory and disk), in bytes.
     pub spool_bytes: u64,
+    /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
+    /// MQTT whatever the devices say).
+    pub commands: bool,
+    /// `mqtt.protocol`: "5" (default) or "3.1.1".
+    pub protocol: MqttProtocol,
+}
+
+/// The MQTT protocol version spoken to the broker.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum MqttProtocol {
+    #[default]
+    V5,
+    /// For brokers that refuse v5 (Azure IoT Hub, older Mosquitto, some embedded brokers): no
+    /// response topic or correlation data; everything else works the same.
+    V311,
 }
 
 /// `[buses.<name>]`
@@ -200,10 +232,17 @@ pub struct Device {
     pub timeout: Option<Duration>,
     /// Whether clear/preset commands are accepted for this device.
     pub commands: bool,
+    /// The device's own baud rate where it differs from its bus's (RTU): the port is switched
+    /// to it for this device's transactions.
+    pub baud: Option<u32>,
     /// Per-channel settings keyed by channel name.
     pub channels: BTreeMap<String, ChannelConfig>,
     /// `false`: not polled or published; its saved state is kept.
     pub enabled: bool,
+    /// Publish policy keys of this device (over the gateway's).
+    pub publish: PolicyOverride,
+    /// `payload` of this device, when it overrides the gateway's.
+    pub payload: Option<PayloadMode>,
 }
 
 impl PartialEq for Device {
@@ -214,10 +253,13 @@ impl PartialEq for Device {
             && self.poll == other.poll
             && self.timeout == other.timeout
             && self.commands == other.commands
+            && self.baud == other.baud
             && self.channels == other.channels
             && self.enabled == other.enabled
             // A profile file edited since: the bus restarts with the new profile.
             && self.profile.fingerprint == other.profile.fingerprint
+            && self.publish == other.publish
+            && self.payload == other.payload
     }
 }
 
@@ -286,6 +328,12 @@ impl Config {
             .iter()
             .flat_map(|b| b.devices.iter().map(move |d| (b, d)))
     }
+
+    /// The devices that are polled and published: neither they nor their bus have
+    /// `enabled = false`.
+    pub fn enabled_devices(&self) -> impl Iterator<Item = (&Bus, &Device)> {
+        self.devices().filter(|(b, d)| b.enabled && d.enabled)
+    }
 }
 
 /// A name that can stand as one level of an MQTT topic and as a key in the environment:
@@ -300,3 +348,5 @@ pub fn is_topic_safe(name: &str) -> bool {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod units_tests;

@@ -254,3 +254,51 @@ fn enabled_and_run_are_read_at_bus_device_and_channel_level() {
         "{e}"
     );
 }
+
+#[test]
+fn an_fqdn_hostname_becomes_a_visible_id_never_a_shared_default() {
+    use super::id_from_host;
+    assert_eq!(
+        id_from_host("edge-01.plant.example.com").as_deref(),
+        Some("edge-01-plant-example-com")
+    );
+    assert_eq!(id_from_host("edge_7").as_deref(), Some("edge_7"));
+    assert_eq!(id_from_host(""), None);
+    assert_eq!(id_from_host("..."), None);
+    assert_eq!(
+        id_from_host(&"a".repeat(100)),
+        None,
+        "too long for a topic level"
+    );
+}
+
+#[test]
+fn a_device_may_answer_at_its_own_baud_rate_on_a_serial_bus() {
+    let text = GOOD.replace("poll = \"500ms\"", "poll = \"500ms\"\nbaud = 9600");
+    let c = check(&text).unwrap();
+    assert_eq!(c.buses[1].devices[0].baud, Some(9600));
+    assert_eq!(c.buses[0].devices[0].baud, None);
+}
+
+#[test]
+fn a_device_baud_is_refused_on_tcp_and_outside_its_model() {
+    let tcp = GOOD.replace(
+        "model = \"zh-yx1600\"",
+        "model = \"zh-yx1600\"\nbaud = 9600",
+    );
+    assert!(
+        errors(&tcp)
+            .iter()
+            .any(|e| e.contains("buses.hall2.devices.doors.baud") && e.contains("TCP")),
+        "{:?}",
+        errors(&tcp)
+    );
+    let odd = GOOD.replace("poll = \"500ms\"", "poll = \"500ms\"\nbaud = 14400");
+    assert!(
+        errors(&odd)
+            .iter()
+            .any(|e| e.contains("does not support 14400")),
+        "{:?}",
+        errors(&odd)
+    );
+}

@@ -9,6 +9,10 @@ use serde::de::DeserializeOwned;
 
 use super::ConfigError;
 
+/// The longest duration any key takes (a week): far beyond any sensible poll or flush interval,
+/// and far from overflowing a deadline.
+pub(crate) const MAX_DURATION: Duration = Duration::from_secs(7 * 24 * 3600);
+
 /// Collected errors of one configuration check.
 #[derive(Debug, Default)]
 pub(crate) struct Errors {
@@ -85,6 +89,11 @@ impl<'a> Table<'a> {
         }
     }
 
+    /// An optional value as the tree holds it (for values of more than one type).
+    pub fn raw(&mut self, key: &str) -> Option<&'a Value> {
+        self.take(key)
+    }
+
     /// A value that must be present.
     pub fn req<T: DeserializeOwned>(&mut self, key: &str, errs: &mut Errors) -> Option<T> {
         if !self.map.contains_key(key) {
@@ -125,8 +134,21 @@ impl<'a> Table<'a> {
         }
     }
 
-    /// An optional humantime duration ("300ms", "1m 30s"), which must be greater than zero.
+    /// An optional humantime duration ("300ms", "1m 30s"), greater than zero and at most
+    /// [`MAX_DURATION`].
     pub fn duration(&mut self, key: &str, errs: &mut Errors) -> Option<Duration> {
+        self.duration_within(key, Duration::from_millis(1), MAX_DURATION, errs)
+    }
+
+    /// An optional humantime duration within `min..=max` (a zero `min` allows zero): every
+    /// duration is bounded, so no deadline computed from one can overflow.
+    pub fn duration_within(
+        &mut self,
+        key: &str,
+        min: Duration,
+        max: Duration,
+        errs: &mut Errors,
+    ) -> Option<Duration> {
         let value = self.take(key)?;
         let path = join(&self.path, key);
         let text = match &value.kind {
@@ -141,8 +163,24 @@ impl<'a> Table<'a> {
             }
         };
         match humantime::parse_duration(&text) {
-            Ok(d) if d.is_zero() => {
+            Ok(d) if d.is_zero() && !min.is_zero() => {
                 errs.push(&path, value.origin(), "must be greater than zero");
+                None
+            }
+            Ok(d) if d < min => {
+                errs.push(
+                    &path,
+                    value.origin(),
+                    format!("must be at least {}", humantime::format_duration(min)),
+                );
+                None
+            }
+            Ok(d) if d > max => {
+                errs.push(
+                    &path,
+                    value.origin(),
+                    format!("must be at most {}", humantime::format_duration(max)),
+                );
                 None
             }
             Ok(d) => Some(d),

@@ -7,6 +7,7 @@
 
 mod builtin;
 mod raw;
+mod settings;
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -14,6 +15,7 @@ use std::time::Duration;
 
 pub use builtin::builtin_profiles;
 pub use raw::{ChannelKind, ValueType, WordOrder};
+pub use settings::{Allowed, Applies, Place, Setting, SettingError};
 
 /// A profile could not be loaded or is inconsistent.
 #[derive(Debug, thiserror::Error)]
@@ -197,6 +199,8 @@ pub struct Profile {
     pub model: String,
     pub aliases: Vec<String>,
     pub title: String,
+    /// Maker of `model` (an alias may come from another maker).
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
@@ -206,6 +210,8 @@ pub struct Profile {
     pub autosave: Option<u16>,
     /// A hash of the profile's text: a reload sees an edited profile file.
     pub fingerprint: u64,
+    /// Settings `pulsegate setup` may write, by name (`unit`, `baud`, ...).
+    pub settings: BTreeMap<String, Setting>,
     groups: Vec<raw::Group>,
 }
 
@@ -216,10 +222,22 @@ impl Profile {
             origin: origin.to_string(),
             source: Box::new(e),
         })?;
+        let invalid = |message: String| ProfileError::Invalid {
+            origin: origin.to_string(),
+            message,
+        };
+        let settings = raw
+            .settings
+            .into_iter()
+            .map(|(name, s)| Setting::from_raw(&name, s).map(|s| (name, s)))
+            .collect::<Result<BTreeMap<_, _>, _>>()
+            .map_err(invalid)?;
+        settings::check(&settings, &raw.bauds).map_err(invalid)?;
         let profile = Profile {
             model: raw.model,
             aliases: raw.aliases,
             title: raw.title,
+            manufacturer: raw.manufacturer,
             word_order: raw.word_order,
             answer_timeout: raw.answer_timeout,
             bauds: raw.bauds,
@@ -232,6 +250,7 @@ impl Profile {
                 text.hash(&mut h);
                 h.finish()
             },
+            settings,
             groups: raw.groups,
         };
         profile.check().map_err(|message| ProfileError::Invalid {
@@ -239,6 +258,17 @@ impl Profile {
             message,
         })?;
         Ok(profile)
+    }
+
+    /// The setting `name`, or an error listing the ones the datasheet documents.
+    pub fn setting(&self, name: &str) -> Result<&Setting, SettingError> {
+        self.settings
+            .get(name)
+            .ok_or_else(|| SettingError::Unknown {
+                model: self.model.clone(),
+                name: name.to_string(),
+                known: self.settings.keys().cloned().collect::<Vec<_>>().join(", "),
+            })
     }
 
     /// Every mode register the gateway reads at start, in group and instance order.
@@ -305,10 +335,72 @@ impl Profile {
         out
     }
 
+    /// Every address, code and number a profile can produce stays within u16, every rate is
+    /// positive: checked in u32 before anything is resolved, so a user profile cannot make the
+    /// gateway overflow.
+    fn check_ranges(&self) -> Result<(), String> {
+        let fits = |what: &str, base: u16, stride: u16, n: u16, width: u32| {
+            let last = u32::from(base) + u32::from(n.saturating_sub(1)) * u32::from(stride);
+            if last + width > 0x1_0000 {
+                Err(format!(
+                    "{what}: register or value {last} (+{width}) is beyond 65535"
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        if self.answer_timeout.is_zero() || self.answer_timeout > Duration::from_secs(60) {
+            return Err("answer_timeout must be between 1ms and 60s".into());
+        }
+        if let Some((address, words)) = &self.identify {
+            let n = u32::try_from(words.len()).unwrap_or(u32::MAX);
+            if u32::from(*address) + n > 0x1_0000 || words.len() > 125 {
+                return Err("identify: registers beyond 65535 or more than 125".into());
+            }
+        }
+        for g in &self.groups {
+            if g.instances == 0 {
+                return Err(format!("group {} has no instances", g.name));
+            }
+            let n = g.instances;
+            fits(
+                &format!("group {} mode", g.name),
+                g.mode.address,
+                g.mode.stride,
+                n,
+                1,
+            )?;
+            for mode in &g.modes {
+                for ch in &mode.channels {
+                    let what = format!("channel {}", ch.name);
+                    if !(ch.max_rate_hz > 0.0 && ch.max_rate_hz.is_finite()) {
+                        return Err(format!("{what}: max_rate_hz must be greater than zero"));
+                    }
+                    fits(&what, ch.number.base, ch.number.stride, n, 0)?;
+                    for r in [
+                        Some(&ch.count),
+                        ch.freq.as_ref(),
+                        ch.rpm.as_ref(),
+                        ch.ppr.as_ref(),
+                    ]
+                    .into_iter()
+                    .flatten()
+                    {
+                        fits(&what, r.address, r.stride, n, u32::from(r.ty.words()))?;
+                    }
+                    fits(&what, ch.clear.address, ch.clear.stride, n, 1)?;
+                    fits(&what, ch.clear.code, ch.clear.code_stride, n, 0)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
     fn check(&self) -> Result<(), String> {
         if self.model.is_empty() {
             return Err("model name is empty".into());
         }
+        self.check_ranges()?;
         if self.groups.is_empty() {
             return Err("no groups of channels".into());
         }

@@ -52,6 +52,9 @@ pub(super) struct Profile {
     pub aliases: Vec<String>,
     #[serde(default)]
     pub title: String,
+    /// Maker of the model itself (not of its aliases), from the datasheet's imprint.
+    #[serde(default)]
+    pub manufacturer: Option<String>,
     pub word_order: WordOrder,
     #[serde(with = "humantime_serde")]
     pub answer_timeout: Duration,
@@ -61,6 +64,8 @@ pub(super) struct Profile {
     pub tcp_port: Option<u16>,
     pub identify: Option<Identify>,
     pub autosave: Option<Autosave>,
+    #[serde(default)]
+    pub settings: std::collections::BTreeMap<String, super::settings::RawSetting>,
     pub groups: Vec<Group>,
 }
 

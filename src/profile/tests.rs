@@ -201,3 +201,35 @@ fn zh_yx1600_power_on_state_is_the_pauto_bits_9_8_of_each_counters_mode_word() {
     assert_eq!(di1.apply(0x0002, true), 0x0202);
     assert_eq!(di1.apply(0x0302, false), 0x0102);
 }
+
+/// A user profile with absurd values is an error naming the cause, never a panic.
+#[test]
+fn a_profile_with_a_zero_rate_or_registers_beyond_u16_is_refused() {
+    let base = include_str!("../../profiles/wj157.toml");
+    let cases = [
+        ("max_rate_hz = 50000", "max_rate_hz = 0", "max_rate_hz"),
+        ("max_rate_hz = 50000", "max_rate_hz = -3", "max_rate_hz"),
+        (
+            "count = { address = 16, stride = 2, type = \"i32\" }",
+            "count = { address = 65535, stride = 2, type = \"i32\" }",
+            "beyond 65535",
+        ),
+        ("instances = 1", "instances = 40000", "beyond 65535"),
+        ("instances = 1", "instances = 0", "no instances"),
+        (
+            "answer_timeout = \"100ms\"",
+            "answer_timeout = \"500000000000years\"",
+            "answer_timeout",
+        ),
+    ];
+    for (from, to, expect) in cases {
+        assert!(base.contains(from), "{from}");
+        let text = base.replacen(from, to, 1);
+        let result = std::panic::catch_unwind(|| Profile::from_toml(&text, "user.toml"));
+        let err = result
+            .unwrap_or_else(|_| panic!("{to}: panicked"))
+            .expect_err(to)
+            .to_string();
+        assert!(err.contains(expect), "{to}: {err}");
+    }
+}

@@ -1,6 +1,16 @@
 //! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
 
+pub mod decimal;
+pub mod discovery;
+pub mod homeassistant;
 pub mod mqtt;
 pub mod payload;
+pub mod policy;
+pub mod session;
 pub mod spool;
+pub mod tls;
 pub mod topics;
+pub mod units;
+
+#[cfg(test)]
+mod discovery_tests;

@@ -1,6 +1,9 @@
 //! JSON payloads. Pure.
 
+use std::collections::BTreeMap;
+
 use serde::Serialize;
+use serde_json::value::RawValue;
 
 use crate::counter::Event;
 use crate::reading::Reading;
@@ -21,6 +24,14 @@ struct ReadingJson {
     #[serde(skip_serializing_if = "Option::is_none")]
     event: Option<Event>,
     seq: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    after_seq: Option<u64>,
+    /// The scaled total: a JSON number whose text is exactly `total × scale`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    value: Option<Box<RawValue>>,
+    /// The scaled rate, per the channel's `rate_per`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rate: Option<f64>,
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
@@ -30,7 +41,23 @@ fn round3(v: f64) -> f64 {
 
 /// `{"ts":"2026-11-21T22:38:43.123Z","count":-13680,…,"seq":42}`
 pub fn reading(r: &Reading) -> String {
-    let json = ReadingJson {
+    serde_json::to_string(&json_of(r)).expect("reading serializes")
+}
+
+/// `{"a0":{…reading…},"a1":{…}}`: the readings of one poll of a device, keyed by channel.
+pub fn device(readings: &[Reading]) -> String {
+    let map: BTreeMap<&str, ReadingJson> =
+        readings.iter().map(|r| (&*r.channel, json_of(r))).collect();
+    serde_json::to_string(&map).expect("readings serialize")
+}
+
+fn json_of(r: &Reading) -> ReadingJson {
+    let units = r.units.as_deref();
+    let value = units
+        .and_then(|u| super::units::value(u, r.update.total))
+        .and_then(|v| RawValue::from_string(v.to_string()).ok());
+    let rate = units.and_then(|u| super::units::rate(u, r.update.rate_hz?));
+    ReadingJson {
         ts: humantime::format_rfc3339_millis(r.ts).to_string(),
         count: r.count,
         delta: r.update.delta,
@@ -40,8 +67,10 @@ pub fn reading(r: &Reading) -> String {
         rpm: r.rpm.map(round3),
         event: r.update.event,
         seq: r.update.seq,
-    };
-    serde_json::to_string(&json).expect("reading serializes")
+        after_seq: r.after_seq,
+        value,
+        rate,
+    }
 }
 
 #[cfg(test)]
@@ -66,6 +95,9 @@ mod tests {
                 rate_hz: Some(999.9996),
                 event: Some(Event::Rollover),
             },
+            after_seq: None,
+            kind: crate::profile::ChannelKind::Encoder,
+            units: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["ts"], "2026-11-21T22:38:43.123Z");
@@ -93,9 +125,64 @@ mod tests {
                 rate_hz: None,
                 event: None,
             },
+            after_seq: None,
+            kind: crate::profile::ChannelKind::Encoder,
+            units: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);
         assert!(v.get("freq_hz").is_none() && v.get("event").is_none());
+        assert!(v.get("value").is_none() && v.get("rate").is_none());
+    }
+
+    fn metered(total: i64, scale: &str, rate_hz: f64) -> Reading {
+        use crate::config::channel::ChannelUnits;
+        use crate::publish::{decimal::Decimal, units::RatePer};
+        Reading {
+            device: "meter".into(),
+            channel: "a0".into(),
+            ts: SystemTime::UNIX_EPOCH,
+            count: total,
+            freq_hz: None,
+            rpm: None,
+            update: Update {
+                delta: 1,
+                total,
+                seq: 1,
+                rate_hz: Some(rate_hz),
+                event: None,
+            },
+            kind: crate::profile::ChannelKind::Counter,
+            units: Some(std::sync::Arc::new(ChannelUnits {
+                scale: Some(Decimal::parse(scale).unwrap()),
+                rate_per: RatePer::Hour,
+                ..Default::default()
+            })),
+            after_seq: None,
+        }
+    }
+
+    #[test]
+    fn a_scaled_total_is_exact_decimal_text_in_the_payload() {
+        let text = reading(&metered(1_234_567, "0.001", 1.0));
+        assert!(text.contains(r#""value":1234.567,"#), "{text}");
+        assert!(text.contains(r#""rate":3.6"#), "{text}");
+        assert!(
+            text.contains(r#""total":1234567"#),
+            "raw fields stay: {text}"
+        );
+        let text = reading(&metered(3, "0.1", 0.0));
+        assert!(text.contains(r#""value":0.3,"#), "{text}");
+    }
+
+    #[test]
+    fn a_device_payload_keys_each_reading_by_its_channel() {
+        let mut b = metered(5, "1", 0.0);
+        b.channel = "b0".into();
+        let v: serde_json::Value =
+            serde_json::from_str(&device(&[metered(3, "0.1", 0.0), b])).unwrap();
+        assert_eq!(v["a0"]["total"], 3);
+        assert_eq!(v["b0"]["value"], 5);
+        assert_eq!(v.as_object().unwrap().len(), 2);
     }
 }

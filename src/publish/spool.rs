@@ -7,6 +7,11 @@
 //! running total).
 //!
 //! Order is kept: memory holds the oldest messages, files the newer ones, files in sequence order.
+//!
+//! The slow part of disk I/O (fsync of files and of the directory after a create, rename or
+//! delete) runs on a thread of its own, in order: the gateway's runtime thread only writes into
+//! the page cache. A spilled segment becomes visible under its name (rename) only after its data
+//! is synced, and a deletion never overtakes the rename before it.
 
 use std::collections::VecDeque;
 use std::fs::{File, OpenOptions};
@@ -78,6 +83,90 @@ struct Segment {
 /// Largest segment file before a new one is started (smaller for small spools).
 const SEGMENT_BYTES: u64 = 1 << 20;
 
+impl Drop for Spool {
+    /// Whatever was asked of the disk is done before the spool is gone (a restart in the same
+    /// process, or the end of the gateway), within reason.
+    fn drop(&mut self) {
+        let _ = self
+            .barrier()
+            .recv_timeout(std::time::Duration::from_secs(5));
+    }
+}
+
+/// A file-system step done off the runtime thread, in order.
+#[derive(Debug)]
+enum Job {
+    SyncFile(File, PathBuf),
+    /// Sync the temp file's data, rename it to its name, sync the directory.
+    Publish {
+        file: File,
+        tmp: PathBuf,
+        path: PathBuf,
+    },
+    Remove(PathBuf),
+    SyncDir,
+    /// Answered when every job before it is done.
+    Barrier(std::sync::mpsc::Sender<()>),
+}
+
+/// The thread that carries out [`Job`]s for one spool directory.
+#[derive(Debug)]
+struct Syncer {
+    jobs: std::sync::mpsc::Sender<Job>,
+}
+
+impl Syncer {
+    fn start(dir: PathBuf) -> Syncer {
+        let (jobs, rx) = std::sync::mpsc::channel::<Job>();
+        let spawned = std::thread::Builder::new()
+            .name("pulsegate-spool-sync".into())
+            .spawn(move || {
+                let sync_dir = || {
+                    if let Err(e) = crate::state::sync_dir(&dir) {
+                        tracing::error!("spool {}: sync of the directory: {e}", dir.display());
+                    }
+                };
+                for job in rx {
+                    let result = match job {
+                        Job::SyncFile(f, path) => f.sync_data().map_err(|e| (path, e)),
+                        Job::Publish { file, tmp, path } => file
+                            .sync_data()
+                            .and_then(|()| std::fs::rename(&tmp, &path))
+                            .map(|()| sync_dir())
+                            .map_err(|e| (path, e)),
+                        Job::Remove(path) => match std::fs::remove_file(&path) {
+                            Ok(()) => {
+                                sync_dir();
+                                Ok(())
+                            }
+                            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+                            Err(e) => Err((path, e)),
+                        },
+                        Job::SyncDir => {
+                            sync_dir();
+                            Ok(())
+                        }
+                        Job::Barrier(done) => {
+                            let _ = done.send(());
+                            Ok(())
+                        }
+                    };
+                    if let Err((path, e)) = result {
+                        tracing::error!("spool {}: {e}", path.display());
+                    }
+                }
+            });
+        if let Err(e) = spawned {
+            tracing::error!("spool: cannot start the sync thread: {e}");
+        }
+        Syncer { jobs }
+    }
+
+    fn send(&self, job: Job) {
+        let _ = self.jobs.send(job);
+    }
+}
+
 /// The spool of one gateway.
 #[derive(Debug)]
 pub struct Spool {
@@ -94,6 +183,7 @@ pub struct Spool {
     spilling: bool,
     /// Messages dropped because the spool was full, since start.
     pub dropped: u64,
+    syncer: Syncer,
 }
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SpoolError + '_ {
@@ -128,6 +218,7 @@ impl Spool {
             let bytes = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
             if count == 0 {
                 let _ = std::fs::remove_file(&path);
+                let _ = crate::state::sync_dir(dir);
                 continue;
             }
             next_seq = next_seq.max(last + 1);
@@ -152,6 +243,7 @@ impl Spool {
             next_seq,
             spilling: false,
             dropped: 0,
+            syncer: Syncer::start(dir.to_path_buf()),
         })
     }
 
@@ -165,7 +257,8 @@ impl Spool {
         self.len() == 0
     }
 
-    fn total_bytes(&self) -> u64 {
+    /// Bytes the waiting messages take (memory and disk).
+    pub fn total_bytes(&self) -> u64 {
         self.mem_bytes + self.segments.iter().map(|s| s.bytes).sum::<u64>()
     }
 
@@ -224,6 +317,7 @@ impl Spool {
                 .open(&path)
                 .map_err(io_err(&path))?;
             self.writer = Some(BufWriter::new(file));
+            self.syncer.send(Job::SyncDir);
             self.segments.push_back(Segment {
                 first: entry.seq,
                 last: entry.seq,
@@ -251,9 +345,18 @@ impl Spool {
                 .map(|s| s.path.clone())
                 .unwrap_or_default();
             w.flush().map_err(io_err(&path))?;
-            w.get_ref().sync_data().map_err(io_err(&path))?;
+            let file = w.get_ref().try_clone().map_err(io_err(&path))?;
+            self.syncer.send(Job::SyncFile(file, path));
         }
         Ok(())
+    }
+
+    /// A receiver answered once every file-system step asked so far is done (at shutdown:
+    /// wait on it off the runtime thread).
+    pub fn barrier(&self) -> std::sync::mpsc::Receiver<()> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.syncer.send(Job::Barrier(tx));
+        rx
     }
 
     /// The broker went away (`true`) or came back (`false`). While away, new messages go to
@@ -283,8 +386,12 @@ impl Spool {
             bytes += line.len() as u64;
         }
         w.flush().map_err(io_err(&tmp))?;
-        w.get_ref().sync_data().map_err(io_err(&tmp))?;
-        std::fs::rename(&tmp, &path).map_err(io_err(&path))?;
+        let file = w.into_inner().map_err(|e| io_err(&tmp)(e.into_error()))?;
+        self.syncer.send(Job::Publish {
+            file,
+            tmp,
+            path: path.clone(),
+        });
         for &i in &pending {
             self.mem[i].on_disk = true;
             self.mem_bytes -= self.mem[i].entry.bytes();
@@ -364,7 +471,7 @@ impl Spool {
                 break;
             }
             let s = self.segments.pop_front().expect("front exists");
-            let _ = std::fs::remove_file(&s.path);
+            self.syncer.send(Job::Remove(s.path));
         }
     }
 
@@ -397,7 +504,7 @@ impl Spool {
                 self.mem
                     .retain(|m| m.entry.seq < s.first || m.entry.seq > s.last);
             }
-            let _ = std::fs::remove_file(&s.path);
+            self.syncer.send(Job::Remove(s.path.clone()));
             self.dropped += s.count;
         }
     }
@@ -452,6 +559,7 @@ mod tests {
         s.set_spilling(false);
         push(&mut s, 2);
         assert_eq!(drain(&mut s), (1..=9).collect::<Vec<_>>());
+        s.barrier().recv().unwrap();
         assert_eq!(
             std::fs::read_dir(&d).unwrap().count(),
             0,
@@ -497,6 +605,7 @@ mod tests {
         let mut s = Spool::open(&d, 64 << 20).unwrap();
         s.mem_limit = 1000;
         push(&mut s, 100);
+        s.barrier().recv().unwrap();
         assert!(std::fs::read_dir(&d).unwrap().count() > 0);
         assert_eq!(drain(&mut s), (1..=100).collect::<Vec<_>>());
     }

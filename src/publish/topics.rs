@@ -22,9 +22,19 @@ impl Topics {
         format!("{}/status", self.root)
     }
 
+    /// `<root>/gateway`: the retained boot marker of the gateway publishing under this root.
+    pub fn gateway_marker(&self) -> String {
+        format!("{}/gateway", self.root)
+    }
+
     /// `<root>/<device>/status`: retained online/offline of a device.
     pub fn device_status(&self, device: &str) -> String {
         format!("{}/{device}/status", self.root)
+    }
+
+    /// `<root>/<device>`: all channels of a poll in one message (`payload = "device"`).
+    pub fn device(&self, device: &str) -> String {
+        format!("{}/{device}", self.root)
     }
 
     /// `<root>/<device>/<channel>`: readings.
@@ -49,5 +59,6 @@ mod tests {
         assert_eq!(t.device_status("press1"), "pulsegate/edge-01/press1/status");
         assert_eq!(t.reading("press1", "enc0"), "pulsegate/edge-01/press1/enc0");
         assert_eq!(t.bus_stats("line1"), "pulsegate/edge-01/bus/line1/stats");
+        assert_eq!(t.device("press1"), "pulsegate/edge-01/press1");
     }
 }

@@ -32,6 +32,11 @@ pub struct SimBusConfig {
 pub struct SimDeviceConfig {
     pub unit: u8,
     pub model: String,
+    /// The module's baud rate (default 9600, the datasheets' factory setting).
+    pub baud: Option<u32>,
+    /// Stay silent on reads of registers the module lacks (default: exception 02).
+    #[serde(default)]
+    pub silent_on_unknown: bool,
     /// Raw values of the mode registers (profile order); default: each group's first mode.
     #[serde(default)]
     pub modes: Vec<u16>,

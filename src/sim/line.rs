@@ -107,18 +107,20 @@ impl Line {
                 .map_err(std::io::Error::other)
         };
         let mut threads = Vec::new();
-        for (from, to, delay, seed) in [
+        for (from, to, delay, seed, to_module) in [
             (
                 clone(&gw_master)?,
                 clone(&mod_master)?,
                 Duration::ZERO,
                 seed,
+                true,
             ),
             (
                 clone(&mod_master)?,
                 clone(&gw_master)?,
                 spec.turnaround,
                 seed ^ 0x9E37_79B9_7F4A_7C15,
+                false,
             ),
         ] {
             let stop = stop.clone();
@@ -134,6 +136,7 @@ impl Line {
                     &stop,
                     &counters,
                     &line_free,
+                    to_module,
                 )
             }));
         }
@@ -161,6 +164,7 @@ fn carry(
     stop: &AtomicBool,
     counters: &LineCounters,
     line_free: &Mutex<Instant>,
+    to_module: bool,
 ) {
     use serialport::SerialPort;
     crate::bus::link::fine_timer_slack();
@@ -191,6 +195,13 @@ fn carry(
             out.push(b);
         }
         counters.bytes.fetch_add(n as u64, Ordering::Relaxed);
+        // A module's frame layer discards a request whose CRC fails and resynchronises on the
+        // silence after it (Modbus over Serial Line, RTU framing): it never reads the next
+        // request as the rest of a broken one. The simulator's server has no silence timing, so
+        // the broken frame is discarded here, where the timing is.
+        if to_module && out.as_slice() != &buf[..n] {
+            out.clear();
+        }
         // The bytes occupy the line (dropped ones too: they were sent) from when it is free.
         let done = {
             let mut free = line_free.lock().unwrap_or_else(|e| e.into_inner());

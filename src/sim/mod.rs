@@ -4,6 +4,7 @@
 //! Tests and the demo hold a [`Plant`] and steer it (rates, counts, power cycles, silence) while
 //! the gateway talks to it over the wire like to real modules.
 
+mod comm;
 mod config;
 mod datasheet;
 pub mod line;
@@ -106,6 +107,10 @@ impl Plant {
                 m.silent = d.silent;
                 m.nonsense = d.nonsense;
                 m.answer_delay = d.answer_delay.unwrap_or_default();
+                comm::install(&mut m, d.unit, d.baud.unwrap_or(9600))
+                    .map_err(|e| bus_err(format!("device {dname}: {e}")))?;
+                m.baud = d.baud;
+                m.silent_on_unknown = d.silent_on_unknown;
                 if modules.insert(d.unit, m).is_some() {
                     return Err(bus_err(format!("unit {} used twice", d.unit)));
                 }

@@ -34,6 +34,10 @@ pub struct SimChannel {
     /// A quadrature pair whose two mode words disagree: the datasheet says it does not count.
     dead: bool,
     pub ppr: u16,
+    /// The counts that clears and presets replaced, in order: what the module held at the
+    /// instant of the write (a test's account of the pulses between a gateway's last read and
+    /// its write, which no gateway can see).
+    pub overwritten: Vec<i64>,
 }
 
 impl SimChannel {
@@ -62,6 +66,7 @@ impl SimChannel {
 
     fn set_count(&mut self, now: f64, value: i64) {
         self.rebase(now);
+        self.overwritten.push(self.base);
         self.base = value;
     }
 
@@ -113,6 +118,12 @@ pub struct SimModule {
     pub last_write: Option<f64>,
     /// A ZH-YX1600: counters run by command register, frequency over a window.
     zh: bool,
+    /// The baud rate the module's serial port runs at (see `comm`); `None`: it answers at any
+    /// line speed (plants that do not say, so older tests can run their line at 115200).
+    pub baud: Option<u32>,
+    /// Stay silent, instead of answering exception 02, when asked for a register the module
+    /// lacks (no datasheet says which a module does).
+    pub silent_on_unknown: bool,
 }
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
@@ -174,6 +185,8 @@ impl SimModule {
             writes: 0,
             last_write: None,
             zh,
+            baud: None,
+            silent_on_unknown: false,
         };
         m.power_up(0.0)?;
         Ok(m)
@@ -202,6 +215,7 @@ impl SimModule {
                 command: 0,
                 dead: false,
                 ppr: kept.map_or(1000, |c| c.ppr),
+                overwritten: kept.map_or_else(Vec::new, |c| c.overwritten.clone()),
                 spec,
             };
             if self.zh {
@@ -218,6 +232,16 @@ impl SimModule {
         }
         self.modes = modes;
         Ok(())
+    }
+
+    /// Stores a register the module keeps (address, baud rate: see `comm`).
+    pub fn store(&mut self, address: u16, value: u16) {
+        self.plain.insert(address, value);
+    }
+
+    /// A register the module keeps, as last written.
+    pub fn stored(&self, address: u16) -> Option<u16> {
+        self.plain.get(&address).copied()
     }
 
     /// The raw mode values the module was built with.

@@ -19,11 +19,26 @@ use super::Modules;
 pub struct SimService {
     modules: Modules,
     start: Instant,
+    /// The gateway's end of the pseudo-terminal, to read the speed it set (see `comm`).
+    speed: Option<std::sync::Arc<std::sync::Mutex<TTYPort>>>,
 }
 
 impl SimService {
     pub fn new(modules: Modules, start: Instant) -> SimService {
-        SimService { modules, start }
+        SimService {
+            modules,
+            start,
+            speed: None,
+        }
+    }
+
+    /// The baud rate the line is set to now, where the service can see it.
+    fn line_speed(&self) -> Option<u32> {
+        let port = self.speed.as_ref()?;
+        port.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .baud_rate()
+            .ok()
     }
 
     /// The answer and how long the module takes to give it.
@@ -47,7 +62,10 @@ impl SimService {
         let Some(m) = modules.get_mut(&req.slave) else {
             return Ok(None);
         };
-        if m.silent {
+        if m.silent
+            || m.baud
+                .is_some_and(|own| self.line_speed().is_some_and(|b| b != own))
+        {
             return Ok(None);
         }
         if m.nonsense {
@@ -58,19 +76,22 @@ impl SimService {
             return nonsense(&req.request, m.writes.wrapping_add(now.to_bits()));
         }
         let response = match req.request {
-            Request::ReadHoldingRegisters(start, len) => {
-                Response::ReadHoldingRegisters(m.read(now, start, len)?)
-            }
+            Request::ReadHoldingRegisters(start, len) => match m.read(now, start, len) {
+                Err(ExceptionCode::IllegalDataAddress) if m.silent_on_unknown => return Ok(None),
+                r => Response::ReadHoldingRegisters(r?),
+            },
             Request::WriteSingleRegister(a, v) => {
                 m.writes += 1;
                 m.last_write.get_or_insert(now);
                 m.write_one(now, a, v)?;
+                super::comm::after_write(&mut modules, req.slave);
                 Response::WriteSingleRegister(a, v)
             }
             Request::WriteMultipleRegisters(a, values) => {
                 m.writes += 1;
                 m.last_write.get_or_insert(now);
                 m.write_many(now, a, &values)?;
+                super::comm::after_write(&mut modules, req.slave);
                 Response::WriteMultipleRegisters(a, values.len() as u16)
             }
             _ => return Err(ExceptionCode::IllegalFunction),
@@ -118,17 +139,25 @@ impl Service for SimService {
 /// Marks a descriptor close-on-exec: a pseudo-terminal end inherited by a child process (the
 /// gateway started by a test) would keep the line up after the simulator drops it.
 pub fn private(port: TTYPort) -> TTYPort {
-    use nix::fcntl::{FcntlArg, FdFlag, fcntl};
     use std::os::fd::AsRawFd;
-    let _ = fcntl(port.as_raw_fd(), FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC));
+    // SAFETY: F_SETFD on a descriptor `port` owns and keeps open; no memory is passed.
+    let _ = unsafe { libc::fcntl(port.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
     port
 }
 
 /// Serves on a new pseudo-terminal; returns the path of its serial end and that end (keep it
 /// open so the line survives the gateway closing and reopening it).
-pub fn serve_pty(service: SimService, cancel: CancellationToken) -> io::Result<(PathBuf, TTYPort)> {
+pub fn serve_pty(
+    mut service: SimService,
+    cancel: CancellationToken,
+) -> io::Result<(PathBuf, TTYPort)> {
     let (master, slave) = TTYPort::pair().map_err(io::Error::other)?;
     let (master, slave) = (private(master), private(slave));
+    let probe = slave
+        .try_clone_native()
+        .map(private)
+        .map_err(io::Error::other)?;
+    service.speed = Some(std::sync::Arc::new(std::sync::Mutex::new(probe)));
     let path = slave
         .name()
         .map(PathBuf::from)

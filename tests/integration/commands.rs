@@ -8,6 +8,7 @@ use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::mqttbytes::v5::PublishProperties;
 use serde_json::{Value, json};
 
+use crate::protocol::{Protocol, Side};
 use crate::support::*;
 
 const PLANT: &str = r#"
@@ -32,6 +33,7 @@ channels.di1 = { count = 5, rate = 20.0 }
 "#;
 
 struct Rig {
+    _side: Side,
     _broker: Broker,
     plant: Plant,
     sub: Subscriber,
@@ -40,7 +42,13 @@ struct Rig {
 
 impl Rig {
     async fn start(name: &str) -> Rig {
+        Rig::start_over(name, Protocol::V5).await
+    }
+
+    /// A rig whose gateway speaks `protocol` (the test's own client speaks v5 to the broker).
+    async fn start_over(name: &str, protocol: Protocol) -> Rig {
         let broker = Broker::start();
+        let side = protocol.side(broker.port);
         let plant = plant(PLANT).await;
         let dir = temp_dir(name);
         let sub = Subscriber::start(broker.port, "#").await;
@@ -50,7 +58,7 @@ impl Rig {
             ("line1", "wj", 3, "wj157", "200ms"),
             ("line1", "zh", 4, "zh-yx1600", "200ms"),
         ];
-        let gateway = start_gateway(&plant, broker.port, &dir, &devices, "");
+        let gateway = side.start_gateway(&plant, &dir, &devices, "");
         for d in ["yl", "ibf", "wj", "zh"] {
             let t = format!("pulsegate/test/{d}/status");
             assert!(
@@ -74,6 +82,7 @@ impl Rig {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         Rig {
+            _side: side,
             _broker: broker,
             plant,
             sub,
@@ -130,7 +139,16 @@ impl Rig {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn clear_and_preset_reach_every_seed_model() {
-    let rig = Rig::start("cmd-models").await;
+    clear_and_preset_reach_every_seed_model_over(Protocol::V5).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn clear_and_preset_reach_every_seed_model_over_mqtt_3_1_1() {
+    clear_and_preset_reach_every_seed_model_over(Protocol::V311).await;
+}
+
+async fn clear_and_preset_reach_every_seed_model_over(protocol: Protocol) {
+    let rig = Rig::start_over("cmd-models", protocol).await;
 
     // YL67 encoder: preset by FC16, low word first.
     let r = rig
@@ -284,7 +302,19 @@ async fn a_thousand_malformed_payloads_get_a_thousand_error_results_and_no_write
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_retained_clear_waiting_on_the_broker_does_nothing_at_start() {
+    a_retained_clear_does_nothing_at_start(Protocol::V5).await;
+}
+
+/// 3.1.1 has no retain-handling option: the broker delivers the retained clear at subscribe,
+/// flagged retained, and the gateway must drop it on receipt.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_retained_clear_does_nothing_at_start_over_mqtt_3_1_1() {
+    a_retained_clear_does_nothing_at_start(Protocol::V311).await;
+}
+
+async fn a_retained_clear_does_nothing_at_start(protocol: Protocol) {
     let broker = Broker::start();
+    let side = protocol.side(broker.port);
     let plant = plant(PLANT).await;
     let dir = temp_dir("cmd-retained");
     let sub = Subscriber::start(broker.port, "#").await;
@@ -299,7 +329,7 @@ async fn a_retained_clear_waiting_on_the_broker_does_nothing_at_start() {
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
     let devices = [("line1", "yl", 1, "yl67", "200ms")];
-    let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    let gw = side.start_gateway(&plant, &dir, &devices, "");
     assert!(
         sub.wait_for("pulsegate/test/yl/enc0", Duration::from_secs(3), |_| true)
             .await
@@ -321,6 +351,14 @@ async fn a_retained_clear_waiting_on_the_broker_does_nothing_at_start() {
             .unwrap(),
         500
     );
+    if protocol == Protocol::V311 {
+        // Delivered (3.1.1 cannot decline it) and dropped on receipt.
+        let log = gw.log_text();
+        assert!(
+            log.contains("ignoring a retained command message"),
+            "the retained clear reached the gateway and was ignored:\n{log}"
+        );
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -373,6 +411,42 @@ async fn an_mqtt5_request_is_answered_on_its_response_topic_with_its_correlation
         .expect("reply on the response topic");
     assert_eq!(reply.json()["ok"], true);
     assert_eq!(reply.correlation.as_deref(), Some(&b"corr-42"[..]));
+}
+
+/// MQTT 3.1.1 carries no response topic or correlation data: a v5 requester's response topic
+/// never reaches a 3.1.1 gateway, and the result goes to `<command topic>/result` alone.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_mqtt_3_1_1_the_result_goes_to_the_result_topic_only() {
+    let rig = Rig::start_over("cmd-v311-rt", Protocol::V311).await;
+    let props = PublishProperties {
+        response_topic: Some("app/replies/43".into()),
+        correlation_data: Some(Bytes::from_static(b"corr-43")),
+        ..Default::default()
+    };
+    rig.sub
+        .client
+        .publish_with_properties(
+            "pulsegate/test/yl/enc0/cmd",
+            QoS::AtLeastOnce,
+            false,
+            r#"{"op":"clear","id":"v311"}"#,
+            props,
+        )
+        .await
+        .unwrap();
+    let result = rig
+        .sub
+        .wait_for(
+            "pulsegate/test/yl/enc0/cmd/result",
+            Duration::from_secs(5),
+            |m| m.json()["id"] == "v311",
+        )
+        .await
+        .expect("result on the result topic");
+    assert_eq!(result.json()["ok"], true);
+    assert_eq!(result.correlation, None);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    assert!(rig.sub.on("app/replies/43").is_empty());
 }
 
 /// Payloads a fuzzer would send: random bytes, cut and mutated JSON, wrong types, deep nesting.

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+use crate::protocol::Protocol;
 use crate::support::*;
 
 /// Checks that each channel's readings arrived with seq contiguous and in order. An exact
@@ -50,9 +51,20 @@ fn assert_contiguous(sub: &Subscriber, prefix: &str) -> usize {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
+    a_broker_away_loses_no_reading(Protocol::V5, Duration::from_secs(60)).await;
+}
+
+/// The same outage over MQTT 3.1.1 (shorter: the mechanism is the same spool and window).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_away_for_20s_loses_no_reading_over_mqtt_3_1_1() {
+    a_broker_away_loses_no_reading(Protocol::V311, Duration::from_secs(20)).await;
+}
+
+async fn a_broker_away_loses_no_reading(protocol: Protocol, away: Duration) {
     let dir = temp_dir("outage");
     let port = free_port();
     let mut broker = Broker::start_persistent(port, &dir);
+    let side = protocol.side(port);
     let mut plant_toml = String::new();
     let mut devices = Vec::new();
     let names: Vec<String> = (1..=16).map(|i| format!("m{i}")).collect();
@@ -83,7 +95,7 @@ async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
     }
     let plant = plant(&plant_toml).await;
     let sub = Subscriber::start_persistent(port, "pulsegate/test/#", "outage-consumer").await;
-    let gw = start_gateway(&plant, port, &dir, &devices, "");
+    let gw = side.start_gateway(&plant, &dir, &devices, "");
     for n in &names {
         let t = format!("pulsegate/test/{n}/status");
         assert!(
@@ -97,7 +109,7 @@ async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
 
     broker.terminate();
     let outage = Instant::now();
-    tokio::time::sleep(Duration::from_secs(60)).await;
+    tokio::time::sleep(away).await;
     let restarted = Broker::start_persistent(port, &dir);
     let outage = outage.elapsed();
 

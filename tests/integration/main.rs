@@ -3,10 +3,15 @@
 
 mod clock;
 mod commands;
+mod commission;
 mod config_cases;
 mod counters;
+mod dashboards;
 mod faults;
+mod hostile;
+mod metrics;
 mod pipeline;
 mod plants;
+mod protocol;
 mod service;
 mod support;

@@ -2,6 +2,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::protocol::Protocol;
 use crate::support::*;
 
 const PLANT: &str = r#"
@@ -30,6 +31,16 @@ channels.di5 = { count = 100000 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn each_model_publishes_its_decoded_values_within_two_seconds() {
+    each_model_publishes_its_decoded_values(Protocol::V5).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn each_model_publishes_its_decoded_values_over_mqtt_3_1_1() {
+    each_model_publishes_its_decoded_values(Protocol::V311).await;
+}
+
+/// Readings, availability and the last will, on either protocol.
+async fn each_model_publishes_its_decoded_values(protocol: Protocol) {
     let broker = Broker::start();
     let plant = plant(PLANT).await;
     let dir = temp_dir("pipeline");
@@ -40,9 +51,10 @@ async fn each_model_publishes_its_decoded_values_within_two_seconds() {
         ("line2", "doors", 7, "zh-yx1600", "200ms"),
         ("hall", "gates", 1, "zh-yx1600", "200ms"),
     ];
-    let config = write_config(&dir, &gateway_toml(&plant, broker.port, &dir, &devices, ""));
+    let side = protocol.side(broker.port);
+    let config = write_config(&dir, &side.config(&plant, &dir, &devices, ""));
     let started = Instant::now();
-    let _gw = Gateway::start(&config);
+    let gw = Gateway::start(&config);
 
     let within = Duration::from_secs(2);
     let enc0 = sub
@@ -104,6 +116,19 @@ async fn each_model_publishes_its_decoded_values_within_two_seconds() {
         .wait_for("pulsegate/test/press/status", within, |m| m.retain)
         .await;
     assert_eq!(retained.expect("retained device status").payload, "online");
+
+    // Killed without a word: the broker publishes the gateway's last will.
+    sub.clear();
+    gw.kill();
+    let will = sub
+        .wait_for("pulsegate/test/status", Duration::from_secs(5), |m| {
+            m.payload == "offline"
+        })
+        .await;
+    assert!(
+        will.is_some(),
+        "the last will (gateway offline) over {protocol:?}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -135,6 +135,7 @@ async fn a_zh_yx1600_at_factory_defaults_power_cycled_while_polled_counts_on_wit
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_with_no_readings() {
+    let metrics_port = free_port();
     let s = setup(
         "wrong-model",
         "[buses.line1.devices.yl]\nunit = 1\nmodel = \"yl67\"\nmodes = [0, 0, 0, 0]\n\
@@ -146,7 +147,7 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
             ("line1", "zh", 2, "yl67", "100ms"),
             ("line1", "good", 3, "wj157", "100ms"),
         ],
-        "",
+        &format!("[metrics]\nlisten = \"127.0.0.1:{metrics_port}\"\n"),
     )
     .await;
     let gateway = Gateway::start(&s.config);
@@ -197,6 +198,26 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
     assert!(
         log.contains("identifies as zh-yx1600"),
         "the ZH-YX1600 is named"
+    );
+    // The metrics show which modules are the wrong model.
+    let wrong =
+        |dev: &str| format!("pulsegate_device_wrong_model{{bus=\"line1\",device=\"{dev}\"}}");
+    let scraped = crate::metrics::scrape_until(
+        metrics_port,
+        Duration::from_secs(10),
+        "wrong_model 1 for yl and zh, 0 for good",
+        |t| {
+            use crate::metrics::sample;
+            sample(t, &wrong("yl")) == Some(1.0)
+                && sample(t, &wrong("zh")) == Some(1.0)
+                && sample(t, &wrong("good")) == Some(0.0)
+        },
+    )
+    .await;
+    assert_eq!(
+        crate::metrics::sample(&scraped, "pulsegate_device_up{bus=\"line1\",device=\"yl\"}"),
+        Some(0.0),
+        "a wrong model is not up"
     );
     let _ = (&s.broker, &s.dir);
 }

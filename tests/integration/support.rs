@@ -48,17 +48,28 @@ impl Broker {
     }
 
     pub fn start_on(port: u16) -> Broker {
-        Self::start_with(port, "persistence false\n")
+        // No per-client queue limit: a flood test must not lose messages in the broker on
+        // their way to a slower test subscriber (Mosquitto's default drops beyond 1000).
+        Self::start_with(port, "persistence false\nmax_queued_messages 0\n")
     }
 
     /// A broker that keeps sessions across its own restarts (saved at SIGTERM), and queues
     /// without limit for subscribers that are away.
     pub fn start_persistent(port: u16, dir: &Path) -> Broker {
+        // Started as root, Mosquitto drops to its own user: its database directory must be
+        // writable by that user, or the sessions are silently not saved.
+        let db = dir.join("mosquitto");
+        std::fs::create_dir_all(&db).unwrap();
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(&db, std::fs::Permissions::from_mode(0o777)).unwrap();
+        }
         Self::start_with(
             port,
             &format!(
                 "persistence true\npersistence_location {}/\nmax_queued_messages 0\n",
-                dir.display()
+                db.display()
             ),
         )
     }
@@ -181,6 +192,9 @@ impl Subscriber {
             options.set_credentials(u, p);
         }
         options.set_keep_alive(Duration::from_secs(30));
+        // Tests send hostile commands larger than rumqttc's 10 KiB default; the recorder must
+        // not be the one disconnected by them.
+        options.set_max_packet_size(Some(1 << 20));
         if persistent_id.is_some() {
             options.set_clean_start(false);
             options.set_session_expiry_interval(Some(3600));

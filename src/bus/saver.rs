@@ -1,0 +1,223 @@
+//! Saving a bus's state off the runtime thread, one save at a time (two saves never race on one
+//! temp file), and telling the [`Ledger`] which seqs are durable once a save has completed.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use tokio::task::JoinHandle;
+
+use super::ledger::{Ledger, seqs};
+use crate::state::{BusState, StateError};
+
+type Done = (BTreeMap<String, u64>, Result<(), StateError>);
+
+/// The state saver of one bus.
+pub struct Saver {
+    path: PathBuf,
+    bus: Arc<str>,
+    running: Option<JoinHandle<Done>>,
+    failing: bool,
+}
+
+impl Saver {
+    pub fn new(path: PathBuf, bus: Arc<str>) -> Saver {
+        Saver {
+            path,
+            bus,
+            running: None,
+            failing: false,
+        }
+    }
+
+    fn spawn(&mut self, state: BusState) {
+        let path = self.path.clone();
+        self.running = Some(tokio::task::spawn_blocking(move || {
+            let result = state.save(&path);
+            (seqs(&state.channels), result)
+        }));
+    }
+
+    fn finish(&mut self, done: Result<Done, tokio::task::JoinError>, ledger: &mut Ledger) -> bool {
+        match done {
+            Ok((seqs, Ok(()))) => {
+                if std::mem::take(&mut self.failing) {
+                    tracing::info!(bus = %self.bus, "state saved again");
+                }
+                ledger.durable(&seqs);
+                true
+            }
+            Ok((_, Err(e))) => {
+                if !std::mem::replace(&mut self.failing, true) {
+                    tracing::error!(bus = %self.bus, "{e}; readings go on, but after a crash seq may repeat until a save succeeds");
+                }
+                false
+            }
+            Err(e) => {
+                tracing::error!(bus = %self.bus, "state save task failed: {e}");
+                false
+            }
+        }
+    }
+
+    /// The last save failed.
+    pub fn failing(&self) -> bool {
+        self.failing
+    }
+
+    /// Starts a periodic save unless one is still running (then this one is skipped).
+    pub fn start(&mut self, state: BusState) {
+        if self.running.is_none() {
+            self.spawn(state);
+        }
+    }
+
+    /// Collects a finished save without waiting.
+    pub async fn collect(&mut self, ledger: &mut Ledger) {
+        if self.running.as_ref().is_some_and(JoinHandle::is_finished) {
+            self.wait(ledger).await;
+        }
+    }
+
+    /// Waits for the running save, if any.
+    pub async fn wait(&mut self, ledger: &mut Ledger) {
+        if let Some(h) = self.running.take() {
+            let done = h.await;
+            self.finish(done, ledger);
+        }
+    }
+
+    /// Saves `state` now (after the running save) and waits; whether it succeeded.
+    pub async fn save_now(&mut self, state: BusState, ledger: &mut Ledger) -> bool {
+        self.wait(ledger).await;
+        self.spawn(state);
+        let h = self.running.take().expect("just spawned");
+        let done = h.await;
+        self.finish(done, ledger)
+    }
+}
+
+/// The way out of a bus for readings: a reading whose seq is not yet covered by a durable save
+/// is held (with every reading after it, so each channel keeps its order) until a save covers it;
+/// the bus goes on polling meanwhile, and one save covers everything polled while it ran. The
+/// first reading of each channel after a crash carries `after_seq`.
+pub struct Durable {
+    pub saver: Saver,
+    ledger: Ledger,
+    /// Per channel key, the seq saved before a crash, until the channel's first reading.
+    after_seq: BTreeMap<String, u64>,
+    /// Outputs waiting for a save, with the channel key and seq of each reading in them, in
+    /// order.
+    held: std::collections::VecDeque<(Vec<(String, u64)>, Output)>,
+    /// Saved state no configured device claims, written back with every save.
+    pub orphans: crate::state::BusState,
+}
+
+use crate::reading::{Output, Reading};
+
+/// The readings an output carries (none for statuses and stats).
+fn readings_of(o: &Output) -> &[Reading] {
+    match o {
+        Output::Reading(r) => std::slice::from_ref(r),
+        Output::DeviceReadings { readings, .. } => readings,
+        _ => &[],
+    }
+}
+
+fn readings_of_mut(o: &mut Output) -> &mut [Reading] {
+    match o {
+        Output::Reading(r) => std::slice::from_mut(r),
+        Output::DeviceReadings { readings, .. } => readings,
+        _ => &mut [],
+    }
+}
+
+impl Durable {
+    pub fn new(saver: Saver, after_seq: BTreeMap<String, u64>) -> Durable {
+        Durable {
+            saver,
+            ledger: Ledger::default(),
+            after_seq,
+            held: Default::default(),
+            orphans: Default::default(),
+        }
+    }
+
+    /// Readings are waiting for a save (the bus should come back soon).
+    pub fn holding(&self) -> bool {
+        !self.held.is_empty()
+    }
+
+    /// Collects a finished save, releases what it covers, and starts the next save if readings
+    /// are still held.
+    pub async fn collect(
+        &mut self,
+        devices: &[super::DeviceRt],
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    ) {
+        self.saver.collect(&mut self.ledger).await;
+        self.release(out);
+        if self.holding() {
+            self.saver
+                .start(super::snapshot(devices, &self.orphans, false));
+        }
+    }
+
+    /// Sends `outputs` (the readings of `devices[from]`), or holds them until a save covers
+    /// their seq.
+    pub fn publish(
+        &mut self,
+        outputs: Vec<Output>,
+        from: usize,
+        devices: &[super::DeviceRt],
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    ) {
+        let d = &devices[from];
+        let key = |r: &Reading| crate::state::channel_key(d.unit, &d.config.model, &r.channel);
+        for o in outputs {
+            let keys = readings_of(&o)
+                .iter()
+                .map(|r| (key(r), r.update.seq))
+                .collect();
+            self.held.push_back((keys, o));
+        }
+        self.release(out);
+        if self.holding() {
+            self.saver
+                .start(super::snapshot(devices, &self.orphans, false));
+        }
+    }
+
+    /// Sends the held readings a durable save covers, in order. While saves fail, everything
+    /// goes: readings matter more than seq after a crash (the failure is logged).
+    fn release(&mut self, out: &tokio::sync::mpsc::UnboundedSender<Output>) {
+        while let Some((keys, _)) = self.held.front() {
+            let covered = keys.iter().all(|(k, seq)| self.ledger.allows(k, *seq));
+            if !covered && !self.saver.failing() {
+                break;
+            }
+            let (keys, mut o) = self.held.pop_front().expect("front exists");
+            for (r, (k, _)) in readings_of_mut(&mut o).iter_mut().zip(&keys) {
+                r.after_seq = self.after_seq.remove(k);
+            }
+            let _ = out.send(o);
+        }
+    }
+
+    /// The last save, at shutdown (seq may go on from here), then whatever was held.
+    pub async fn finish(
+        &mut self,
+        devices: &[super::DeviceRt],
+        out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    ) -> bool {
+        let saved = self
+            .saver
+            .save_now(
+                super::snapshot(devices, &self.orphans, true),
+                &mut self.ledger,
+            )
+            .await;
+        self.release(out);
+        saved
+    }
+}

@@ -1,0 +1,284 @@
+//! A bus scan requested over MQTT (`<root>/bus/<bus>/scan`), carried out by the running bus in
+//! its idle line time: one unit is asked only when the next poll is due later than the longest
+//! the question can take, so configured devices keep their poll rate. Units of configured
+//! devices are not asked. One scan per bus at a time; results go to `<root>/bus/<bus>/scan/result`
+//! (and the MQTT v5 response topic).
+
+use std::time::Duration;
+
+use serde_json::{Value, json};
+use tokio::sync::mpsc::Receiver;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+use super::link::Link;
+use crate::command::Reply;
+use crate::commission::scan::{Found, describe, parse_units};
+use crate::profile::Profiles;
+use crate::reading::Output;
+
+/// How long a scan may take before it reports what it has (a line with no idle time).
+pub const SCAN_LIMIT: Duration = Duration::from_secs(600);
+
+/// A checked scan request, on its way to a bus.
+#[derive(Debug, Clone)]
+pub struct ScanRequest {
+    pub units: Vec<u8>,
+    pub id: Option<String>,
+    pub reply: Reply,
+}
+
+/// `<root>/bus/<bus>/scan` → the bus name.
+pub fn parse_scan_topic<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
+    let rest = topic.strip_prefix(root)?.strip_prefix("/bus/")?;
+    let bus = rest.strip_suffix("/scan")?;
+    (!bus.is_empty() && !bus.contains('/')).then_some(bus)
+}
+
+/// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.
+pub fn parse_scan_payload(payload: &[u8]) -> Result<(Vec<u8>, Option<String>), String> {
+    if payload.iter().all(u8::is_ascii_whitespace) {
+        return Ok((parse_units("1-247").map_err(|e| e.to_string())?, None));
+    }
+    if payload.len() > 1024 {
+        return Err("payload longer than 1024 bytes".into());
+    }
+    let v: Value = serde_json::from_slice(payload).map_err(|e| format!("not JSON: {e}"))?;
+    let obj = v.as_object().ok_or("payload is not a JSON object")?;
+    if let Some(k) = obj.keys().find(|k| !matches!(k.as_str(), "units" | "id")) {
+        return Err(format!("unknown key {k:?}: use \"units\" and \"id\""));
+    }
+    let id = match obj.get("id") {
+        None => None,
+        Some(Value::String(s)) if s.len() <= 64 => Some(s.clone()),
+        Some(_) => return Err("\"id\" must be a string of at most 64 characters".into()),
+    };
+    let units = match obj.get("units") {
+        None => "1-247",
+        Some(Value::String(s)) => s.as_str(),
+        Some(_) => return Err("\"units\" must be a string such as \"1-247\"".into()),
+    };
+    Ok((parse_units(units).map_err(|e| e.to_string())?, id))
+}
+
+/// A scan under way. Pure: the bus asks it for the next unit and records the answer.
+#[derive(Debug)]
+pub struct Survey {
+    request: ScanRequest,
+    pending: Vec<u8>,
+    configured: Vec<u8>,
+    found: Vec<Found>,
+    asked: usize,
+    started: Instant,
+}
+
+impl Survey {
+    /// A scan of the requested units except `configured` ones.
+    pub fn new(request: ScanRequest, configured: &[u8], now: Instant) -> Survey {
+        let pending: Vec<u8> = request
+            .units
+            .iter()
+            .rev()
+            .copied()
+            .filter(|u| !configured.contains(u))
+            .collect();
+        let mut configured: Vec<u8> = configured
+            .iter()
+            .copied()
+            .filter(|u| request.units.contains(u))
+            .collect();
+        configured.sort_unstable();
+        Survey {
+            configured,
+            request,
+            pending,
+            found: Vec::new(),
+            asked: 0,
+            started: now,
+        }
+    }
+
+    /// The unit to ask next.
+    pub fn next_unit(&self) -> Option<u8> {
+        self.pending.last().copied()
+    }
+
+    /// The answer of the unit [`Survey::next_unit`] gave (`None`: silent).
+    pub fn record(&mut self, found: Option<Found>) {
+        self.pending.pop();
+        self.asked += 1;
+        self.found.extend(found);
+    }
+
+    /// Done, or out of time.
+    pub fn finished(&self, now: Instant) -> bool {
+        self.pending.is_empty() || now - self.started >= SCAN_LIMIT
+    }
+
+    /// The result message.
+    pub fn result(&self, bus: &str, now: Instant) -> Value {
+        let mut v = json!({
+            "bus": bus,
+            "found": self.found,
+            "configured": self.configured,
+            "asked": self.asked,
+            "complete": self.pending.is_empty(),
+            "elapsed_ms": (now - self.started).as_millis() as u64,
+        });
+        if let Some(id) = &self.request.id {
+            v["id"] = json!(id);
+        }
+        v
+    }
+
+    pub fn reply(&self) -> &Reply {
+        &self.request.reply
+    }
+}
+
+/// The bus's side: takes new requests (one at a time; others are answered "busy") and, when the
+/// line is idle until `next_due`, asks one unit. Returns whether it used the line.
+#[allow(clippy::too_many_arguments)] // the bus loop's state, lent for one step
+pub async fn idle_step(
+    survey: &mut Option<Survey>,
+    requests: &mut Option<Receiver<ScanRequest>>,
+    link: &mut Link,
+    next_due: Instant,
+    configured: &[u8],
+    bus: &str,
+    out: &tokio::sync::mpsc::UnboundedSender<Output>,
+    shutdown: &CancellationToken,
+) -> bool {
+    if let Some(rx) = requests.as_mut() {
+        while let Ok(req) = rx.try_recv() {
+            if survey.is_some() {
+                let mut busy = json!({"bus": bus, "error": "busy", "message": "a scan of this bus is under way"});
+                if let Some(id) = &req.id {
+                    busy["id"] = json!(id);
+                }
+                send(out, &req.reply, busy);
+            } else {
+                tracing::info!(
+                    bus,
+                    units = req.units.len(),
+                    "scan requested; asking units in idle line time"
+                );
+                *survey = Some(Survey::new(req, configured, Instant::now()));
+            }
+        }
+    }
+    let Some(s) = survey.as_mut() else {
+        return false;
+    };
+    let profiles = Profiles::builtin();
+    let answer = crate::commission::scan::answer_time(&profiles);
+    let timeout = crate::commission::line_timeout(answer, link, 3);
+    let cost = timeout
+        + link
+            .timing()
+            .map(|t| t.silent_interval() * 2)
+            .unwrap_or_default();
+    let now = Instant::now();
+    let mut used = false;
+    if let Some(unit) = s.next_unit()
+        && next_due.saturating_duration_since(now) >= cost
+        && !shutdown.is_cancelled()
+    {
+        used = true;
+        let found = match crate::commission::identify::identify(
+            link, &profiles, unit, timeout, false,
+        )
+        .await
+        {
+            Ok(Some(identified)) => {
+                let baud = link.timing().map(|t| t.baud);
+                let mut f = describe(link, baud, unit, identified, timeout, Some(next_due)).await;
+                f.baud = baud;
+                Some(f)
+            }
+            _ => None,
+        };
+        s.record(found);
+    }
+    let now = Instant::now();
+    if s.finished(now) {
+        let result = s.result(bus, now);
+        tracing::info!(bus, found = s.found.len(), "scan finished");
+        send(out, s.reply(), result);
+        *survey = None;
+    }
+    used
+}
+
+fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, payload: Value) {
+    let _ = out.send(Output::CommandResult {
+        topics: reply.topics.clone(),
+        correlation: reply.correlation.clone(),
+        payload,
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scan_topic_names_one_bus_under_the_root() {
+        assert_eq!(
+            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan"),
+            Some("line1")
+        );
+        assert_eq!(
+            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan/result"),
+            None
+        );
+        assert_eq!(parse_scan_topic("pg/gw", "pg/gw/bus//scan"), None);
+        assert_eq!(parse_scan_topic("pg/gw", "pg/other/bus/line1/scan"), None);
+    }
+
+    #[test]
+    fn a_payload_gives_units_and_id_and_nothing_else() {
+        assert_eq!(parse_scan_payload(b"").unwrap().0.len(), 247);
+        let (units, id) = parse_scan_payload(br#"{"units":"5-7","id":"a"}"#).unwrap();
+        assert_eq!((units, id.as_deref()), (vec![5, 6, 7], Some("a")));
+        for bad in [
+            &br#"{"units":"0-7"}"#[..],
+            br#"{"unit":"5"}"#,
+            br#"[1]"#,
+            b"scan",
+            br#"{"units":5}"#,
+        ] {
+            assert!(
+                parse_scan_payload(bad).is_err(),
+                "{}",
+                String::from_utf8_lossy(bad)
+            );
+        }
+    }
+
+    #[test]
+    fn configured_units_are_not_asked_and_the_result_lists_them() {
+        let req = ScanRequest {
+            units: vec![1, 2, 3, 4],
+            id: Some("x".into()),
+            reply: Reply::default(),
+        };
+        let t = Instant::now();
+        let mut s = Survey::new(req, &[2, 9], t);
+        let mut asked = Vec::new();
+        while let Some(u) = s.next_unit() {
+            asked.push(u);
+            s.record(None);
+        }
+        assert_eq!(asked, [1, 3, 4]);
+        let r = s.result("line1", t);
+        assert_eq!(
+            (
+                r["configured"].clone(),
+                r["complete"].clone(),
+                r["id"].clone()
+            ),
+            (json!([2]), json!(true), json!("x"))
+        );
+    }
+}

@@ -1,0 +1,136 @@
+//! The line a commissioning command talks on: a serial port at a baud rate, or a Modbus TCP
+//! host. Opening it first checks that no running gateway holds the port.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use super::CommissionError;
+use super::holder::holders;
+use crate::bus::link::{Link, LinkError};
+use crate::config::{Link as LinkConfig, Parity};
+
+/// Where the modules are.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Target {
+    Serial { port: PathBuf, parity: Parity },
+    Tcp { host: String, port: u16 },
+}
+
+impl Target {
+    /// From the command line: `--port` or `--host H[:PORT]` (default port 502).
+    pub fn parse(
+        port: Option<PathBuf>,
+        host: Option<String>,
+        parity: &str,
+    ) -> Result<Target, CommissionError> {
+        let parity = match parity {
+            "none" => Parity::None,
+            "even" => Parity::Even,
+            "odd" => Parity::Odd,
+            other => {
+                return Err(CommissionError::BadInput(format!(
+                    "parity {other:?}: use none, even or odd"
+                )));
+            }
+        };
+        match (port, host) {
+            (Some(port), None) => Ok(Target::Serial { port, parity }),
+            (None, Some(h)) => {
+                let (host, port) = match h.rsplit_once(':') {
+                    Some((h, p)) => (
+                        h.to_string(),
+                        p.parse::<u16>().ok().filter(|p| *p > 0).ok_or_else(|| {
+                            CommissionError::BadInput(format!("--host {h}:{p}: bad TCP port"))
+                        })?,
+                    ),
+                    None => (h, 502),
+                };
+                Ok(Target::Tcp { host, port })
+            }
+            _ => Err(CommissionError::BadInput(
+                "give --port (a serial device) or --host (Modbus TCP)".into(),
+            )),
+        }
+    }
+
+    /// The link configuration at `baud` (ignored for TCP).
+    pub fn link_config(&self, baud: u32) -> LinkConfig {
+        match self {
+            Target::Serial { port, parity } => LinkConfig::Rtu {
+                port: port.clone(),
+                baud,
+                parity: *parity,
+                stop_bits: 1,
+            },
+            Target::Tcp { host, port } => LinkConfig::Tcp {
+                host: host.clone(),
+                port: *port,
+            },
+        }
+    }
+
+    pub fn is_serial(&self) -> bool {
+        matches!(self, Target::Serial { .. })
+    }
+
+    /// Refuses a serial port a running gateway holds, naming the process.
+    pub fn check_free(&self) -> Result<(), CommissionError> {
+        let Target::Serial { port, .. } = self else {
+            return Ok(());
+        };
+        let gateways: Vec<_> = holders(port)
+            .into_iter()
+            .filter(|h| h.is_gateway())
+            .collect();
+        if gateways.is_empty() {
+            return Ok(());
+        }
+        Err(port_held(port, &gateways))
+    }
+
+    /// A link at `baud`, after checking the port is free.
+    pub fn open(&self, baud: u32) -> Result<Link, CommissionError> {
+        self.check_free()?;
+        Ok(Link::new(self.link_config(baud), Duration::ZERO))
+    }
+
+    /// A link error for people: a port that cannot be opened names who has it.
+    pub fn error(&self, unit: u8, e: LinkError) -> CommissionError {
+        if let (LinkError::Open { .. }, Target::Serial { port, .. }) = (&e, self) {
+            let others = holders(port);
+            if !others.is_empty() {
+                return port_held(port, &others);
+            }
+        }
+        CommissionError::Link { unit, source: e }
+    }
+}
+
+fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
+    let gateway = by.iter().any(|h| h.is_gateway());
+    CommissionError::PortHeld {
+        port: port.display().to_string(),
+        holders: by
+            .iter()
+            .map(|h| h.to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        advice: if gateway {
+            "a running pulsegate gateway polls this line: stop it first (systemctl stop \
+             pulsegate), or survey through it over MQTT (<root>/bus/<bus>/scan)"
+                .into()
+        } else {
+            "close that program first".into()
+        },
+    }
+}
+
+/// The answer timeout for a request of `len` registers: the models' answer time plus the time
+/// the request and answer take on the line.
+pub fn timeout_for(answer: Duration, link: &Link, len: u16) -> Duration {
+    let line = link
+        .timing()
+        .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
+        .unwrap_or_default();
+    answer + line
+}

@@ -1,0 +1,101 @@
+//! `pulsegate raw`: read or write holding registers of any unit, model unknown, for what the
+//! profiles do not cover.
+
+use super::CommissionError;
+use super::line::{Target, timeout_for};
+use crate::bus::link::Link;
+
+/// A register address or value: decimal or 0x-prefixed hex, 0..=65535.
+pub fn parse_u16(text: &str) -> Result<u16, String> {
+    let t = text.trim();
+    let parsed = match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
+        Some(hex) => u16::from_str_radix(hex, 16),
+        None => t.parse::<u16>(),
+    };
+    parsed.map_err(|_| {
+        format!("{text:?} is not a register number or value (0..=65535 or 0x0000..=0xFFFF)")
+    })
+}
+
+/// Reads `count` registers from `start` at `unit`.
+pub(super) async fn read(
+    link: &mut Link,
+    target: &Target,
+    unit: u8,
+    start: u16,
+    count: u16,
+    answer: std::time::Duration,
+) -> Result<Vec<u16>, CommissionError> {
+    if count == 0 || count > 125 || u32::from(start) + u32::from(count) > 0x1_0000 {
+        return Err(CommissionError::BadInput(format!(
+            "read {start} {count}: Modbus reads 1..=125 registers within 0..=65535"
+        )));
+    }
+    let timeout = timeout_for(answer, link, count);
+    match link.read(unit, start, count, timeout).await {
+        Ok(Ok(words)) => Ok(words),
+        Ok(Err(exception)) => Err(CommissionError::Refused {
+            unit,
+            what: format!("a read of {count} registers at {start}"),
+            exception,
+        }),
+        Err(e) => Err(target.error(unit, e)),
+    }
+}
+
+/// Writes `values` from `address` (one value: FC06, more: FC16) at `unit`.
+pub(super) async fn write(
+    link: &mut Link,
+    target: &Target,
+    unit: u8,
+    address: u16,
+    values: &[u16],
+    answer: std::time::Duration,
+) -> Result<(), CommissionError> {
+    if values.is_empty()
+        || values.len() > 123
+        || u32::from(address) + values.len() as u32 > 0x1_0000
+    {
+        return Err(CommissionError::BadInput(format!(
+            "write {address}: Modbus writes 1..=123 registers within 0..=65535"
+        )));
+    }
+    let timeout = timeout_for(answer, link, values.len() as u16);
+    let answer = if let [one] = values {
+        link.write_register(unit, address, *one, timeout).await
+    } else {
+        link.write_registers(unit, address, values, timeout).await
+    };
+    match answer {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(exception)) => Err(CommissionError::Refused {
+            unit,
+            what: format!("a write at {address}"),
+            exception,
+        }),
+        Err(e) => Err(target.error(unit, e)),
+    }
+}
+
+/// Words as a table: address, decimal, hex.
+pub fn words_table(start: u16, words: &[u16]) -> String {
+    words
+        .iter()
+        .enumerate()
+        .map(|(i, w)| format!("{:>5}  {:>5}  0x{w:04X}\n", usize::from(start) + i, w))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registers_are_decimal_or_hex() {
+        assert_eq!(parse_u16("67"), Ok(67));
+        assert_eq!(parse_u16("0x1160"), Ok(0x1160));
+        assert!(
+            parse_u16("65536").is_err() && parse_u16("-1").is_err() && parse_u16("0xG").is_err()
+        );
+    }
+}

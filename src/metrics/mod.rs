@@ -1,0 +1,301 @@
+//! Prometheus metrics: what the buses, devices, channels and the MQTT side did, served over HTTP
+//! (`[metrics] listen`) so that health stays visible exactly when the broker is the problem.
+//!
+//! Families follow Prometheus's conventions: base units (seconds, hertz), `_total` for counters,
+//! labels `bus`, `device`, `channel`. The metric handles are atomics (the `prometheus` crate);
+//! each bus task holds the handles of its own bus and devices, so recording costs no lookup.
+//! Counters that the bus already keeps (its [`WireCounters`]) are carried over as differences,
+//! so a restarted bus task (config reload) never makes a counter go backwards.
+//!
+//! Without `[metrics]` the handles are empty: nothing is registered or recorded, so a gateway
+//! of a thousand devices pays no memory for series nobody scrapes.
+
+mod families;
+pub mod server;
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use prometheus::{Encoder, Gauge, Histogram, IntCounter, IntGauge, Registry, TextEncoder};
+
+use crate::bus::link::WireCounters;
+use crate::reading::Reading;
+use families::Families;
+
+/// The gateway's metrics: one registry, handed to the buses and the MQTT task; or nothing.
+#[derive(Clone, Default)]
+pub struct Metrics {
+    inner: Option<Arc<Enabled>>,
+}
+
+struct Enabled {
+    registry: Registry,
+    families: Arc<Families>,
+}
+
+impl Metrics {
+    /// Metrics that record nothing (no `[metrics]` section).
+    pub fn disabled() -> Metrics {
+        Metrics { inner: None }
+    }
+
+    /// A fresh registry with every family registered, the start time and the build info set.
+    pub fn new() -> Metrics {
+        let registry = Registry::new();
+        let families = Arc::new(Families::register(&registry));
+        let start = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0);
+        families.start_time.set(start);
+        families
+            .build_info
+            .with_label_values(&[env!("CARGO_PKG_VERSION")])
+            .set(1);
+        Metrics {
+            inner: Some(Arc::new(Enabled { registry, families })),
+        }
+    }
+
+    /// The handles of one bus.
+    pub fn bus(&self, bus: &str) -> BusMetrics {
+        let Some(e) = &self.inner else {
+            return BusMetrics { inner: None };
+        };
+        let f = &e.families;
+        BusMetrics {
+            inner: Some(BusHandles {
+                families: e.families.clone(),
+                name: bus.to_string(),
+                transactions: f.bus_transactions.with_label_values(&[bus]),
+                reconnects: f.bus_reconnects.with_label_values(&[bus]),
+                line_faults: f.bus_line_faults.with_label_values(&[bus]),
+                busy: f.bus_busy.with_label_values(&[bus]),
+                utilisation: f.bus_utilisation.with_label_values(&[bus]),
+                last: WireCounters::default(),
+                last_busy: Duration::ZERO,
+            }),
+        }
+    }
+
+    /// The MQTT side, sampled by the MQTT task: connected, spool depth, spool drops so far.
+    pub fn mqtt(&self, connected: bool, spool_messages: u64, spool_bytes: u64, dropped: u64) {
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
+        f.mqtt_connected.set(connected as i64);
+        f.spool_messages.set(spool_messages as i64);
+        f.spool_bytes.set(spool_bytes as i64);
+        let seen = f.spool_dropped.get();
+        if dropped > seen {
+            f.spool_dropped.inc_by(dropped - seen);
+        }
+    }
+
+    /// A command was answered with `payload` (`{"ok":true,…}` or `{"ok":false,"error":CODE}`).
+    pub fn command_result(&self, payload: &serde_json::Value) {
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
+        f.commands_received.inc();
+        if payload.get("ok").and_then(|v| v.as_bool()) != Some(true) {
+            let code = payload
+                .get("error")
+                .and_then(|v| v.as_str())
+                .unwrap_or("unknown");
+            f.commands_refused.with_label_values(&[code]).inc();
+        }
+    }
+
+    /// The exposition in Prometheus's text format (version 0.0.4).
+    pub fn encode(&self) -> String {
+        let Some(e) = &self.inner else {
+            return String::new();
+        };
+        let mut out = Vec::new();
+        // Encoding our own, well-formed families into a Vec cannot fail.
+        let _ = TextEncoder::new().encode(&e.registry.gather(), &mut out);
+        String::from_utf8(out).unwrap_or_default()
+    }
+}
+
+/// One bus's handles (none when metrics are off); owned by its bus task.
+#[derive(Default)]
+pub struct BusMetrics {
+    inner: Option<BusHandles>,
+}
+
+struct BusHandles {
+    families: Arc<Families>,
+    name: String,
+    transactions: IntCounter,
+    reconnects: IntCounter,
+    line_faults: IntCounter,
+    busy: prometheus::Counter,
+    utilisation: Gauge,
+    /// The link's counters when last carried over.
+    last: WireCounters,
+    last_busy: Duration,
+}
+
+impl BusMetrics {
+    /// The handles of a device on this bus.
+    pub fn device(&self, device: &str) -> DeviceMetrics {
+        let Some(b) = &self.inner else {
+            return DeviceMetrics { inner: None };
+        };
+        let f = &b.families;
+        let l = [b.name.as_str(), device];
+        DeviceMetrics {
+            inner: Some(DeviceHandles {
+                families: b.families.clone(),
+                bus: b.name.clone(),
+                device: device.to_string(),
+                up: f.device_up.with_label_values(&l),
+                wrong_model: f.device_wrong_model.with_label_values(&l),
+                transactions: f.device_transactions.with_label_values(&l),
+                timeouts: f.device_timeouts.with_label_values(&l),
+                garbled: f.device_garbled.with_label_values(&l),
+                exceptions: f.device_exceptions.with_label_values(&l),
+                latency: f.device_latency.with_label_values(&l),
+                channels: HashMap::new(),
+            }),
+        }
+    }
+
+    /// Carries the link's cumulative counters and busy time over.
+    pub fn wire(&mut self, now: &WireCounters, busy: Duration) {
+        let Some(b) = &mut self.inner else { return };
+        let d = diff(&b.last, now);
+        b.transactions.inc_by(d.transactions);
+        b.reconnects.inc_by(d.reconnects);
+        b.last = *now;
+        if busy > b.last_busy {
+            b.busy.inc_by((busy - b.last_busy).as_secs_f64());
+            b.last_busy = busy;
+        }
+    }
+
+    /// The line failed (adapter gone, port cannot be opened): counted once per fault.
+    pub fn line_fault(&self) {
+        if let Some(b) = &self.inner {
+            b.line_faults.inc();
+        }
+    }
+
+    /// The share of the last stats interval the line was busy.
+    pub fn utilisation(&self, ratio: f64) {
+        if let Some(b) = &self.inner {
+            b.utilisation.set(ratio);
+        }
+    }
+}
+
+/// What changed between two readings of the link's counters (zero where one went backwards).
+fn diff(before: &WireCounters, after: &WireCounters) -> WireCounters {
+    WireCounters {
+        transactions: after.transactions.saturating_sub(before.transactions),
+        timeouts: after.timeouts.saturating_sub(before.timeouts),
+        mismatches: after.mismatches.saturating_sub(before.mismatches),
+        io_errors: after.io_errors.saturating_sub(before.io_errors),
+        exceptions: after.exceptions.saturating_sub(before.exceptions),
+        reconnects: after.reconnects.saturating_sub(before.reconnects),
+        garbled: after.garbled.saturating_sub(before.garbled),
+    }
+}
+
+/// A channel's handles: a counter for inputs counting on their own, a gauge for encoder
+/// positions (their total goes both ways), and the last rate.
+struct ChannelMetrics {
+    pulses: Option<IntCounter>,
+    position: Option<IntGauge>,
+    rate: Gauge,
+}
+
+/// One device's handles (none when metrics are off); owned by its bus task.
+pub struct DeviceMetrics {
+    inner: Option<DeviceHandles>,
+}
+
+struct DeviceHandles {
+    families: Arc<Families>,
+    bus: String,
+    device: String,
+    up: IntGauge,
+    wrong_model: IntGauge,
+    transactions: IntCounter,
+    timeouts: IntCounter,
+    garbled: IntCounter,
+    exceptions: IntCounter,
+    latency: Histogram,
+    channels: HashMap<Arc<str>, ChannelMetrics>,
+}
+
+impl DeviceMetrics {
+    /// Handles that record nothing.
+    pub fn disabled() -> DeviceMetrics {
+        DeviceMetrics { inner: None }
+    }
+
+    /// The transactions this device took: the link's counters before and after them.
+    pub fn wire(&self, before: &WireCounters, after: &WireCounters) {
+        let Some(h) = &self.inner else { return };
+        let d = diff(before, after);
+        h.transactions.inc_by(d.transactions);
+        h.timeouts.inc_by(d.timeouts);
+        h.garbled.inc_by(d.garbled);
+        h.exceptions.inc_by(d.exceptions);
+    }
+
+    /// One transaction's latency (request sent → answer decoded).
+    pub fn latency(&self, d: Duration) {
+        if let Some(h) = &self.inner {
+            h.latency.observe(d.as_secs_f64());
+        }
+    }
+
+    /// Availability: 1 online, 0 offline or not yet seen.
+    pub fn up(&self, online: Option<bool>) {
+        if let Some(h) = &self.inner {
+            h.up.set((online == Some(true)) as i64);
+        }
+    }
+
+    /// The module is not the model configured (set by the identification check).
+    pub fn wrong_model(&self, wrong: bool) {
+        if let Some(h) = &self.inner {
+            h.wrong_model.set(wrong as i64);
+        }
+    }
+
+    /// A reading that is being published (an encoder's total is a position).
+    pub fn reading(&mut self, r: &Reading) {
+        let encoder = r.kind == crate::profile::ChannelKind::Encoder;
+        let Some(h) = &mut self.inner else { return };
+        let ch = h.channels.entry(r.channel.clone()).or_insert_with(|| {
+            let f = &h.families;
+            let l = [h.bus.as_str(), h.device.as_str(), &r.channel];
+            ChannelMetrics {
+                pulses: (!encoder).then(|| f.channel_pulses.with_label_values(&l)),
+                position: encoder.then(|| f.channel_position.with_label_values(&l)),
+                rate: f.channel_rate.with_label_values(&l),
+            }
+        });
+        if let Some(c) = &ch.pulses {
+            // The total of an input counting on its own never goes down; it starts from the
+            // saved total after a restart.
+            let total = r.update.total.max(0) as u64;
+            if total > c.get() {
+                c.inc_by(total - c.get());
+            }
+        }
+        if let Some(g) = &ch.position {
+            g.set(r.update.total);
+        }
+        if let Some(rate) = r.update.rate_hz {
+            ch.rate.set(rate);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

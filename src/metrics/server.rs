@@ -1,0 +1,136 @@
+//! The HTTP endpoint: `GET /metrics` (Prometheus text format) and `GET /healthz` (200 while
+//! every bus loop and the MQTT task make progress, 503 naming the stuck ones).
+//!
+//! hyper's HTTP/1 server on the gateway's own single-threaded runtime: no extra threads. It is
+//! meant for a local scraper (loopback by default), not the open network, and a client can cost
+//! it little: a few connections at a time, small request heads, and a deadline per connection.
+
+use std::convert::Infallible;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use http_body_util::Full;
+use hyper::body::{Bytes, Incoming};
+use hyper::header::{CONTENT_TYPE, HeaderValue};
+use hyper::{Method, Request, Response, StatusCode};
+use hyper_util::rt::{TokioIo, TokioTimer};
+use tokio::net::TcpListener;
+use tokio::sync::Semaphore;
+use tokio_util::sync::CancellationToken;
+
+use super::Metrics;
+use crate::health::Health;
+
+/// Connections served at once; more wait in the kernel's backlog.
+const MAX_CONNECTIONS: usize = 8;
+/// A connection's whole life, request head to last byte of the answer.
+const CONNECTION_DEADLINE: Duration = Duration::from_secs(10);
+/// Read buffer cap: a request head larger than this is refused.
+const MAX_HEAD: usize = 8 * 1024;
+/// A loop that has not beaten for this long makes `/healthz` fail (the watchdog's default).
+const STALE_AFTER: Duration = Duration::from_secs(10);
+
+const TEXT_FORMAT: &str = "text/plain; version=0.0.4; charset=utf-8";
+
+/// The metrics endpoint could not start.
+#[derive(Debug, thiserror::Error)]
+#[error("metrics endpoint {addr}: {source}")]
+pub struct ServeError {
+    addr: SocketAddr,
+    source: std::io::Error,
+}
+
+/// Binds `addr` (so a port in use is an error at start, not later).
+pub async fn bind(addr: SocketAddr) -> Result<TcpListener, ServeError> {
+    TcpListener::bind(addr)
+        .await
+        .map_err(|source| ServeError { addr, source })
+}
+
+/// Serves until `shutdown`.
+pub async fn serve(
+    listener: TcpListener,
+    metrics: Metrics,
+    health: Arc<Health>,
+    shutdown: CancellationToken,
+) {
+    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        let permit = tokio::select! {
+            () = shutdown.cancelled() => return,
+            p = slots.clone().acquire_owned() => p.expect("the semaphore is never closed"),
+        };
+        let stream = tokio::select! {
+            () = shutdown.cancelled() => return,
+            s = listener.accept() => match s {
+                Ok((s, _)) => s,
+                Err(e) => {
+                    tracing::debug!("metrics endpoint: accept failed: {e}");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+        };
+        let (metrics, health) = (metrics.clone(), health.clone());
+        tokio::spawn(async move {
+            let service = hyper::service::service_fn(move |req| {
+                let (metrics, health) = (metrics.clone(), health.clone());
+                async move { Ok::<_, Infallible>(answer(req, metrics, health).await) }
+            });
+            let conn = hyper::server::conn::http1::Builder::new()
+                .timer(TokioTimer::new())
+                .header_read_timeout(Duration::from_secs(5))
+                .max_buf_size(MAX_HEAD)
+                .keep_alive(false)
+                .serve_connection(TokioIo::new(stream), service);
+            let _ = tokio::time::timeout(CONNECTION_DEADLINE, conn).await;
+            drop(permit);
+        });
+    }
+}
+
+async fn answer(
+    req: Request<Incoming>,
+    metrics: Metrics,
+    health: Arc<Health>,
+) -> Response<Full<Bytes>> {
+    if req.method() != Method::GET && req.method() != Method::HEAD {
+        return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into());
+    }
+    match req.uri().path() {
+        "/metrics" => {
+            // Thousands of series take tens of milliseconds to encode: off the runtime thread,
+            // so polling does not wait for a scrape.
+            let text = tokio::task::spawn_blocking(move || metrics.encode())
+                .await
+                .unwrap_or_default();
+            let mut r = Response::new(Full::new(Bytes::from(text)));
+            r.headers_mut()
+                .insert(CONTENT_TYPE, HeaderValue::from_static(TEXT_FORMAT));
+            r
+        }
+        "/healthz" => {
+            let stale = health.stale(STALE_AFTER);
+            if stale.is_empty() {
+                plain(StatusCode::OK, format!("ok: {}\n", health.status_line()))
+            } else {
+                plain(
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    format!("not making progress: {}\n", stale.join(", ")),
+                )
+            }
+        }
+        _ => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
+    }
+}
+
+fn plain(status: StatusCode, body: String) -> Response<Full<Bytes>> {
+    let mut r = Response::new(Full::new(Bytes::from(body)));
+    *r.status_mut() = status;
+    r.headers_mut().insert(
+        CONTENT_TYPE,
+        HeaderValue::from_static("text/plain; charset=utf-8"),
+    );
+    r
+}

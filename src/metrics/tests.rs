@@ -1,0 +1,192 @@
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use super::*;
+use crate::counter::Update;
+
+fn reading(device: &str, channel: &str, total: i64, rate: f64, encoder: bool) -> Reading {
+    Reading {
+        device: Arc::from(device),
+        channel: Arc::from(channel),
+        ts: SystemTime::now(),
+        count: total,
+        freq_hz: None,
+        rpm: None,
+        after_seq: None,
+        kind: if encoder {
+            crate::profile::ChannelKind::Encoder
+        } else {
+            crate::profile::ChannelKind::Counter
+        },
+        units: None,
+        update: Update {
+            delta: 0,
+            total,
+            seq: 1,
+            rate_hz: Some(rate),
+            event: None,
+        },
+    }
+}
+
+fn line<'a>(text: &'a str, start: &str) -> &'a str {
+    text.lines()
+        .find(|l| l.starts_with(start))
+        .unwrap_or_else(|| panic!("no line starting {start} in\n{text}"))
+}
+
+#[test]
+fn a_device_that_goes_offline_shows_up_0_with_its_bus_and_device_labels() {
+    let m = Metrics::new();
+    let d = m.bus("line1").device("press1");
+    d.up(Some(true));
+    assert!(
+        m.encode()
+            .contains("pulsegate_device_up{bus=\"line1\",device=\"press1\"} 1")
+    );
+    d.up(Some(false));
+    assert!(
+        m.encode()
+            .contains("pulsegate_device_up{bus=\"line1\",device=\"press1\"} 0")
+    );
+}
+
+#[test]
+fn a_devices_transactions_are_the_link_counters_it_moved() {
+    let m = Metrics::new();
+    let d = m.bus("line1").device("press1");
+    let before = WireCounters {
+        transactions: 10,
+        timeouts: 1,
+        ..Default::default()
+    };
+    let after = WireCounters {
+        transactions: 13,
+        timeouts: 2,
+        garbled: 1,
+        exceptions: 1,
+        ..Default::default()
+    };
+    d.wire(&before, &after);
+    let text = m.encode();
+    let labels = "{bus=\"line1\",device=\"press1\"}";
+    for (name, v) in [
+        ("pulsegate_device_transactions_total", 3),
+        ("pulsegate_device_timeouts_total", 1),
+        ("pulsegate_device_garbled_answers_total", 1),
+        ("pulsegate_device_exception_answers_total", 1),
+    ] {
+        assert_eq!(
+            line(&text, &format!("{name}{labels}")),
+            format!("{name}{labels} {v}")
+        );
+    }
+}
+
+#[test]
+fn bus_counters_never_go_backwards_when_a_restarted_bus_task_starts_from_zero() {
+    let m = Metrics::new();
+    let mut first = m.bus("line1");
+    let c = WireCounters {
+        transactions: 100,
+        reconnects: 2,
+        ..Default::default()
+    };
+    first.wire(&c, Duration::from_millis(1500));
+    // A config reload restarts the bus task: its link counts from zero again.
+    let mut second = m.bus("line1");
+    second.wire(
+        &WireCounters {
+            transactions: 5,
+            ..Default::default()
+        },
+        Duration::from_millis(500),
+    );
+    let text = m.encode();
+    assert_eq!(
+        line(&text, "pulsegate_bus_transactions_total{"),
+        "pulsegate_bus_transactions_total{bus=\"line1\"} 105"
+    );
+    assert_eq!(
+        line(&text, "pulsegate_bus_busy_seconds_total{"),
+        "pulsegate_bus_busy_seconds_total{bus=\"line1\"} 2"
+    );
+}
+
+#[test]
+fn inputs_are_counters_and_encoders_are_positions_that_may_go_negative() {
+    let m = Metrics::new();
+    let mut d = m.bus("line1").device("press1");
+    d.reading(&reading("press1", "a2", 1618, 250.0, false));
+    d.reading(&reading("press1", "a2", 1700, 41.0, false));
+    d.reading(&reading("press1", "enc0", -13680, -120.0, true));
+    let text = m.encode();
+    assert!(text.contains(
+        "pulsegate_channel_pulses_total{bus=\"line1\",channel=\"a2\",device=\"press1\"} 1700"
+    ));
+    assert!(text.contains(
+        "pulsegate_channel_position_pulses{bus=\"line1\",channel=\"enc0\",device=\"press1\"} -13680"
+    ));
+    assert!(text.contains(
+        "pulsegate_channel_rate_hertz{bus=\"line1\",channel=\"a2\",device=\"press1\"} 41"
+    ));
+    assert!(text.contains("# TYPE pulsegate_channel_pulses_total counter"));
+    assert!(text.contains("# TYPE pulsegate_channel_position_pulses gauge"));
+}
+
+#[test]
+fn refused_commands_are_counted_by_error_code() {
+    let m = Metrics::new();
+    m.command_result(&serde_json::json!({"op":"clear","ok":true}));
+    m.command_result(&serde_json::json!({"op":"clear","ok":false,"error":"offline"}));
+    m.command_result(&serde_json::json!({"ok":false,"error":"bad_json"}));
+    let text = m.encode();
+    assert!(text.contains("pulsegate_commands_received_total 3"));
+    assert!(text.contains("pulsegate_commands_refused_total{code=\"offline\"} 1"));
+    assert!(text.contains("pulsegate_commands_refused_total{code=\"bad_json\"} 1"));
+}
+
+#[test]
+fn the_spool_and_mqtt_state_are_sampled_and_drops_only_count_up() {
+    let m = Metrics::new();
+    m.mqtt(false, 42, 4096, 3);
+    m.mqtt(false, 43, 4200, 3);
+    let text = m.encode();
+    assert!(text.contains("pulsegate_mqtt_connected 0"));
+    assert!(text.contains("pulsegate_spool_messages 43"));
+    assert!(text.contains("pulsegate_spool_bytes 4200"));
+    assert!(text.contains("pulsegate_spool_dropped_messages_total 3"));
+}
+
+#[test]
+fn latency_is_a_histogram_in_seconds_and_build_info_names_the_version() {
+    let m = Metrics::new();
+    m.bus("line1")
+        .device("press1")
+        .latency(Duration::from_millis(36));
+    let text = m.encode();
+    assert!(text.contains("# TYPE pulsegate_device_latency_seconds histogram"));
+    assert!(text.contains(
+        "pulsegate_device_latency_seconds_bucket{bus=\"line1\",device=\"press1\",le=\"0.05\"} 1"
+    ));
+    assert!(text.contains(
+        "pulsegate_device_latency_seconds_bucket{bus=\"line1\",device=\"press1\",le=\"0.025\"} 0"
+    ));
+    assert!(text.contains(&format!(
+        "pulsegate_build_info{{version=\"{}\"}} 1",
+        env!("CARGO_PKG_VERSION")
+    )));
+    assert!(text.contains("# TYPE process_start_time_seconds gauge"));
+}
+
+#[test]
+fn metrics_that_are_off_record_nothing_and_expose_nothing() {
+    let m = Metrics::disabled();
+    let mut bus = m.bus("line1");
+    let mut d = bus.device("press1");
+    d.up(Some(true));
+    d.reading(&reading("press1", "a2", 5, 1.0, false));
+    bus.wire(&WireCounters::default(), Duration::from_secs(1));
+    m.mqtt(true, 1, 2, 3);
+    assert_eq!(m.encode(), "");
+}

@@ -1,0 +1,306 @@
+//! Home Assistant discovery as a state machine: what the gateway has announced, what the broker
+//! holds, and what to publish when readings, Home Assistant or a reload say so. Pure: events
+//! in, retained messages out; [`run`] is the thin task around it.
+
+use std::collections::{BTreeMap, BTreeSet, HashSet};
+
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
+
+use super::homeassistant::{
+    Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
+    module_topics, possible_topics,
+};
+use crate::config::Config;
+use crate::dispatch::Incoming;
+use crate::profile::ChannelKind;
+use crate::reading::{Output, Reading};
+
+/// A retained config message (an empty payload removes the entity).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Announce {
+    pub topic: String,
+    pub payload: String,
+}
+
+impl Announce {
+    fn output(self) -> Output {
+        Output::Message {
+            topic: self.topic,
+            payload: self.payload,
+            retain: true,
+        }
+    }
+}
+
+/// A channel by its place on the wire and what it counts: bus, unit, channel name, kind.
+type ChannelKey = (String, u8, String, ChannelKind);
+
+/// What discovery knows.
+pub struct Discovery {
+    site: Site,
+    config: Config,
+    /// Config topics we published and their payloads (republished when HA comes back).
+    announced: BTreeMap<String, String>,
+    /// Config topics of this gateway seen retained on the broker.
+    on_broker: BTreeSet<String>,
+    /// Channels that have published readings: their entities are announced.
+    learned: HashSet<ChannelKey>,
+    /// Topics this config may have; anything else of ours on the broker is stale.
+    possible: BTreeSet<String>,
+    /// Modules that completed a poll: their channels in the current work mode are all learned.
+    settled: BTreeSet<(String, u8)>,
+    /// Topics of settled modules' channels they do not have (another work mode): stale.
+    unwanted: BTreeSet<String>,
+}
+
+impl Discovery {
+    pub fn new(config: &Config) -> Discovery {
+        let site = Site::of(config);
+        Discovery {
+            possible: possible_topics(&site, config),
+            site,
+            config: config.clone(),
+            announced: BTreeMap::new(),
+            on_broker: BTreeSet::new(),
+            learned: HashSet::new(),
+            settled: BTreeSet::new(),
+            unwanted: BTreeSet::new(),
+        }
+    }
+
+    pub fn site(&self) -> &Site {
+        &self.site
+    }
+
+    fn announce(&mut self, entities: Vec<Entity>) -> Vec<Announce> {
+        let mut out = Vec::new();
+        for e in entities {
+            let topic = e.topic(&self.site);
+            let payload = e.config.to_string();
+            if self.announced.get(&topic) != Some(&payload) {
+                self.announced.insert(topic.clone(), payload.clone());
+                out.push(Announce { topic, payload });
+            }
+        }
+        out
+    }
+
+    /// At start: the gateway device and each module's device-wide entities.
+    pub fn start(&mut self) -> Vec<Announce> {
+        let mut entities = gateway_entities(&self.site);
+        for (bus, device) in self.config.enabled_devices() {
+            let m = Module {
+                bus: &bus.name,
+                device,
+            };
+            entities.extend(device_entities(&self.site, m));
+        }
+        self.announce(entities)
+    }
+
+    /// A reading went by: the first of a channel announces its entities.
+    pub fn reading(&mut self, r: &Reading) -> Vec<Announce> {
+        let Some((bus, device)) = self
+            .config
+            .enabled_devices()
+            .find(|(_, d)| *d.name == *r.device)
+        else {
+            return Vec::new();
+        };
+        let key = (bus.name.clone(), device.unit, r.channel.to_string(), r.kind);
+        if self.learned.contains(&key) {
+            // A channel read again: the module's first poll is complete.
+            return self.settle(key.0, key.1);
+        }
+        let m = Module {
+            bus: &bus.name,
+            device,
+        };
+        let Some(spec) = channel_spec(m, &r.channel, r.kind) else {
+            return Vec::new();
+        };
+        let entities = channel_entities(&self.site, m, &spec);
+        let settled = self.settled.contains(&(key.0.clone(), key.1));
+        self.learned.insert(key);
+        if settled {
+            // The work mode changed under a settled module: its new channels are wanted now.
+            self.refresh_unwanted();
+        }
+        self.announce(entities)
+    }
+
+    /// The module at `bus`/`unit` completed a poll: configs of channels it does not have in
+    /// its current work mode are cleared.
+    fn settle(&mut self, bus: String, unit: u8) -> Vec<Announce> {
+        if !self.settled.insert((bus, unit)) {
+            return Vec::new();
+        }
+        self.refresh_unwanted();
+        self.clear_where(|d, t| d.unwanted.contains(t))
+    }
+
+    /// Recomputes the topics settled modules do not have.
+    fn refresh_unwanted(&mut self) {
+        let mut unwanted = BTreeSet::new();
+        for (bus, device) in self.config.enabled_devices() {
+            if !self.settled.contains(&(bus.name.clone(), device.unit)) {
+                continue;
+            }
+            let m = Module {
+                bus: &bus.name,
+                device,
+            };
+            let mut topics = module_topics(&self.site, m);
+            for e in device_entities(&self.site, m) {
+                topics.remove(&e.topic(&self.site));
+            }
+            let learned = self
+                .learned
+                .iter()
+                .filter(|(b, u, ..)| *b == bus.name && *u == device.unit);
+            for (_, _, channel, kind) in learned {
+                if let Some(spec) = channel_spec(m, channel, *kind) {
+                    for e in channel_entities(&self.site, m, &spec) {
+                        topics.remove(&e.topic(&self.site));
+                    }
+                }
+            }
+            unwanted.extend(topics);
+        }
+        self.unwanted = unwanted;
+    }
+
+    /// Clears every announced or retained config for which `stale` holds.
+    fn clear_where(&mut self, stale: impl Fn(&Discovery, &str) -> bool) -> Vec<Announce> {
+        let topics: BTreeSet<String> = self
+            .announced
+            .keys()
+            .chain(&self.on_broker)
+            .filter(|t| stale(self, t))
+            .cloned()
+            .collect();
+        topics.iter().map(|t| self.clear(t)).collect()
+    }
+
+    /// Home Assistant announced itself: every config again.
+    pub fn ha_status(&mut self, payload: &[u8]) -> Vec<Announce> {
+        if payload != b"online" {
+            return Vec::new();
+        }
+        self.announced
+            .iter()
+            .map(|(topic, payload)| Announce {
+                topic: topic.clone(),
+                payload: payload.clone(),
+            })
+            .collect()
+    }
+
+    /// A config of this gateway arrived from the broker (retained at subscription, or our own
+    /// publish coming back): one that the config cannot have is cleared.
+    pub fn config_seen(&mut self, topic: &str, payload: &[u8]) -> Option<Announce> {
+        if payload.is_empty() {
+            self.on_broker.remove(topic);
+            return None;
+        }
+        self.on_broker.insert(topic.to_string());
+        (!self.possible.contains(topic) || self.unwanted.contains(topic)).then(|| self.clear(topic))
+    }
+
+    fn clear(&mut self, topic: &str) -> Announce {
+        self.announced.remove(topic);
+        self.on_broker.remove(topic);
+        Announce {
+            topic: topic.to_string(),
+            payload: String::new(),
+        }
+    }
+
+    /// A reloaded config: configs of removed devices and channels are cleared, the rest
+    /// announced again as the new config describes them (a renamed device keeps its entities).
+    pub fn reload(&mut self, config: &Config) -> Vec<Announce> {
+        // [gateway], [mqtt] and [homeassistant] stay as started (as for the buses).
+        let mut config = config.clone();
+        config.gateway = self.config.gateway.clone();
+        config.mqtt = self.config.mqtt.clone();
+        config.homeassistant = self.config.homeassistant.clone();
+        self.config = config;
+        self.possible = possible_topics(&self.site, &self.config);
+        let mut out = self.clear_where(|d, t| !d.possible.contains(t));
+        out.extend(self.start());
+        let learned = std::mem::take(&mut self.learned);
+        for (bus, unit, channel, kind) in learned {
+            let config = self.config.clone();
+            let Some((b, device)) = config
+                .enabled_devices()
+                .find(|(b, d)| b.name == bus && d.unit == unit)
+            else {
+                continue;
+            };
+            let m = Module {
+                bus: &b.name,
+                device,
+            };
+            if let Some(spec) = channel_spec(m, &channel, kind) {
+                let entities = channel_entities(&self.site, m, &spec);
+                self.learned.insert((bus, unit, channel, kind));
+                out.extend(self.announce(entities));
+            }
+        }
+        self.refresh_unwanted();
+        out.extend(self.clear_where(|d, t| d.unwanted.contains(t)));
+        out
+    }
+}
+
+/// Sits between the buses and MQTT: passes every output on, announcing entities before the
+/// first reading of each channel; takes Home Assistant's status and our retained configs out of
+/// the incoming messages and passes the rest (commands) to the router. Ends when the buses
+/// close their output.
+pub async fn run(
+    config: Config,
+    mut from_buses: UnboundedReceiver<Output>,
+    to_mqtt: UnboundedSender<Output>,
+    mut incoming: tokio::sync::mpsc::Receiver<Incoming>,
+    to_router: tokio::sync::mpsc::Sender<Incoming>,
+    mut reloads: UnboundedReceiver<Config>,
+) {
+    let mut d = Discovery::new(&config);
+    let send = |list: Vec<Announce>| {
+        for a in list {
+            let _ = to_mqtt.send(a.output());
+        }
+    };
+    let _ = to_mqtt.send(Output::Subscribe(d.site().ha_status()));
+    let _ = to_mqtt.send(Output::Subscribe(d.site().config_filter()));
+    send(d.start());
+    let config_prefix = format!("{}/", d.site().prefix);
+    loop {
+        tokio::select! {
+            out = from_buses.recv() => {
+                let Some(out) = out else { break };
+                match &out {
+                    Output::Reading(r) => send(d.reading(r)),
+                    Output::DeviceReadings { readings, .. } => {
+                        for r in readings {
+                            send(d.reading(r));
+                        }
+                    }
+                    _ => {}
+                }
+                let _ = to_mqtt.send(out);
+            }
+            Some(msg) = incoming.recv() => {
+                if msg.topic == d.site().ha_status() {
+                    send(d.ha_status(&msg.payload));
+                } else if msg.topic.starts_with(&config_prefix) && msg.topic.ends_with("/config") {
+                    send(d.config_seen(&msg.topic, &msg.payload).into_iter().collect());
+                } else {
+                    // Bounded: when the router is behind, MQTT waits (TCP pushes back).
+                    let _ = to_router.send(msg).await;
+                }
+            }
+            Some(new) = reloads.recv() => send(d.reload(&new)),
+        }
+    }
+}

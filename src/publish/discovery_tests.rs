@@ -1,0 +1,320 @@
+//! Discovery payloads and the discovery state machine, without a broker.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use serde_json::Value;
+
+use super::discovery::Discovery;
+use crate::config::Config;
+use crate::counter::Update;
+use crate::profile::ChannelKind;
+use crate::reading::Reading;
+
+const CONFIG: &str = r#"
+[gateway]
+id = "edge"
+[homeassistant]
+discovery = true
+[buses.line1]
+port = "/dev/ttyUSB0"
+[buses.line1.devices.meter]
+unit = 3
+model = "yl67"
+[buses.line1.devices.meter.channels.a0]
+scale = 0.001
+unit = "kWh"
+rate_unit = "kW"
+rate_per = "h"
+device_class = "energy"
+[buses.line1.devices.press]
+unit = 4
+model = "yl67"
+commands = false
+"#;
+
+fn config(text: &str) -> Config {
+    Config::from_toml(
+        text,
+        Path::new("/etc/pulsegate/pulsegate.toml"),
+        Some(Default::default()),
+    )
+    .unwrap()
+}
+
+fn reading(device: &str, channel: &str) -> Reading {
+    Reading {
+        device: Arc::from(device),
+        channel: Arc::from(channel),
+        ts: SystemTime::UNIX_EPOCH,
+        count: 0,
+        freq_hz: None,
+        rpm: None,
+        update: Update {
+            delta: 0,
+            total: 0,
+            seq: 1,
+            rate_hz: None,
+            event: None,
+        },
+        kind: if channel.starts_with("enc") {
+            ChannelKind::Encoder
+        } else {
+            ChannelKind::Counter
+        },
+        units: None,
+        after_seq: None,
+    }
+}
+
+fn json(d: &mut Discovery, topic: &str) -> Value {
+    let all = d.ha_status(b"online");
+    let a = all.iter().find(|a| a.topic == topic).unwrap_or_else(|| {
+        panic!(
+            "no {topic} in {:?}",
+            all.iter().map(|a| &a.topic).collect::<Vec<_>>()
+        )
+    });
+    serde_json::from_str(&a.payload).unwrap()
+}
+
+#[test]
+fn a_counter_total_is_total_increasing_in_its_units_with_both_statuses_for_availability() {
+    let mut d = Discovery::new(&config(CONFIG));
+    d.start();
+    assert!(!d.reading(&reading("meter", "a0")).is_empty());
+    let v = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
+    assert_eq!(v["state_class"], "total_increasing");
+    assert_eq!(v["device_class"], "energy");
+    assert_eq!(v["unit_of_measurement"], "kWh");
+    assert_eq!(v["suggested_display_precision"], 3);
+    assert_eq!(v["state_topic"], "pulsegate/edge/meter/a0");
+    assert!(v["value_template"].as_str().unwrap().contains("'value'"));
+    assert_eq!(v["unique_id"], "pulsegate_edge_line1_u3_a0_total");
+    assert_eq!(v["default_entity_id"], "sensor.edge_meter_a0_total");
+    assert!(v.get("object_id").is_none(), "object_id is deprecated");
+    assert_eq!(v["availability_mode"], "all");
+    let topics: Vec<&str> = v["availability"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["topic"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        topics,
+        ["pulsegate/edge/status", "pulsegate/edge/meter/status"]
+    );
+    assert_eq!(v["device"]["via_device"], "pulsegate_edge");
+    assert_eq!(v["device"]["model_id"], "yl67");
+    assert!(
+        v["device"]["manufacturer"]
+            .as_str()
+            .unwrap()
+            .contains("俞霖")
+    );
+    assert_eq!(v["origin"]["name"], "pulsegate");
+    let rate = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_rate/config");
+    assert_eq!(rate["unit_of_measurement"], "kW");
+    assert_eq!(rate["device_class"], "power");
+    assert_eq!(rate["state_class"], "measurement");
+}
+
+#[test]
+fn an_encoder_position_is_a_measurement_never_total_increasing() {
+    let mut d = Discovery::new(&config(CONFIG));
+    d.reading(&reading("meter", "enc1"));
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u3_enc1_position/config",
+    );
+    assert_eq!(v["state_class"], "measurement");
+    let rpm = json(&mut d, "homeassistant/sensor/edge/line1_u3_enc1_rpm/config");
+    assert!(rpm.get("device_class").is_none(), "rpm has no device class");
+    assert_eq!(rpm["unit_of_measurement"], "rpm");
+}
+
+#[test]
+fn buttons_exist_only_where_commands_are_enabled() {
+    let mut d = Discovery::new(&config(CONFIG));
+    let start: Vec<String> = d.start().into_iter().map(|a| a.topic).collect();
+    assert!(start.contains(&"homeassistant/button/edge/line1_u3_clear_all/config".to_string()));
+    assert!(!start.iter().any(|t| t.contains("line1_u4")));
+    let press: Vec<String> = d
+        .reading(&reading("press", "enc0"))
+        .into_iter()
+        .map(|a| a.topic)
+        .collect();
+    assert!(!press.iter().any(|t| t.contains("/button/")), "{press:?}");
+    let meter = d.reading(&reading("meter", "a0"));
+    let button = meter
+        .iter()
+        .find(|a| a.topic == "homeassistant/button/edge/line1_u3_a0_clear/config")
+        .unwrap();
+    let v: Value = serde_json::from_str(&button.payload).unwrap();
+    assert_eq!(v["command_topic"], "pulsegate/edge/meter/a0/cmd");
+    assert_eq!(v["payload_press"], r#"{"op":"clear"}"#);
+}
+
+#[test]
+fn a_channel_is_announced_once_and_everything_again_when_home_assistant_returns() {
+    let mut d = Discovery::new(&config(CONFIG));
+    let first = d.start().len();
+    let announced = d.reading(&reading("meter", "a0")).len();
+    assert!(d.reading(&reading("meter", "a0")).is_empty());
+    assert_eq!(d.ha_status(b"online").len(), first + announced);
+    assert!(d.ha_status(b"offline").is_empty());
+}
+
+#[test]
+fn retained_configs_of_devices_no_longer_configured_are_cleared() {
+    let mut d = Discovery::new(&config(CONFIG));
+    let gone = "homeassistant/sensor/edge/line9_u7_a0_total/config";
+    let cleared = d.config_seen(gone, b"{}").unwrap();
+    assert_eq!(
+        (cleared.topic.as_str(), cleared.payload.as_str()),
+        (gone, "")
+    );
+    let ours = "homeassistant/sensor/edge/line1_u3_a0_total/config";
+    assert!(d.config_seen(ours, b"{}").is_none());
+    assert!(
+        d.config_seen(gone, b"").is_none(),
+        "an empty config is already gone"
+    );
+}
+
+#[test]
+fn a_reload_clears_a_removed_device_and_keeps_a_renamed_one() {
+    let mut d = Discovery::new(&config(CONFIG));
+    d.start();
+    d.reading(&reading("meter", "a0"));
+    d.reading(&reading("press", "enc0"));
+    let renamed = CONFIG.replace("devices.meter", "devices.energy").replace(
+        "[buses.line1.devices.press]\nunit = 4\nmodel = \"yl67\"\ncommands = false\n",
+        "",
+    );
+    let out = d.reload(&config(&renamed));
+    let cleared: Vec<&str> = out
+        .iter()
+        .filter(|a| a.payload.is_empty())
+        .map(|a| a.topic.as_str())
+        .collect();
+    assert!(cleared.contains(&"homeassistant/sensor/edge/line1_u4_enc0_position/config"));
+    assert!(
+        !cleared.iter().any(|t| t.contains("line1_u3")),
+        "{cleared:?}"
+    );
+    let total = out
+        .iter()
+        .find(|a| a.topic == "homeassistant/sensor/edge/line1_u3_a0_total/config")
+        .expect("the renamed device's total is announced again");
+    let v: Value = serde_json::from_str(&total.payload).unwrap();
+    assert_eq!(v["state_topic"], "pulsegate/edge/energy/a0");
+    assert_eq!(v["unique_id"], "pulsegate_edge_line1_u3_a0_total");
+}
+
+#[test]
+fn with_one_message_per_device_templates_reach_into_the_channel() {
+    let text = CONFIG.replace("id = \"edge\"", "id = \"edge\"\npayload = \"device\"");
+    let mut d = Discovery::new(&config(&text));
+    d.reading(&reading("meter", "a0"));
+    let v = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
+    assert_eq!(v["state_topic"], "pulsegate/edge/meter");
+    assert!(
+        v["value_template"]
+            .as_str()
+            .unwrap()
+            .contains("value_json['a0']['value']")
+    );
+}
+
+#[test]
+fn a_zh_yx1600_pair_in_quadrature_mode_is_a_position_not_a_meter_total() {
+    let text = CONFIG.replace(
+        "model = \"yl67\"\ncommands = false",
+        "model = \"zh-yx1600\"",
+    );
+    let mut d = Discovery::new(&config(&text));
+    let mut r = reading("press", "di1");
+    r.kind = ChannelKind::Encoder;
+    d.reading(&r);
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u4_di1_position/config",
+    );
+    assert_eq!(v["state_class"], "measurement");
+    let mut r = reading("press", "di3");
+    r.kind = ChannelKind::Counter;
+    d.reading(&r);
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u4_di3_total/config",
+    );
+    assert_eq!(v["state_class"], "total_increasing");
+}
+
+#[test]
+fn after_a_full_poll_configs_of_another_work_modes_channels_are_cleared() {
+    let mut d = Discovery::new(&config(CONFIG));
+    // Left over from when encoder 0 of the meter ran in quadrature mode.
+    let old = "homeassistant/sensor/edge/line1_u3_enc0_position/config";
+    assert!(
+        d.config_seen(old, b"{}").is_none(),
+        "possible until the mode is known"
+    );
+    d.reading(&reading("meter", "a0"));
+    d.reading(&reading("meter", "b0"));
+    let settled = d.reading(&reading("meter", "a0"));
+    assert_eq!(settled.len(), 1, "{settled:?}");
+    assert_eq!(
+        (settled[0].topic.as_str(), settled[0].payload.as_str()),
+        (old, "")
+    );
+    let ours = "homeassistant/sensor/edge/line1_u3_a0_total/config";
+    assert!(d.config_seen(ours, b"{}").is_none());
+    let late = "homeassistant/sensor/edge/line1_u3_enc0_rpm/config";
+    assert!(
+        d.config_seen(late, b"{}").is_some(),
+        "a late retained one too"
+    );
+}
+
+#[test]
+fn a_disabled_device_or_channel_has_no_entities_and_its_configs_are_cleared() {
+    let mut d = Discovery::new(&config(CONFIG));
+    d.start();
+    d.reading(&reading("meter", "a0"));
+    d.reading(&reading("meter", "a1"));
+    d.reading(&reading("press", "enc0"));
+    let disabled = CONFIG
+        .replace(
+            "device_class = \"energy\"\n",
+            "device_class = \"energy\"\nenabled = false\n",
+        )
+        .replace("commands = false\n", "commands = false\nenabled = false\n");
+    let out = d.reload(&config(&disabled));
+    let cleared: Vec<&str> = out
+        .iter()
+        .filter(|a| a.payload.is_empty())
+        .map(|a| a.topic.as_str())
+        .collect();
+    for gone in [
+        "homeassistant/sensor/edge/line1_u3_a0_total/config",
+        "homeassistant/sensor/edge/line1_u3_a0_rate/config",
+        "homeassistant/button/edge/line1_u3_a0_clear/config",
+        "homeassistant/sensor/edge/line1_u4_enc0_position/config",
+    ] {
+        assert!(cleared.contains(&gone), "{gone} not in {cleared:?}");
+    }
+    let kept = "homeassistant/sensor/edge/line1_u3_a1_total/config";
+    assert!(!cleared.contains(&kept), "{cleared:?}");
+    // A config of a disabled channel retained on the broker is cleared too, and readings of
+    // disabled ones announce nothing.
+    assert!(
+        d.config_seen("homeassistant/sensor/edge/line1_u3_a0_total/config", b"{}")
+            .is_some()
+    );
+    assert!(d.config_seen(kept, b"{}").is_none());
+    assert!(d.reading(&reading("press", "enc0")).is_empty());
+    assert!(d.reading(&reading("meter", "a0")).is_empty());
+}

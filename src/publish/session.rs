@@ -1,0 +1,326 @@
+//! The MQTT protocol seam: rumqttc's MQTT 5 and MQTT 3.1.1 clients behind one small interface,
+//! so the spool, the send window and the reconnect logic in [`super::mqtt`] are written once.
+//!
+//! What 3.1.1 lacks, and what the gateway does instead:
+//! - no response topic or correlation data: command results go to `<command topic>/result` only;
+//! - no retain-handling option at subscribe: retained command messages are delivered, flagged
+//!   retained, and the router ignores them on receipt (as on v5, where they are also not asked
+//!   for);
+//! - no maximum packet size in CONNACK: messages larger than [`V311_MAX_OUT`] are refused as
+//!   unsendable (rumqttc's own outgoing limit), never retried forever;
+//! - no "session taken over" reason: the broker just closes the connection.
+
+use bytes::Bytes;
+use rumqttc::v5;
+use rumqttc::v5::mqttbytes::v5::{
+    DisconnectReasonCode, Filter, PublishProperties, RetainForwardRule,
+};
+use rumqttc::{Outgoing, Transport};
+
+use crate::config::MqttProtocol;
+
+/// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
+pub const V311_MAX_OUT: u32 = 256 * 1024;
+
+/// Connection options for one protocol.
+#[derive(Clone)]
+#[allow(clippy::large_enum_variant)] // one per gateway: boxing would buy nothing
+pub enum Options {
+    V5(v5::MqttOptions),
+    V311(rumqttc::MqttOptions),
+}
+
+/// What the gateway sets on either protocol.
+pub struct Settings<'a> {
+    pub protocol: MqttProtocol,
+    pub client_id: &'a str,
+    pub host: &'a str,
+    pub port: u16,
+    pub keep_alive: std::time::Duration,
+    /// The largest packet the gateway takes (announced to a v5 broker).
+    pub max_incoming: u32,
+    /// Last will: topic and payload (QoS 1, retained).
+    pub will: (String, &'static str),
+    pub login: Option<(String, String)>,
+    pub transport: Option<Transport>,
+}
+
+impl Options {
+    pub fn new(s: Settings<'_>) -> Options {
+        match s.protocol {
+            MqttProtocol::V5 => {
+                let mut o = v5::MqttOptions::new(s.client_id, s.host, s.port);
+                o.set_keep_alive(s.keep_alive);
+                o.set_max_packet_size(Some(s.max_incoming));
+                o.set_last_will(v5::mqttbytes::v5::LastWill::new(
+                    s.will.0,
+                    s.will.1,
+                    v5::mqttbytes::QoS::AtLeastOnce,
+                    true,
+                    None,
+                ));
+                if let Some((u, p)) = s.login {
+                    o.set_credentials(u, p);
+                }
+                if let Some(t) = s.transport {
+                    o.set_transport(t);
+                }
+                Options::V5(o)
+            }
+            MqttProtocol::V311 => {
+                let mut o = rumqttc::MqttOptions::new(s.client_id, s.host, s.port);
+                o.set_keep_alive(s.keep_alive);
+                o.set_max_packet_size(s.max_incoming as usize, V311_MAX_OUT as usize);
+                o.set_last_will(rumqttc::LastWill::new(
+                    s.will.0,
+                    s.will.1,
+                    rumqttc::QoS::AtLeastOnce,
+                    true,
+                ));
+                if let Some((u, p)) = s.login {
+                    o.set_credentials(u, p);
+                }
+                if let Some(t) = s.transport {
+                    o.set_transport(t);
+                }
+                Options::V311(o)
+            }
+        }
+    }
+
+    /// A fresh client and its event loop (nothing of an earlier one carries over).
+    pub fn connect(&self, cap: usize) -> (Client, EventLoop) {
+        match self {
+            Options::V5(o) => {
+                let (c, e) = v5::AsyncClient::new(o.clone(), cap);
+                (Client::V5(c), EventLoop::V5(e))
+            }
+            Options::V311(o) => {
+                let (c, e) = rumqttc::AsyncClient::new(o.clone(), cap);
+                (Client::V311(c), EventLoop::V311(e))
+            }
+        }
+    }
+}
+
+/// The request side: never waits (rumqttc's queue full is an error the caller retries later).
+#[derive(Clone)]
+pub enum Client {
+    V5(v5::AsyncClient),
+    V311(rumqttc::AsyncClient),
+}
+
+/// rumqttc's request queue is full (or the event loop is gone).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct RequestError(String);
+
+fn v5_qos(level: u8) -> v5::mqttbytes::QoS {
+    match level {
+        0 => v5::mqttbytes::QoS::AtMostOnce,
+        2 => v5::mqttbytes::QoS::ExactlyOnce,
+        _ => v5::mqttbytes::QoS::AtLeastOnce,
+    }
+}
+
+fn v311_qos(level: u8) -> rumqttc::QoS {
+    match level {
+        0 => rumqttc::QoS::AtMostOnce,
+        2 => rumqttc::QoS::ExactlyOnce,
+        _ => rumqttc::QoS::AtLeastOnce,
+    }
+}
+
+fn req<E: std::fmt::Display>(r: Result<(), E>) -> Result<(), RequestError> {
+    r.map_err(|e| RequestError(e.to_string()))
+}
+
+impl Client {
+    /// Publishes; `correlation` goes out as v5 correlation data and is dropped on 3.1.1.
+    pub fn publish(
+        &self,
+        topic: String,
+        qos: u8,
+        retain: bool,
+        payload: Bytes,
+        correlation: Option<&[u8]>,
+    ) -> Result<(), RequestError> {
+        match self {
+            Client::V5(c) => match correlation {
+                Some(data) => {
+                    let props = PublishProperties {
+                        correlation_data: Some(Bytes::copy_from_slice(data)),
+                        ..Default::default()
+                    };
+                    req(c.try_publish_with_properties(topic, v5_qos(qos), retain, payload, props))
+                }
+                None => req(c.try_publish(topic, v5_qos(qos), retain, payload)),
+            },
+            Client::V311(c) => req(c.try_publish(topic, v311_qos(qos), retain, payload.to_vec())),
+        }
+    }
+
+    pub fn subscribe(&self, filter: String) -> Result<(), RequestError> {
+        match self {
+            Client::V5(c) => req(c.try_subscribe(filter, v5_qos(1))),
+            Client::V311(c) => req(c.try_subscribe(filter, v311_qos(1))),
+        }
+    }
+
+    /// Subscribes to command topics: on v5 without the retained messages (retain handling 2);
+    /// 3.1.1 cannot say so, and the router drops what arrives flagged retained.
+    pub fn subscribe_commands(&self, filters: &[String]) -> Result<(), RequestError> {
+        match self {
+            Client::V5(c) => req(c.try_subscribe_many(filters.iter().map(|f| {
+                let mut f = Filter::new(f.clone(), v5_qos(1));
+                f.retain_forward_rule = RetainForwardRule::Never;
+                f
+            }))),
+            Client::V311(c) => req(c.try_subscribe_many(
+                filters
+                    .iter()
+                    .map(|f| rumqttc::SubscribeFilter::new(f.clone(), v311_qos(1))),
+            )),
+        }
+    }
+
+    pub fn disconnect(&self) -> Result<(), RequestError> {
+        match self {
+            Client::V5(c) => req(c.try_disconnect()),
+            Client::V311(c) => req(c.try_disconnect()),
+        }
+    }
+}
+
+/// A message that arrived (commands, the boot marker).
+#[derive(Debug, Clone)]
+pub struct Received {
+    pub topic: Bytes,
+    pub payload: Bytes,
+    pub retain: bool,
+    /// v5 only.
+    pub response_topic: Option<String>,
+    pub correlation: Option<Bytes>,
+}
+
+/// What the event loop reports, the same for both protocols.
+#[derive(Debug)]
+pub enum Event {
+    /// Connected; the broker's maximum packet size where it says (v5), our own limit on 3.1.1.
+    ConnAck {
+        max_packet: Option<u32>,
+    },
+    /// rumqttc sent a publish with this packet id (0 for QoS 0).
+    Sent(u16),
+    /// The broker acknowledged this packet id (PUBACK, or PUBCOMP for QoS 2).
+    Acked(u16),
+    Received(Received),
+    /// Our DISCONNECT went out.
+    Disconnected,
+    Other,
+}
+
+/// Why the connection failed.
+#[derive(Debug)]
+pub enum Failure {
+    /// The client was dropped: nothing more will come.
+    RequestsDone,
+    /// Another client connected with our client id (v5 says so; 3.1.1 just closes).
+    TakenOver,
+    Other(String),
+}
+
+impl std::fmt::Display for Failure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Failure::RequestsDone => f.write_str("client closed"),
+            Failure::TakenOver => f.write_str("session taken over by another client"),
+            Failure::Other(m) => f.write_str(m),
+        }
+    }
+}
+
+/// The connection side, polled by one task.
+#[allow(clippy::large_enum_variant)] // one per gateway: boxing would buy nothing
+pub enum EventLoop {
+    V5(v5::EventLoop),
+    V311(rumqttc::EventLoop),
+}
+
+impl EventLoop {
+    pub async fn poll(&mut self) -> Result<Event, Failure> {
+        match self {
+            EventLoop::V5(e) => e.poll().await.map(v5_event).map_err(v5_failure),
+            EventLoop::V311(e) => e.poll().await.map(v311_event).map_err(v311_failure),
+        }
+    }
+}
+
+fn outgoing(o: Outgoing) -> Event {
+    match o {
+        Outgoing::Publish(pkid) => Event::Sent(pkid),
+        Outgoing::Disconnect => Event::Disconnected,
+        _ => Event::Other,
+    }
+}
+
+fn v5_event(e: v5::Event) -> Event {
+    use v5::mqttbytes::v5::Packet;
+    match e {
+        v5::Event::Outgoing(o) => outgoing(o),
+        v5::Event::Incoming(Packet::ConnAck(ack)) => Event::ConnAck {
+            max_packet: ack.properties.and_then(|p| p.max_packet_size),
+        },
+        v5::Event::Incoming(Packet::PubAck(a)) => Event::Acked(a.pkid),
+        v5::Event::Incoming(Packet::PubComp(c)) => Event::Acked(c.pkid),
+        v5::Event::Incoming(Packet::Publish(p)) => {
+            let props = p.properties.unwrap_or_default();
+            Event::Received(Received {
+                topic: p.topic,
+                payload: p.payload,
+                retain: p.retain,
+                response_topic: props.response_topic,
+                correlation: props.correlation_data,
+            })
+        }
+        v5::Event::Incoming(_) => Event::Other,
+    }
+}
+
+fn v311_event(e: rumqttc::Event) -> Event {
+    use rumqttc::Packet;
+    match e {
+        rumqttc::Event::Outgoing(o) => outgoing(o),
+        rumqttc::Event::Incoming(Packet::ConnAck(_)) => Event::ConnAck {
+            max_packet: Some(V311_MAX_OUT),
+        },
+        rumqttc::Event::Incoming(Packet::PubAck(a)) => Event::Acked(a.pkid),
+        rumqttc::Event::Incoming(Packet::PubComp(c)) => Event::Acked(c.pkid),
+        rumqttc::Event::Incoming(Packet::Publish(p)) => Event::Received(Received {
+            topic: Bytes::from(p.topic),
+            payload: p.payload,
+            retain: p.retain,
+            response_topic: None,
+            correlation: None,
+        }),
+        rumqttc::Event::Incoming(_) => Event::Other,
+    }
+}
+
+fn v5_failure(e: v5::ConnectionError) -> Failure {
+    match e {
+        v5::ConnectionError::RequestsDone => Failure::RequestsDone,
+        v5::ConnectionError::MqttState(v5::StateError::ServerDisconnect {
+            reason_code: DisconnectReasonCode::SessionTakenOver,
+            ..
+        }) => Failure::TakenOver,
+        other => Failure::Other(other.to_string()),
+    }
+}
+
+fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
+    match e {
+        rumqttc::ConnectionError::RequestsDone => Failure::RequestsDone,
+        other => Failure::Other(other.to_string()),
+    }
+}
