@@ -254,7 +254,7 @@ async fn one_silent(figures: &mut Vec<Figure>) {
 
 /// CPU time of the pipeline stages for one transaction of 4 channels, in-process.
 fn pipeline_cpu(figures: &mut Vec<Figure>) {
-    use pulsegate::counter::{Counter, CounterSpec};
+    use pulsegate::counter::{Counter, CounterSpec, Direction, Stamp};
     use pulsegate::decode::decode;
     use pulsegate::profile::{Profiles, ValueType};
     use pulsegate::reading::Reading;
@@ -262,7 +262,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
     let channels = profile.channels(&[0, 0, 0, 0]).unwrap();
     let spec = CounterSpec {
         modulus: 1 << 32,
-        signed: true,
+        direction: Direction::Both,
         max_rate_hz: 50_000.0,
     };
     let mut counters: Vec<Counter> = channels.iter().map(|_| Counter::new(spec)).collect();
@@ -275,7 +275,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
         for (c, (ch, counter)) in channels.iter().zip(counters.iter_mut()).enumerate() {
             let count = decode(&words[c * 2..], ValueType::I32, profile.word_order).as_i64();
             let ts = SystemTime::now();
-            if let Some(update) = counter.update(count + i as i64, i * 10) {
+            if let Some(update) = counter.update(count + i as i64, Stamp::at(i * 10)) {
                 let r = Reading {
                     device: "d".into(),
                     channel: ch.name.as_str().into(),

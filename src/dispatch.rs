@@ -27,7 +27,7 @@ fn targets_of(
         .filter_map(|(bus, d)| {
             let target = Target {
                 bus: buses.get(&bus.name)?.clone(),
-                commands: d.commands,
+                commands: d.commands && d.enabled && bus.enabled,
                 channels: d
                     .profile
                     .all_channels()

@@ -30,6 +30,7 @@ pub mod profile;
 pub mod publish;
 pub mod reading;
 pub mod report;
+pub mod saved;
 pub mod sim;
 pub mod state;
 pub mod systemd;

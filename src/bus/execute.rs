@@ -12,7 +12,7 @@ use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
 use crate::decode::{decode, encode_int};
 use crate::profile::Register;
-use crate::reading::{Reading, unix_ms};
+use crate::reading::Reading;
 
 /// The outcome of a command: readings to publish (booked counts and the event readings) and the
 /// result (the count read back for a single channel).
@@ -80,10 +80,10 @@ impl DeviceRt {
             let ch = &mut self.channels[i];
             if let Some((w, at)) = before.get(&ch.spec.count) {
                 let count = decode(w, ch.spec.count.ty, order).as_i64();
-                let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+                let Some(update) = ch.counter.update(count, at.stamp) else {
                     continue;
                 };
-                readings.push(ch.reading(&self.name, at, count, None, None, update));
+                readings.push(ch.reading(&self.name, at.wall, count, None, None, update));
             }
         }
         // 2. Write.
@@ -135,12 +135,12 @@ impl DeviceRt {
             let update = if (got - expected).abs() > slack {
                 // The write did not take as asked: book nothing, go on from what is there.
                 mismatch.get_or_insert(CommandError::ReadBack { expected, got });
-                ch.counter.rebase(got, unix_ms(at), event)
+                ch.counter.rebase(got, at.stamp, event)
             } else {
                 // Pulses counted between the write and the read-back are booked.
-                ch.counter.rebase_from(expected, got, unix_ms(at), event)
+                ch.counter.rebase_from(expected, got, at.stamp, event)
             };
-            readings.push(ch.reading(&self.name, at, got, None, None, update));
+            readings.push(ch.reading(&self.name, at.wall, got, None, None, update));
             single = Some(got);
         }
         match mismatch {
@@ -184,25 +184,23 @@ impl DeviceRt {
                     .map_err(write_failed)?
                     .map_err(exception)?;
             } else {
-                // The register also runs the counter: note its direction, clear, restart it so.
+                // The register also runs the counter: note its state (up, down, paused or
+                // stopped), clear (which stops it), and put it back in that state.
                 let state = link
                     .read(self.unit, clear.register, 1, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                let restart = if clear.restart.contains(&state[0]) {
-                    state[0]
-                } else {
-                    clear.restart[0]
-                };
                 link.write_register(self.unit, clear.register, clear.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                link.write_register(self.unit, clear.register, restart, timeout)
-                    .await
-                    .map_err(write_failed)?
-                    .map_err(exception)?;
+                if state[0] != clear.code {
+                    link.write_register(self.unit, clear.register, state[0], timeout)
+                        .await
+                        .map_err(write_failed)?
+                        .map_err(exception)?;
+                }
             }
         }
         Ok(())

@@ -5,8 +5,10 @@ mod availability;
 pub mod device;
 mod emit;
 mod execute;
+mod identity;
 mod ledger;
 pub mod link;
+mod run;
 mod saver;
 pub mod schedule;
 pub mod survey;
@@ -118,6 +120,7 @@ impl BusTask {
         let mut devices: Vec<DeviceRt> = bus
             .devices
             .iter()
+            .filter(|d| d.enabled)
             .map(|d| {
                 DeviceRt::new(
                     bus,
@@ -129,7 +132,12 @@ impl BusTask {
                 .with_metrics(self.metrics.device(&d.name))
             })
             .collect();
-        log_dropped_state(&name, &saved, &devices);
+        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
+        let known = identity::known(&configured);
+        for d in &mut devices {
+            d.known = known.clone();
+        }
+        durable.orphans = unclaimed(&name, &saved, &devices);
 
         let start = Instant::now();
         let mut slots: Vec<Slot> = devices
@@ -211,7 +219,9 @@ impl BusTask {
             }
             let now = Instant::now();
             if now >= flush_at {
-                durable.saver.start(snapshot(&devices, false));
+                durable
+                    .saver
+                    .start(snapshot(&devices, &durable.orphans, false));
                 flush_at = now + self.state_flush;
             }
             if now >= stats_at {
@@ -263,10 +273,16 @@ impl BusTask {
                         }
                     }
                     self.heart.set_up(true);
-                    availability::answered(&mut devices[i], &name, &self.out);
-                    let outputs = self.emitter.emit(&mut devices[i], readings);
+                    let d = &mut devices[i];
+                    availability::answered(d, &name, &self.out);
+                    availability::mode_mismatch(d, &self.out);
+                    let outputs = self.emitter.emit(d, readings);
                     durable.publish(outputs, i, &devices, &self.out);
                     slots[i].advance(now);
+                }
+                Err(PollError::WrongModel(why)) => {
+                    availability::wrong_model(d, why, &name, &self.out);
+                    slots[i].defer_to(now + bus.backoff_max);
                 }
                 Err(e) => {
                     let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());
@@ -379,11 +395,13 @@ async fn run_one_command(
     ran
 }
 
-/// The bus's state now; `clean` only for the save after the last reading at shutdown.
-fn snapshot(devices: &[DeviceRt], clean: bool) -> BusState {
+/// The bus's state now: every device's, plus the saved state no configured device claims
+/// (kept, never attached to another meter); `clean` only for the save after the last reading
+/// at shutdown.
+fn snapshot(devices: &[DeviceRt], orphans: &BusState, clean: bool) -> BusState {
     let mut s = BusState {
         clean,
-        ..BusState::default()
+        ..orphans.clone()
     };
     for d in devices {
         s.channels.extend(d.counter_states());
@@ -397,17 +415,28 @@ fn snapshot(devices: &[DeviceRt], clean: bool) -> BusState {
     s
 }
 
-/// Saved channels that no configured device can have are not attached to anything: say so.
-fn log_dropped_state(bus: &str, saved: &BusState, devices: &[DeviceRt]) {
-    let kept: std::collections::BTreeSet<String> = devices
+/// Saved state that no configured (and enabled) device can have: kept as it is, so a device
+/// taken out of the config or disabled resumes its total, with a gap, when it comes back.
+/// `pulsegate state prune` removes it.
+fn unclaimed(bus: &str, saved: &BusState, devices: &[DeviceRt]) -> BusState {
+    let claimed: std::collections::BTreeSet<String> = devices
         .iter()
         .flat_map(|d| d.counter_states().into_keys())
         .collect();
+    let holes: std::collections::BTreeSet<String> = devices.iter().map(|d| d.holes_key()).collect();
+    let mut out = BusState::default();
     for (key, state) in &saved.channels {
-        if !kept.contains(key) {
-            tracing::warn!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; dropped");
+        if !claimed.contains(key) {
+            tracing::info!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; kept for when it comes back");
+            out.channels.insert(key.clone(), state.clone());
         }
     }
+    for (key, h) in &saved.holes {
+        if !holes.contains(key) {
+            out.holes.insert(key.clone(), h.clone());
+        }
+    }
+    out
 }
 
 fn percentile(sorted: &[f64], p: f64) -> Option<f64> {

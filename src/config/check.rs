@@ -7,7 +7,7 @@ use std::time::Duration;
 use config::Value;
 
 use super::walk::{Errors, Table, join};
-use super::{Bus, ChannelConfig, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
+use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
 /// Longest answer timeout (a module that needs longer is not answering).
@@ -373,8 +373,8 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let has_host = t.has("host");
     let link = if has_host {
         let host = t.req::<String>("host", errs);
-        let port = t.int::<u16>("port", errs).unwrap_or(502);
-        if port == 0 {
+        let port = t.int::<u16>("port", errs).unwrap_or(0);
+        if port == 0 && has_port {
             errs.push(
                 &join(&path, "port"),
                 t.origin(),
@@ -428,6 +428,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         None
     };
 
+    let t_origin = t.origin().map(str::to_string);
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let guard = t
         .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
@@ -456,6 +457,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let slow_poll = t
         .duration("slow_poll", errs)
         .unwrap_or(Duration::from_secs(60));
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
 
     let mut devices = Vec::new();
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
@@ -488,15 +490,22 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         }
     }
     t.finish(errs);
+    let mut link = link?;
+    if let Link::Tcp { port, .. } = &mut link
+        && *port == 0
+    {
+        *port = default_tcp_port(&path, &devices, t_origin.as_deref(), errs);
+    }
     Some(Bus {
         name: name.to_string(),
-        link: link?,
+        link,
         timeout,
         guard,
         offline_after,
         backoff_min,
         backoff_max,
         slow_poll,
+        enabled,
         devices,
     })
 }
@@ -551,6 +560,7 @@ fn device(
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
     let baud = t.int::<u32>("baud", errs);
     if let (Some(b), Some(p)) = (baud, &profile)
         && !p.bauds.contains(&b)
@@ -569,41 +579,11 @@ fn device(
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
-        let Some(mut ct) = Table::of(cvalue, &cpath, errs) else {
+        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
             continue;
         };
-        if let Some(p) = &profile
-            && !p.all_channels().iter().any(|c| c.name == cname)
-        {
-            errs.push(
-                &cpath,
-                ct.origin(),
-                format!("model {} has no channel {cname}", p.model),
-            );
-        }
-        let ppr = ct.opt::<f64>("ppr", errs);
-        let max_rate_hz = ct.opt::<f64>("max_rate_hz", errs);
-        for (key, v) in [("ppr", ppr), ("max_rate_hz", max_rate_hz)] {
-            if v.is_some_and(|v| !(v > 0.0 && v.is_finite())) {
-                errs.push(
-                    &join(&cpath, key),
-                    ct.origin(),
-                    "must be a number greater than zero",
-                );
-            }
-        }
-        let units = super::channel::units(&mut ct, errs);
-        let publish = super::publish::policy(&mut ct, errs);
-        ct.finish(errs);
-        channels.insert(
-            cname,
-            ChannelConfig {
-                ppr,
-                max_rate_hz,
-                units,
-                publish,
-            },
-        );
+        let c = super::channel::channel(ct, &cname, profile.as_deref(), errs);
+        channels.insert(cname, c);
     }
     t.finish(errs);
     Some(Device {
@@ -616,7 +596,39 @@ fn device(
         commands,
         baud,
         channels,
+        enabled,
         publish,
         payload,
     })
+}
+
+/// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:
+/// 20108), or Modbus's 502 when none gives one. Devices whose datasheets disagree need `port`.
+fn default_tcp_port(
+    path: &str,
+    devices: &[Device],
+    origin: Option<&str>,
+    errs: &mut Errors,
+) -> u16 {
+    let given: std::collections::BTreeSet<(u16, &str)> = devices
+        .iter()
+        .map(|d| (d.profile.tcp_port.unwrap_or(502), d.profile.model.as_str()))
+        .collect();
+    let ports: std::collections::BTreeSet<u16> = given.iter().map(|(p, _)| *p).collect();
+    match ports.len() {
+        0 => 502,
+        1 => *ports.first().expect("one"),
+        _ => {
+            let list: Vec<String> = given
+                .iter()
+                .map(|(p, m)| format!("{m} listens on {p}"))
+                .collect();
+            errs.push(
+                &join(path, "port"),
+                origin,
+                format!("missing, and the datasheets disagree: {}", list.join(", ")),
+            );
+            502
+        }
+    }
 }

@@ -315,9 +315,13 @@ fn rate(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) ->
 }
 
 /// Every entity of one channel of a module: total, rate, frequency and rpm where the model has
-/// them, and a clear button where commands are enabled.
+/// them, and a clear button where commands are enabled. None for a channel with
+/// `enabled = false` (not published, so its configs are cleared).
 pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<Entity> {
     let ch = &spec.name;
+    if m.device.channels.get(ch).is_some_and(|c| !c.enabled) {
+        return Vec::new();
+    }
     let units = m
         .device
         .channels
@@ -396,7 +400,7 @@ pub fn possible_topics(site: &Site, config: &Config) -> BTreeSet<String> {
         .iter()
         .map(|e| e.topic(site))
         .collect();
-    for (bus, device) in config.devices() {
+    for (bus, device) in config.enabled_devices() {
         let m = Module {
             bus: &bus.name,
             device,

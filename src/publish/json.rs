@@ -49,6 +49,9 @@ impl Format for Json {
                 let word = if *online { "online" } else { "offline" };
                 vec![Message::new(t.device_status(device), word, 1, true)]
             }
+            Output::DeviceProblem { device, status } => {
+                vec![Message::new(t.device_status(device), *status, 1, true)]
+            }
             Output::BusStats { bus, stats } => {
                 // Health is of the moment: not worth spooling.
                 let mut m = Message::new(t.bus_stats(bus), stats.to_string(), 0, false);

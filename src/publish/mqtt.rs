@@ -330,6 +330,7 @@ fn handle(task: &Task, format: &dyn Format, shell: &Mutex<Shell>, out: Output) {
             return;
         }
         Output::DeviceStatus { device, online } => task.health.device(device, *online),
+        Output::DeviceProblem { device, .. } => task.health.device(device, false),
         Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
         _ => {}
     }

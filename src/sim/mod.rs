@@ -6,6 +6,7 @@
 
 mod comm;
 mod config;
+mod datasheet;
 pub mod gateway;
 pub mod line;
 pub mod model;

@@ -286,10 +286,16 @@ pub fn bin() -> &'static str {
 
 impl Gateway {
     pub fn start(config: &Path) -> Gateway {
+        Self::start_with_env(config, &[])
+    }
+
+    /// Starts the gateway with extra environment variables (e.g. libfaketime's).
+    pub fn start_with_env(config: &Path, env: &[(&str, &str)]) -> Gateway {
         let log = config.with_extension("log");
         let child = Command::new(bin())
             .args(["run", "--config"])
             .arg(config)
+            .envs(env.iter().copied())
             .env("RUST_LOG", "info,pulsegate=debug")
             .env_remove("PULSEGATE__MQTT__PORT")
             .stdout(Stdio::null())
