@@ -284,27 +284,7 @@ impl DeviceRt {
         link: &mut Link,
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Vec<Reading>, PollError> {
-        if self.identify_due {
-            self.check_identity(link).await?;
-        }
-        let slow_due = self
-            .last_slow
-            .is_none_or(|t| t.elapsed() >= self.slow_every);
-        if self.modes.is_none() {
-            // Without the work modes there are no channels: discovery must succeed.
-            self.read_slow(link, preempt).await?;
-        } else if slow_due {
-            // Once discovered, a failed refresh of the slow registers keeps the values known
-            // and tries again a slow interval later; the counts matter more.
-            match self.read_slow(link, preempt).await {
-                Err(PollError::Preempted) => return Err(PollError::Preempted),
-                Err(e) => {
-                    tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
-                    self.last_slow = Some(Instant::now());
-                }
-                Ok(()) => {}
-            }
-        }
+        self.discover(link, preempt).await?;
         let fast = std::mem::take(&mut self.fast);
         let snapshot = self.read_registers(link, &fast, preempt).await;
         self.fast = fast;
@@ -370,13 +350,49 @@ impl DeviceRt {
         if restarted {
             self.module_restarted();
         }
+        self.note_good_poll();
+        Ok(readings)
+    }
+
+    /// Discovery when due (identity, then the work modes and slow registers that give the
+    /// channels), and the slow registers' refresh.
+    pub async fn discover(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        if self.identify_due {
+            self.check_identity(link).await?;
+        }
+        let slow_due = self
+            .last_slow
+            .is_none_or(|t| t.elapsed() >= self.slow_every);
+        if self.modes.is_none() {
+            // Without the work modes there are no channels: discovery must succeed.
+            self.read_slow(link, preempt).await?;
+        } else if slow_due {
+            // Once discovered, a failed refresh of the slow registers keeps the values known
+            // and tries again a slow interval later; the counts matter more.
+            match self.read_slow(link, preempt).await {
+                Err(PollError::Preempted) => return Err(PollError::Preempted),
+                Err(e) => {
+                    tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
+                    self.last_slow = Some(Instant::now());
+                }
+                Ok(()) => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// The achieved poll interval (moving average), for the bus stats.
+    fn note_good_poll(&mut self) {
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
             let gap = (now - last).as_secs_f64();
             self.achieved_interval =
                 Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
         }
-        Ok(readings)
     }
 
     /// The module restarted (or was reset by someone else): it may be another module now, and

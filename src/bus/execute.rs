@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::DeviceRt;
+use super::device::{DeviceRt, Snapshot};
 use super::link::Link;
 use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
@@ -43,29 +43,7 @@ impl DeviceRt {
         req: &Request,
         readings: &mut Vec<Reading>,
     ) -> Result<Option<i64>, CommandError> {
-        let targets: Vec<usize> = match (&req.channel, req.op) {
-            (Some(name), _) => {
-                let i = self
-                    .channels
-                    .iter()
-                    .position(|c| &*c.name == name)
-                    .ok_or_else(|| CommandError::UnknownChannel {
-                        device: self.name.to_string(),
-                        channel: name.clone(),
-                    })?;
-                vec![i]
-            }
-            (None, _) => (0..self.channels.len()).collect(),
-        };
-        if let Op::Preset(v) = req.op {
-            let ch = &self.channels[targets[0]];
-            if !ch.spec.accepts_preset(v) {
-                return Err(CommandError::OutOfRange {
-                    channel: ch.name.to_string(),
-                    value: v,
-                });
-            }
-        }
+        let targets = self.targets_of(req)?;
         // 1. Book what was counted up to now.
         let counts: Vec<Register> = targets
             .iter()
@@ -88,34 +66,87 @@ impl DeviceRt {
         }
         // 2. Write.
         let written = Instant::now();
-        let expected: i64 =
-            match req.op {
-                Op::Preset(v) => {
-                    let ch = &self.channels[targets[0]];
-                    let words = encode_int(v, ch.spec.count.ty, self.profile.word_order)
-                        .ok_or_else(|| CommandError::OutOfRange {
-                            channel: ch.name.to_string(),
-                            value: v,
-                        })?;
-                    let timeout = self.timeout_for(link, 0);
-                    link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
-                        .await
-                        .map_err(write_failed)?
-                        .map_err(exception)?;
-                    v
-                }
-                Op::Clear | Op::ClearAll => {
-                    self.write_clears(link, &targets, req.op == Op::ClearAll)
-                        .await?;
-                    0
-                }
-            };
+        let expected = self.write(link, req, &targets).await?;
         // 3. Read back and rebase.
         let after = self
             .read_registers(link, &counts, &|| false)
             .await
             .map_err(|e| write_failed(format!("reading back: {e}")))?;
         let elapsed_ms = written.elapsed().as_millis() as u64;
+        self.rebase(req, &targets, &after, expected, elapsed_ms, readings)
+    }
+
+    /// The channels `req` acts on; a preset out of the channel's range is refused here.
+    fn targets_of(&self, req: &Request) -> Result<Vec<usize>, CommandError> {
+        let targets: Vec<usize> = match &req.channel {
+            Some(name) => {
+                let i = self
+                    .channels
+                    .iter()
+                    .position(|c| &*c.name == name)
+                    .ok_or_else(|| CommandError::UnknownChannel {
+                        device: self.name.to_string(),
+                        channel: name.clone(),
+                    })?;
+                vec![i]
+            }
+            None => (0..self.channels.len()).collect(),
+        };
+        if let Op::Preset(v) = req.op {
+            let ch = &self.channels[targets[0]];
+            if !ch.spec.accepts_preset(v) {
+                return Err(CommandError::OutOfRange {
+                    channel: ch.name.to_string(),
+                    value: v,
+                });
+            }
+        }
+        Ok(targets)
+    }
+
+    /// Writes the preset or the clears; returns the count expected afterwards.
+    async fn write(
+        &mut self,
+        link: &mut Link,
+        req: &Request,
+        targets: &[usize],
+    ) -> Result<i64, CommandError> {
+        match req.op {
+            Op::Preset(v) => {
+                let ch = &self.channels[targets[0]];
+                let words =
+                    encode_int(v, ch.spec.count.ty, self.profile.word_order).ok_or_else(|| {
+                        CommandError::OutOfRange {
+                            channel: ch.name.to_string(),
+                            value: v,
+                        }
+                    })?;
+                let timeout = self.timeout_for(link, 0);
+                link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+                Ok(v)
+            }
+            Op::Clear | Op::ClearAll => {
+                self.write_clears(link, targets, req.op == Op::ClearAll)
+                    .await?;
+                Ok(0)
+            }
+        }
+    }
+
+    /// Rebases the counters on what was read back (`after`), booking the pulses counted
+    /// between the write and the read-back; a count that is not what was written is an error.
+    fn rebase(
+        &mut self,
+        req: &Request,
+        targets: &[usize],
+        after: &Snapshot,
+        expected: i64,
+        elapsed_ms: u64,
+        readings: &mut Vec<Reading>,
+    ) -> Result<Option<i64>, CommandError> {
         let event = if matches!(req.op, Op::Preset(_)) {
             Event::Preset
         } else {
@@ -123,7 +154,7 @@ impl DeviceRt {
         };
         let mut mismatch = None;
         let mut single = None;
-        for &i in &targets {
+        for &i in targets {
             let order = self.profile.word_order;
             let ch = &mut self.channels[i];
             let Some((w, at)) = after.get(&ch.spec.count) else {

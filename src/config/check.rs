@@ -369,64 +369,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             "bus name must be letters, digits, '-' or '_'",
         );
     }
-    let has_port = t.has("port");
-    let has_host = t.has("host");
-    let link = if has_host {
-        let host = t.req::<String>("host", errs);
-        let port = t.int::<u16>("port", errs).unwrap_or(0);
-        if port == 0 && has_port {
-            errs.push(
-                &join(&path, "port"),
-                t.origin(),
-                "TCP port must be 1..65535",
-            );
-        }
-        for key in ["baud", "parity", "stop_bits"] {
-            if t.has(key) {
-                let _ = t.opt::<toml::Value>(key, errs);
-                errs.push(&join(&path, key), t.origin(), "serial setting on a TCP bus");
-            }
-        }
-        host.map(|host| Link::Tcp { host, port })
-    } else if has_port {
-        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
-        if !BAUDS.contains(&baud) {
-            errs.push(
-                &join(&path, "baud"),
-                t.origin(),
-                format!("{baud} is not a rate the modules support ({BAUDS:?})"),
-            );
-        }
-        let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
-        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
-        if !(1..=2).contains(&stop_bits) {
-            errs.push(&join(&path, "stop_bits"), t.origin(), "must be 1 or 2");
-        }
-        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
-            let ok = p.is_absolute();
-            if !ok {
-                errs.push(
-                    &join(&path, "port"),
-                    t.origin(),
-                    "must be an absolute path such as /dev/ttyUSB0",
-                );
-            }
-            ok
-        });
-        port.map(|port| Link::Rtu {
-            port,
-            baud,
-            parity,
-            stop_bits,
-        })
-    } else {
-        errs.push(
-            &path,
-            t.origin(),
-            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP)",
-        );
-        None
-    };
+    let link = bus_link(&mut t, &path, errs);
 
     let t_origin = t.origin().map(str::to_string);
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
@@ -459,27 +402,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         .unwrap_or(Duration::from_secs(60));
     let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
 
-    let mut devices = Vec::new();
-    let mut units: BTreeMap<u8, String> = BTreeMap::new();
-    let entries = t.entries("devices", errs);
-    if entries.is_empty() {
-        errs.push(&join(&path, "devices"), t.origin(), "no device on this bus");
-    }
-    for (dname, dvalue) in entries {
-        if let Some(d) = device(&path, &dname, dvalue, profiles, errs) {
-            if let Some(other) = units.insert(d.unit, d.name.clone()) {
-                errs.push(
-                    &format!("{path}.devices.{dname}.unit"),
-                    dvalue.origin(),
-                    format!(
-                        "unit {} is already used by device {other} on this bus",
-                        d.unit
-                    ),
-                );
-            }
-            devices.push(d);
-        }
-    }
+    let devices = bus_devices(&mut t, &path, profiles, errs);
     if matches!(link, Some(Link::Tcp { .. })) {
         for d in devices.iter().filter(|d| d.baud.is_some()) {
             errs.push(
@@ -508,6 +431,95 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         enabled,
         devices,
     })
+}
+
+/// The bus's link: `host` (Modbus TCP) or `port` (a serial device, Modbus RTU) and its settings.
+fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Link> {
+    let has_port = t.has("port");
+    let has_host = t.has("host");
+    if has_host {
+        let host = t.req::<String>("host", errs);
+        let port = t.int::<u16>("port", errs).unwrap_or(0);
+        if port == 0 && has_port {
+            errs.push(&join(path, "port"), t.origin(), "TCP port must be 1..65535");
+        }
+        for key in ["baud", "parity", "stop_bits"] {
+            if t.has(key) {
+                let _ = t.opt::<toml::Value>(key, errs);
+                errs.push(&join(path, key), t.origin(), "serial setting on a TCP bus");
+            }
+        }
+        host.map(|host| Link::Tcp { host, port })
+    } else if has_port {
+        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
+        if !BAUDS.contains(&baud) {
+            errs.push(
+                &join(path, "baud"),
+                t.origin(),
+                format!("{baud} is not a rate the modules support ({BAUDS:?})"),
+            );
+        }
+        let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
+        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
+        if !(1..=2).contains(&stop_bits) {
+            errs.push(&join(path, "stop_bits"), t.origin(), "must be 1 or 2");
+        }
+        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
+            let ok = p.is_absolute();
+            if !ok {
+                errs.push(
+                    &join(path, "port"),
+                    t.origin(),
+                    "must be an absolute path such as /dev/ttyUSB0",
+                );
+            }
+            ok
+        });
+        port.map(|port| Link::Rtu {
+            port,
+            baud,
+            parity,
+            stop_bits,
+        })
+    } else {
+        errs.push(
+            path,
+            t.origin(),
+            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP)",
+        );
+        None
+    }
+}
+
+/// The devices of a bus; a unit used twice is an error.
+fn bus_devices(
+    t: &mut Table<'_>,
+    path: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> Vec<super::Device> {
+    let mut devices = Vec::new();
+    let mut units: BTreeMap<u8, String> = BTreeMap::new();
+    let entries = t.entries("devices", errs);
+    if entries.is_empty() {
+        errs.push(&join(path, "devices"), t.origin(), "no device on this bus");
+    }
+    for (dname, dvalue) in entries {
+        if let Some(d) = device(path, &dname, dvalue, profiles, errs) {
+            if let Some(other) = units.insert(d.unit, d.name.clone()) {
+                errs.push(
+                    &format!("{path}.devices.{dname}.unit"),
+                    dvalue.origin(),
+                    format!(
+                        "unit {} is already used by device {other} on this bus",
+                        d.unit
+                    ),
+                );
+            }
+            devices.push(d);
+        }
+    }
+    devices
 }
 
 fn device(
@@ -543,20 +555,9 @@ fn device(
         }
     });
     let model = t.req::<String>("model", errs);
-    let profile = model.as_ref().and_then(|m| {
-        let p = profiles.get(m);
-        if p.is_none() {
-            errs.push(
-                &join(&path, "model"),
-                t.origin(),
-                format!(
-                    "unknown model {m:?}; known: {}",
-                    profiles.names().join(", ")
-                ),
-            );
-        }
-        p
-    });
+    let profile = model
+        .as_ref()
+        .and_then(|m| device_profile(&t, &path, m, profiles, errs));
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
@@ -600,6 +601,23 @@ fn device(
         publish,
         payload,
     })
+}
+
+/// The profile of `model`; an unknown model is an error naming the known ones.
+fn device_profile(
+    t: &Table<'_>,
+    path: &str,
+    model: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> Option<std::sync::Arc<crate::profile::Profile>> {
+    let p = profiles.get(model);
+    if p.is_none() {
+        let known = profiles.names().join(", ");
+        let why = format!("unknown model {model:?}; known: {known}");
+        errs.push(&join(path, "model"), t.origin(), why);
+    }
+    p
 }
 
 /// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:

@@ -159,6 +159,9 @@ fn every_format_name_the_config_takes_is_built() {
         let mut c = config();
         c.format = (*name).to_string();
         let built = build(&c);
-        assert!(!render(&*built, &Output::Reading(reading(1))).is_empty(), "{name}");
+        assert!(
+            !render(&*built, &Output::Reading(reading(1))).is_empty(),
+            "{name}"
+        );
     }
 }
