@@ -11,7 +11,6 @@ use tokio_modbus::ExceptionCode;
 use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
 use super::run::RunState;
-use super::schedule::Backoff;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, CounterState, Direction, Stamp};
 use crate::decode::decode;
@@ -157,10 +156,8 @@ pub struct DeviceRt {
     saved: BTreeMap<String, CounterState>,
     last_slow: Option<Instant>,
     slow_every: Duration,
-    pub failures: u32,
-    pub online: Option<bool>,
-    pub backoff: Backoff,
-    pub last_error: Option<String>,
+    /// Online, offline, not yet seen; failures and backoff (a state machine of its own).
+    pub availability: super::availability::Availability,
     /// Poll latencies (seconds), most recent last, for p50/p99.
     pub latencies: std::collections::VecDeque<f64>,
     /// The last plan: registers, holes known, wire prices, and the reads.
@@ -221,10 +218,11 @@ impl DeviceRt {
                 .collect(),
             last_slow: None,
             slow_every: bus.slow_poll,
-            failures: 0,
-            online: None,
-            backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
-            last_error: None,
+            availability: super::availability::Availability::new(
+                bus.offline_after,
+                bus.backoff_min,
+                bus.backoff_max,
+            ),
             latencies: std::collections::VecDeque::new(),
             plan_memo: None,
             turnaround: None,
@@ -268,6 +266,11 @@ impl DeviceRt {
     /// Whether the channels are known (the work modes were read).
     pub fn discovered(&self) -> bool {
         self.modes.is_some()
+    }
+
+    /// `Some(true)` online, `Some(false)` offline, `None` not yet seen.
+    pub fn online(&self) -> Option<bool> {
+        self.availability.online()
     }
 
     /// The device was away: every channel's next delta covers the gap.
@@ -629,7 +632,9 @@ impl DeviceRt {
                 // again: on a noisy line a corrupted request gets no answer at all, and three
                 // of those in a row must not make a healthy device offline. An offline device
                 // is not asked twice (a dead one costs the others one timeout per probe).
-                Err(e) if e.is_noise() && self.online == Some(true) && retries < NOISE_RETRIES => {
+                Err(e)
+                    if e.is_noise() && self.online() == Some(true) && retries < NOISE_RETRIES =>
+                {
                     retries += 1;
                     continue;
                 }

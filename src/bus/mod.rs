@@ -266,8 +266,7 @@ impl BusTask {
                         tracing::info!(bus = %name, "line is answering again");
                         // Devices that went offline with the line are probed at once.
                         for (j, other) in devices.iter_mut().enumerate() {
-                            if other.online == Some(false) {
-                                other.backoff.reset();
+                            if other.availability.line_back() {
                                 slots[j].defer_to(now);
                             }
                         }
@@ -291,19 +290,19 @@ impl BusTask {
                         tracing::error!(bus = %name, "line fault: {e}");
                         self.metrics.line_fault();
                     }
-                    match availability::failed(d, &e, bus, line_fault, &name, &self.out) {
+                    match availability::failed(d, &e, line_fault, &name, &self.out) {
                         Some(wait) => slots[i].defer_to(now + wait),
                         None => slots[i].advance(now),
                     }
                 }
             }
-            devices[i].metrics.up(devices[i].online);
+            devices[i].metrics.up(devices[i].online());
         }
         if durable.finish(&devices, &self.out).await {
             tracing::info!(bus = %name, "state saved");
         }
         for d in &devices {
-            if d.online == Some(true) {
+            if d.online() == Some(true) {
                 let _ = self.out.send(Output::DeviceStatus {
                     device: d.name.clone(),
                     online: false,
@@ -372,7 +371,7 @@ async fn run_one_command(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if ran.is_none() && d.online == Some(true) && d.discovered() {
+        if ran.is_none() && d.online() == Some(true) && d.discovered() {
             let before = link.counters;
             let executed = d.execute(link, &c.request).await;
             d.metrics.wire(&before, &link.counters);
@@ -464,14 +463,14 @@ fn stats_json(
         per_device.insert(
             d.name.to_string(),
             serde_json::json!({
-                "online": d.online,
+                "online": d.online(),
                 "poll_ms": d.config.poll.as_secs_f64() * 1000.0,
                 "achieved_poll_ms": d.achieved_interval.map(|v| v * 1000.0),
                 "missed": s.missed,
                 "turnaround_ms": d.turnaround().map(|v| v * 1000.0),
                 "latency_p50_ms": percentile(&lat, 0.5).map(|v| v * 1000.0),
                 "latency_p99_ms": percentile(&lat, 0.99).map(|v| v * 1000.0),
-                "last_error": d.last_error,
+                "last_error": d.availability.last_error(),
             }),
         );
     }
