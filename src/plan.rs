@@ -50,6 +50,17 @@ impl Block {
     }
 }
 
+/// The device turnaround assumed before it is measured (the planner, `check` and `plan`; the bus
+/// measures it at run time).
+pub const DEFAULT_TURNAROUND: Duration = Duration::from_millis(2);
+
+/// Characters of one read of `registers` registers on the wire: the request (address,
+/// function, start, quantity, CRC = 8) and the answer (address, function, byte count, CRC = 5,
+/// plus 2 per register). The one place for Modbus RTU frame sizes.
+pub fn read_chars(registers: u16) -> f64 {
+    8.0 + 5.0 + 2.0 * f64::from(registers)
+}
+
 /// How the wire prices a read, in characters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Wire {
@@ -60,12 +71,11 @@ pub struct Wire {
 impl Wire {
     /// RTU at `timing`, with the device's turnaround.
     pub fn rtu(timing: &LineTiming, turnaround: Duration) -> Wire {
-        // Request: addr fc start(2) qty(2) crc(2) = 8; answer: addr fc count crc(2) = 5.
         let silences =
             2.0 * timing.silent_interval().as_secs_f64() / timing.char_time().as_secs_f64();
         let turnaround = turnaround.as_secs_f64() / timing.char_time().as_secs_f64();
         Wire {
-            request_overhead: 8.0 + 5.0 + silences + turnaround,
+            request_overhead: read_chars(0) + silences + turnaround,
         }
     }
 
@@ -170,10 +180,7 @@ pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec
 pub fn line_time(blocks: &[Block], timing: &LineTiming, turnaround: Duration) -> Duration {
     blocks
         .iter()
-        .map(|b| {
-            let chars = 8.0 + 5.0 + 2.0 * f64::from(b.len);
-            timing.chars(chars) + timing.silent_interval() * 2 + turnaround
-        })
+        .map(|b| timing.chars(read_chars(b.len)) + timing.silent_interval() * 2 + turnaround)
         .sum()
 }
 

@@ -7,8 +7,8 @@ use crate::config::{Config, Link};
 use crate::plan::{Wire, line_time, plan_reads};
 use crate::profile::Register;
 
-/// Assumed device turnaround when estimating line time (the planner measures it at run time).
-const TURNAROUND: Duration = Duration::from_millis(2);
+/// Assumed device turnaround when estimating line time (the bus measures it at run time).
+const TURNAROUND: Duration = crate::plan::DEFAULT_TURNAROUND;
 
 /// One line per device with its reads, registers and line time per poll, and per bus the share
 /// of the line its intervals need (a warning when above 100%). Work modes are not known before

@@ -690,7 +690,7 @@ impl DeviceRt {
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
             .timing_for(self.unit)
-            .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
+            .map(|t| t.chars(crate::plan::read_chars(len)))
             .unwrap_or_default();
         self.answer_timeout + line
     }
@@ -704,7 +704,7 @@ impl DeviceRt {
         }
         self.latencies.push_back(d.as_secs_f64());
         if let Some(t) = link.timing_for(self.unit) {
-            let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
+            let line = t.chars(crate::plan::read_chars(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.turnaround = Some(match self.turnaround {
                 Some(old) => old * 0.9 + turnaround * 0.1,

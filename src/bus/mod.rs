@@ -3,6 +3,7 @@
 
 mod availability;
 pub mod device;
+pub mod driver;
 mod emit;
 mod execute;
 mod identity;
@@ -32,6 +33,7 @@ use crate::reading::Output;
 use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
+use driver::Driver;
 use link::{Link, WireCounters};
 use schedule::{Slot, earliest};
 
@@ -93,11 +95,43 @@ impl BusTask {
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
     pub async fn run(mut self, shutdown: CancellationToken) {
-        let bus = &self.bus;
-        let name: Arc<str> = Arc::from(bus.name.as_str());
-        let Some(mut saved) = self.load_state(&name, &shutdown).await else {
+        let Some(mut core) = self.start(&shutdown).await else {
             return;
         };
+        let stall = stall_hook(&self.bus.name);
+        while let Some(i) = earliest(&core.slots) {
+            self.heart.beat();
+            if stall.is_some_and(|at| core.start.elapsed() >= at) {
+                tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
+                shutdown.cancelled().await;
+                break;
+            }
+            match self.between_polls(&mut core, i, &shutdown).await {
+                Next::Loop => continue,
+                Next::Stop => break,
+                Next::Poll => {}
+            }
+            let commands = &self.commands;
+            let owed = core.poll_owed;
+            // A poll owed after a command runs to its end; otherwise it gives way to a command.
+            let before = core.driver.wire().0;
+            let d = &mut core.devices[i];
+            let result = core.driver.poll(d, &|| !owed && !commands.is_empty()).await;
+            let (counters, busy) = core.driver.wire();
+            d.metrics.wire(&before, &counters);
+            self.metrics.wire(&counters, busy);
+            self.after_poll(&mut core, i, result);
+            let d = &core.devices[i];
+            d.metrics.up(d.online());
+        }
+        self.finish(core).await;
+    }
+
+    /// Loads the state and builds the devices, their slots and the driver.
+    async fn start(&mut self, shutdown: &CancellationToken) -> Option<Core> {
+        let bus = &self.bus;
+        let name: Arc<str> = Arc::from(bus.name.as_str());
+        let mut saved = self.load_state(&name, shutdown).await?;
         let after_seq = if saved.clean {
             Default::default()
         } else {
@@ -114,194 +148,181 @@ impl BusTask {
             }
         }
         let wire = match link.timing() {
-            Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
+            Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
             None => Wire::tcp(),
         };
-        let mut devices: Vec<DeviceRt> = bus
+        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
+        let known = identity::known(&configured);
+        let devices: Vec<DeviceRt> = bus
             .devices
             .iter()
             .filter(|d| d.enabled)
             .map(|d| {
-                DeviceRt::new(
-                    bus,
-                    d,
-                    wire,
-                    &saved.channels,
-                    saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
-                )
-                .with_metrics(self.metrics.device(&d.name))
+                let key = crate::state::device_key(d.unit, &d.model);
+                let mut rt = DeviceRt::new(bus, d, wire, &saved.channels, saved.holes_of(&key))
+                    .with_metrics(self.metrics.device(&d.name));
+                rt.known = known.clone();
+                rt
             })
             .collect();
-        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
-        let known = identity::known(&configured);
-        for d in &mut devices {
-            d.known = known.clone();
-        }
         durable.orphans = unclaimed(&name, &saved, &devices);
-
-        let start = Instant::now();
-        let mut slots: Vec<Slot> = devices
-            .iter()
-            .map(|d| Slot::new(start, d.config.poll))
-            .collect();
-        let mut flush_at = start + self.state_flush;
-        let mut stats_at = start + self.stats_interval;
-        let mut stats_since = start;
-        let mut busy_at_stats = Duration::ZERO;
-        let mut counters_at_stats = link::WireCounters::default();
-        let mut line_down = false;
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
+        Some(Core::new(
+            name,
+            driver::Modbus { link },
+            devices,
+            durable,
+            bus.devices.iter().map(|d| d.unit).collect(),
+            self.state_flush,
+            self.stats_interval,
+        ))
+    }
 
-        let mut pending: Vec<BusCommand> = Vec::new();
-        // Polls due when the last command ended: they go before the next command, so a burst
-        // of commands slows commands, never polling (each poll waits for at most one command).
-        let mut owed: Option<Instant> = None;
-        let mut scan: Option<survey::Survey> = None;
-        let configured: Vec<u8> = bus.devices.iter().map(|d| d.unit).collect();
-        let stall = stall_hook(&bus.name);
-        while let Some(i) = earliest(&slots) {
-            self.heart.beat();
-            if stall.is_some_and(|at| start.elapsed() >= at) {
-                tracing::error!(bus = %name, "test hook: this bus loop now stalls");
-                shutdown.cancelled().await;
-                break;
-            }
-            while let Ok(c) = self.commands.try_recv() {
-                pending.push(c);
-            }
-            let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
-            durable.collect(&devices, &self.out).await;
-            if !poll_owed {
-                owed = None;
-                if let Some((from, readings)) =
-                    run_one_command(&mut pending, &mut devices, &mut link).await
-                {
-                    let outputs = self.emitter.emit(&mut devices[from], readings);
-                    durable.publish(outputs, from, &devices, &self.out);
-                    owed = Some(Instant::now());
-                    continue;
-                }
-            }
-            let idle_until = slots[i].due;
-            if !poll_owed
-                && survey::idle_step(
-                    &mut scan,
-                    &mut self.scans,
-                    &mut link,
-                    idle_until,
-                    &configured,
-                    &name,
-                    &self.out,
-                    &shutdown,
-                )
-                .await
+    /// Between polls: commands (one at a time), idle-time scans, the state flush and the bus
+    /// stats; then waits for the next poll. `Next::Poll` when device `i` is due now.
+    async fn between_polls(
+        &mut self,
+        core: &mut Core,
+        i: usize,
+        shutdown: &CancellationToken,
+    ) -> Next {
+        while let Ok(c) = self.commands.try_recv() {
+            core.pending.push(c);
+        }
+        core.poll_owed = core.owed.is_some_and(|at| core.slots[i].due <= at);
+        core.durable.collect(&core.devices, &self.out).await;
+        if !core.poll_owed {
+            core.owed = None;
+            if let Some((from, readings)) =
+                run_one_command(&mut core.pending, &mut core.devices, &mut core.driver).await
             {
-                continue;
+                let outputs = self.emitter.emit(&mut core.devices[from], readings);
+                core.durable
+                    .publish(outputs, from, &core.devices, &self.out);
+                core.owed = Some(Instant::now());
+                return Next::Loop;
             }
-            let expiry = pending.iter().map(|c| c.request.expires).min();
-            // Wake at least every second so the heart beats while the devices are slow.
-            // Held readings are released as soon as their save is done.
-            let soon = if durable.holding() { 20 } else { 1000 };
-            let wake = slots[i]
-                .due
-                .min(Instant::now() + Duration::from_millis(soon))
-                .min(flush_at)
-                .min(stats_at)
-                .min(expiry.unwrap_or(flush_at));
-            tokio::select! {
-                biased;
-                () = shutdown.cancelled() => break,
-                Some(c) = self.commands.recv(), if !poll_owed => {
-                    pending.push(c);
-                    continue;
-                }
-                () = tokio::time::sleep_until(wake) => {}
+            let due = core.slots[i].due;
+            if survey::idle_step(
+                &mut core.scan,
+                &mut self.scans,
+                &mut core.driver.link,
+                due,
+                &core.units,
+                &core.name,
+                &self.out,
+                shutdown,
+            )
+            .await
+            {
+                return Next::Loop;
             }
-            let now = Instant::now();
-            if now >= flush_at {
-                durable
-                    .saver
-                    .start(snapshot(&devices, &durable.orphans, false));
-                flush_at = now + self.state_flush;
+        }
+        let wake = core.wake(i);
+        tokio::select! {
+            biased;
+            () = shutdown.cancelled() => return Next::Stop,
+            Some(c) = self.commands.recv(), if !core.poll_owed => {
+                core.pending.push(c);
+                return Next::Loop;
             }
-            if now >= stats_at {
-                let wall = now - stats_since;
-                let stats = stats_json(
-                    &link,
-                    &counters_at_stats,
-                    &devices,
-                    &slots,
-                    wall,
-                    link.busy - busy_at_stats,
-                );
-                counters_at_stats = link.counters;
-                tracing::info!(bus = %name, %stats, "bus stats");
-                self.metrics
-                    .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
-                let _ = self.out.send(Output::BusStats {
-                    bus: name.clone(),
-                    stats,
-                });
-                stats_since = now;
-                busy_at_stats = link.busy;
-                stats_at = now + self.stats_interval;
-            }
-            if slots[i].due > now {
-                continue;
-            }
-            let d = &mut devices[i];
-            let commands = &self.commands;
-            // A poll owed after a command runs to its end; otherwise it gives way to a command.
-            let before = link.counters;
-            let result = d
-                .poll(&mut link, &|| !poll_owed && !commands.is_empty())
-                .await;
-            d.metrics.wire(&before, &link.counters);
-            self.metrics.wire(&link.counters, link.busy);
-            let now = Instant::now();
-            match result {
-                Err(e) if e.is_preempted() => continue,
-                Ok(readings) => {
-                    if std::mem::take(&mut line_down) {
-                        tracing::info!(bus = %name, "line is answering again");
-                        // Devices that went offline with the line are probed at once.
-                        for (j, other) in devices.iter_mut().enumerate() {
-                            if other.availability.line_back() {
-                                slots[j].defer_to(now);
-                            }
+            () = tokio::time::sleep_until(wake) => {}
+        }
+        let now = Instant::now();
+        if now >= core.flush_at {
+            let state = snapshot(&core.devices, &core.durable.orphans, false);
+            core.durable.saver.start(state);
+            core.flush_at = now + self.state_flush;
+        }
+        if now >= core.stats_at {
+            self.report_stats(core, now);
+        }
+        if core.slots[i].due > now {
+            Next::Loop
+        } else {
+            Next::Poll
+        }
+    }
+
+    /// Publishes the bus health of the interval that ends `now`.
+    fn report_stats(&mut self, core: &mut Core, now: Instant) {
+        let (counters, busy) = core.driver.wire();
+        let wall = now - core.stats_since;
+        let stats = stats_json(
+            (&counters, &core.counters_at_stats),
+            &core.devices,
+            &core.slots,
+            wall,
+            busy - core.busy_at_stats,
+        );
+        core.counters_at_stats = counters;
+        tracing::info!(bus = %core.name, %stats, "bus stats");
+        self.metrics
+            .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
+        let _ = self.out.send(Output::BusStats {
+            bus: core.name.clone(),
+            stats,
+        });
+        core.stats_since = now;
+        core.busy_at_stats = busy;
+        core.stats_at = now + self.stats_interval;
+    }
+
+    /// What a poll of device `i` means: readings out, availability, the next deadline.
+    fn after_poll(
+        &mut self,
+        core: &mut Core,
+        i: usize,
+        result: Result<Vec<crate::reading::Reading>, PollError>,
+    ) {
+        let now = Instant::now();
+        let name = core.name.clone();
+        match result {
+            Err(e) if e.is_preempted() => {}
+            Ok(readings) => {
+                if std::mem::take(&mut core.line_down) {
+                    tracing::info!(bus = %name, "line is answering again");
+                    // Devices that went offline with the line are probed at once.
+                    for (j, other) in core.devices.iter_mut().enumerate() {
+                        if other.availability.line_back() {
+                            core.slots[j].defer_to(now);
                         }
                     }
-                    self.heart.set_up(true);
-                    let d = &mut devices[i];
-                    availability::answered(d, &name, &self.out);
-                    availability::mode_mismatch(d, &self.out);
-                    let outputs = self.emitter.emit(d, readings);
-                    durable.publish(outputs, i, &devices, &self.out);
-                    slots[i].advance(now);
                 }
-                Err(PollError::WrongModel(why)) => {
-                    availability::wrong_model(d, why, &name, &self.out);
-                    slots[i].defer_to(now + bus.backoff_max);
+                self.heart.set_up(true);
+                let d = &mut core.devices[i];
+                availability::answered(d, &name, &self.out);
+                availability::mode_mismatch(d, &self.out);
+                let outputs = self.emitter.emit(d, readings);
+                core.durable.publish(outputs, i, &core.devices, &self.out);
+                core.slots[i].advance(now);
+            }
+            Err(PollError::WrongModel(why)) => {
+                availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
+                core.slots[i].defer_to(now + self.bus.backoff_max);
+            }
+            Err(e) => {
+                let line_fault = core.driver.is_line_fault(&e);
+                self.heart.set_up(!line_fault);
+                if line_fault && !std::mem::replace(&mut core.line_down, true) {
+                    tracing::error!(bus = %name, "line fault: {e}");
+                    self.metrics.line_fault();
                 }
-                Err(e) => {
-                    let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());
-                    self.heart.set_up(!line_fault);
-                    if line_fault && !std::mem::replace(&mut line_down, true) {
-                        tracing::error!(bus = %name, "line fault: {e}");
-                        self.metrics.line_fault();
-                    }
-                    match availability::failed(d, &e, line_fault, &name, &self.out) {
-                        Some(wait) => slots[i].defer_to(now + wait),
-                        None => slots[i].advance(now),
-                    }
+                let d = &mut core.devices[i];
+                match availability::failed(d, &e, line_fault, &name, &self.out) {
+                    Some(wait) => core.slots[i].defer_to(now + wait),
+                    None => core.slots[i].advance(now),
                 }
             }
-            devices[i].metrics.up(devices[i].online());
         }
-        if durable.finish(&devices, &self.out).await {
-            tracing::info!(bus = %name, "state saved");
+    }
+
+    /// Saves the state (clean), says the devices are offline, closes the line.
+    async fn finish(&mut self, mut core: Core) {
+        if core.durable.finish(&core.devices, &self.out).await {
+            tracing::info!(bus = %core.name, "state saved");
         }
-        for d in &devices {
+        for d in &core.devices {
             if d.online() == Some(true) {
                 let _ = self.out.send(Output::DeviceStatus {
                     device: d.name.clone(),
@@ -309,7 +330,92 @@ impl BusTask {
                 });
             }
         }
-        link.close();
+        core.driver.close();
+    }
+}
+
+/// What the loop does after the work between polls.
+enum Next {
+    /// Start over (a command ran, a scan step ran, a command arrived, nothing is due yet).
+    Loop,
+    /// Poll the device that is due.
+    Poll,
+    /// Shut down.
+    Stop,
+}
+
+/// The running bus: devices, their slots, the driver and the loop's bookkeeping.
+struct Core {
+    name: Arc<str>,
+    driver: driver::Modbus,
+    devices: Vec<DeviceRt>,
+    slots: Vec<Slot>,
+    durable: saver::Durable,
+    /// Configured units (a scan skips them).
+    units: Vec<u8>,
+    start: Instant,
+    flush_at: Instant,
+    stats_at: Instant,
+    stats_since: Instant,
+    busy_at_stats: Duration,
+    counters_at_stats: WireCounters,
+    line_down: bool,
+    pending: Vec<BusCommand>,
+    /// Polls due when the last command ended: they go before the next command, so a burst
+    /// of commands slows commands, never polling (each poll waits for at most one command).
+    owed: Option<Instant>,
+    poll_owed: bool,
+    scan: Option<survey::Survey>,
+}
+
+impl Core {
+    fn new(
+        name: Arc<str>,
+        driver: driver::Modbus,
+        devices: Vec<DeviceRt>,
+        durable: saver::Durable,
+        units: Vec<u8>,
+        state_flush: Duration,
+        stats_interval: Duration,
+    ) -> Core {
+        let start = Instant::now();
+        let slots = devices
+            .iter()
+            .map(|d| Slot::new(start, d.config.poll))
+            .collect();
+        Core {
+            name,
+            driver,
+            devices,
+            slots,
+            durable,
+            units,
+            start,
+            flush_at: start + state_flush,
+            stats_at: start + stats_interval,
+            stats_since: start,
+            busy_at_stats: Duration::ZERO,
+            counters_at_stats: WireCounters::default(),
+            line_down: false,
+            pending: Vec::new(),
+            owed: None,
+            poll_owed: false,
+            scan: None,
+        }
+    }
+
+    /// When to wake: the poll of `i`, a flush, the stats, a command's expiry, or a second at
+    /// most so the heart beats while the devices are slow (20 ms while readings are held for a
+    /// save, so they go out as soon as it is done).
+    fn wake(&self, i: usize) -> Instant {
+        let expiry = self.pending.iter().map(|c| c.request.expires).min();
+        let soon = if self.durable.holding() { 20 } else { 1000 };
+        self.slots[i]
+            .due
+            .min(Instant::now() + Duration::from_millis(soon))
+            .min(self.flush_at)
+            .min(self.stats_at)
+            .min(expiry.unwrap_or(self.flush_at))
     }
 }
 
@@ -352,10 +458,10 @@ fn stall_hook(bus: &str) -> Option<Duration> {
 /// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
 /// their device. Returns the device and readings of the command that went on the line, if one
 /// did.
-async fn run_one_command(
+async fn run_one_command<D: driver::Driver>(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
-    link: &mut Link,
+    driver: &mut D,
 ) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
     let mut waiting = Vec::new();
@@ -372,9 +478,9 @@ async fn run_one_command(
             continue;
         };
         if ran.is_none() && d.online() == Some(true) && d.discovered() {
-            let before = link.counters;
-            let executed = d.execute(link, &c.request).await;
-            d.metrics.wire(&before, &link.counters);
+            let before = driver.wire().0;
+            let executed = driver.execute(d, &c.request).await;
+            d.metrics.wire(&before, &driver.wire().0);
             ran = Some((i, executed.readings));
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
@@ -448,14 +554,12 @@ fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
 
 /// Bus health since the last report (`since`: the counters then).
 fn stats_json(
-    link: &Link,
-    since: &WireCounters,
+    (c, since): (&WireCounters, &WireCounters),
     devices: &[DeviceRt],
     slots: &[Slot],
     wall: Duration,
     busy: Duration,
 ) -> serde_json::Value {
-    let c = link.counters;
     let mut per_device = BTreeMap::new();
     for (d, s) in devices.iter().zip(slots) {
         let mut lat: Vec<f64> = d.latencies.iter().copied().collect();

@@ -125,7 +125,7 @@ pub(super) fn poller(
         enabled: true,
     };
     let wire = match link.timing() {
-        Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
+        Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
         None => Wire::tcp(),
     };
     DeviceRt::new(&bus, &device, wire, &BTreeMap::new(), Vec::new())
