@@ -5,11 +5,17 @@
 
 use std::time::Duration;
 
+use tokio::sync::mpsc::{Receiver, UnboundedSender};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
 use super::device::{DeviceRt, PollError};
 use super::execute::Executed;
 use super::link::{Link, WireCounters};
+use super::survey::{ScanRequest, Survey};
 use crate::command::Request;
-use crate::reading::Reading;
+use crate::plan::Wire;
+use crate::reading::{Output, Reading};
 
 /// Asked between transactions: `true` when a command waits and the poll should give way.
 pub type Preempt<'a> = &'a (dyn Fn() -> bool + Sync);
@@ -35,13 +41,48 @@ pub trait Driver {
     fn wire(&self) -> (WireCounters, Duration);
     /// A fault of the line itself (port gone, connection refused), as opposed to one device.
     fn is_line_fault(&self, e: &PollError) -> bool;
+    /// Whether the device can take a command now (Modbus: its work modes are known).
+    fn ready_for_commands(&self, device: &DeviceRt) -> bool;
+    /// How the planner prices a read on this bus.
+    fn wire_pricing(&self) -> Wire;
+    /// Idle line time before the next poll: a driver may use it (Modbus: scans of unconfigured
+    /// units). `true` when it did something (the bus then looks at its schedule again).
+    async fn idle(&mut self, _idle: Idle<'_>) -> bool {
+        false
+    }
     /// Closes the port or connection at shutdown.
     fn close(&mut self);
+}
+
+/// What the bus hands a driver for its idle time.
+pub struct Idle<'a> {
+    pub scan: &'a mut Option<Survey>,
+    pub requests: &'a mut Option<Receiver<ScanRequest>>,
+    /// The next poll: the idle time ends here.
+    pub until: Instant,
+    /// Configured units (a scan skips them).
+    pub units: &'a [u8],
+    pub bus: &'a str,
+    pub out: &'a UnboundedSender<Output>,
+    pub shutdown: &'a CancellationToken,
 }
 
 /// Modbus RTU or TCP over one [`Link`].
 pub struct Modbus {
     pub link: Link,
+}
+
+impl Modbus {
+    /// The link of a configured bus (devices with a baud rate of their own get it).
+    pub fn for_bus(bus: &crate::config::Bus) -> Modbus {
+        let mut link = Link::new(bus.link.clone(), bus.guard);
+        for d in &bus.devices {
+            if let Some(baud) = d.baud {
+                link.set_unit_baud(d.unit, baud);
+            }
+        }
+        Modbus { link }
+    }
 }
 
 impl Driver for Modbus {
@@ -71,6 +112,31 @@ impl Driver for Modbus {
 
     fn is_line_fault(&self, e: &PollError) -> bool {
         matches!(e, PollError::Link(l) if l.is_line_fault())
+    }
+
+    fn ready_for_commands(&self, device: &DeviceRt) -> bool {
+        device.discovered()
+    }
+
+    fn wire_pricing(&self) -> Wire {
+        match self.link.timing() {
+            Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
+            None => Wire::tcp(),
+        }
+    }
+
+    async fn idle(&mut self, idle: Idle<'_>) -> bool {
+        super::survey::idle_step(
+            idle.scan,
+            idle.requests,
+            &mut self.link,
+            idle.until,
+            idle.units,
+            idle.bus,
+            idle.out,
+            idle.shutdown,
+        )
+        .await
     }
 
     fn close(&mut self) {

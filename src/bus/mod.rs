@@ -28,13 +28,12 @@ use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
 use crate::metrics::BusMetrics;
-use crate::plan::Wire;
 use crate::reading::Output;
 use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
 use driver::Driver;
-use link::{Link, WireCounters};
+use link::WireCounters;
 use schedule::{Slot, earliest};
 
 /// A checked command for a device on this bus, and where its outcome goes.
@@ -94,8 +93,14 @@ impl BusTask {
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
-    pub async fn run(mut self, shutdown: CancellationToken) {
-        let Some(mut core) = self.start(&shutdown).await else {
+    pub async fn run(self, shutdown: CancellationToken) {
+        let driver = driver::Modbus::for_bus(&self.bus);
+        self.run_with(driver, shutdown).await;
+    }
+
+    /// [`BusTask::run`] over a given driver (a protocol, or a scripted one in tests).
+    pub async fn run_with<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
+        let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
         let stall = stall_hook(&self.bus.name);
@@ -128,7 +133,11 @@ impl BusTask {
     }
 
     /// Loads the state and builds the devices, their slots and the driver.
-    async fn start(&mut self, shutdown: &CancellationToken) -> Option<Core> {
+    async fn start<D: Driver>(
+        &mut self,
+        driver: D,
+        shutdown: &CancellationToken,
+    ) -> Option<Core<D>> {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
         let mut saved = self.load_state(&name, shutdown).await?;
@@ -141,16 +150,7 @@ impl BusTask {
             saver::Saver::new(self.state_path.clone(), name.clone()),
             after_seq,
         );
-        let mut link = Link::new(bus.link.clone(), bus.guard);
-        for d in &bus.devices {
-            if let Some(baud) = d.baud {
-                link.set_unit_baud(d.unit, baud);
-            }
-        }
-        let wire = match link.timing() {
-            Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
-            None => Wire::tcp(),
-        };
+        let wire = driver.wire_pricing();
         let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
         let known = identity::known(&configured);
         let devices: Vec<DeviceRt> = bus
@@ -169,7 +169,7 @@ impl BusTask {
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
         Some(Core::new(
             name,
-            driver::Modbus { link },
+            driver,
             devices,
             durable,
             bus.devices.iter().map(|d| d.unit).collect(),
@@ -180,9 +180,9 @@ impl BusTask {
 
     /// Between polls: commands (one at a time), idle-time scans, the state flush and the bus
     /// stats; then waits for the next poll. `Next::Poll` when device `i` is due now.
-    async fn between_polls(
+    async fn between_polls<D: Driver>(
         &mut self,
-        core: &mut Core,
+        core: &mut Core<D>,
         i: usize,
         shutdown: &CancellationToken,
     ) -> Next {
@@ -202,19 +202,16 @@ impl BusTask {
                 core.owed = Some(Instant::now());
                 return Next::Loop;
             }
-            let due = core.slots[i].due;
-            if survey::idle_step(
-                &mut core.scan,
-                &mut self.scans,
-                &mut core.driver.link,
-                due,
-                &core.units,
-                &core.name,
-                &self.out,
+            let idle = driver::Idle {
+                scan: &mut core.scan,
+                requests: &mut self.scans,
+                until: core.slots[i].due,
+                units: &core.units,
+                bus: &core.name,
+                out: &self.out,
                 shutdown,
-            )
-            .await
-            {
+            };
+            if core.driver.idle(idle).await {
                 return Next::Loop;
             }
         }
@@ -245,7 +242,7 @@ impl BusTask {
     }
 
     /// Publishes the bus health of the interval that ends `now`.
-    fn report_stats(&mut self, core: &mut Core, now: Instant) {
+    fn report_stats<D: Driver>(&mut self, core: &mut Core<D>, now: Instant) {
         let (counters, busy) = core.driver.wire();
         let wall = now - core.stats_since;
         let stats = stats_json(
@@ -269,9 +266,9 @@ impl BusTask {
     }
 
     /// What a poll of device `i` means: readings out, availability, the next deadline.
-    fn after_poll(
+    fn after_poll<D: Driver>(
         &mut self,
-        core: &mut Core,
+        core: &mut Core<D>,
         i: usize,
         result: Result<Vec<crate::reading::Reading>, PollError>,
     ) {
@@ -318,7 +315,7 @@ impl BusTask {
     }
 
     /// Saves the state (clean), says the devices are offline, closes the line.
-    async fn finish(&mut self, mut core: Core) {
+    async fn finish<D: Driver>(&mut self, mut core: Core<D>) {
         if core.durable.finish(&core.devices, &self.out).await {
             tracing::info!(bus = %core.name, "state saved");
         }
@@ -345,9 +342,9 @@ enum Next {
 }
 
 /// The running bus: devices, their slots, the driver and the loop's bookkeeping.
-struct Core {
+struct Core<D> {
     name: Arc<str>,
-    driver: driver::Modbus,
+    driver: D,
     devices: Vec<DeviceRt>,
     slots: Vec<Slot>,
     durable: saver::Durable,
@@ -368,16 +365,16 @@ struct Core {
     scan: Option<survey::Survey>,
 }
 
-impl Core {
+impl<D: Driver> Core<D> {
     fn new(
         name: Arc<str>,
-        driver: driver::Modbus,
+        driver: D,
         devices: Vec<DeviceRt>,
         durable: saver::Durable,
         units: Vec<u8>,
         state_flush: Duration,
         stats_interval: Duration,
-    ) -> Core {
+    ) -> Core<D> {
         let start = Instant::now();
         let slots = devices
             .iter()
@@ -477,7 +474,7 @@ async fn run_one_command<D: driver::Driver>(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if ran.is_none() && d.online() == Some(true) && d.discovered() {
+        if ran.is_none() && d.online() == Some(true) && driver.ready_for_commands(d) {
             let before = driver.wire().0;
             let executed = driver.execute(d, &c.request).await;
             d.metrics.wire(&before, &driver.wire().0);
@@ -591,3 +588,7 @@ fn stats_json(
         "devices": per_device,
     })
 }
+
+#[cfg(test)]
+#[path = "core_tests.rs"]
+mod core_tests;
