@@ -162,7 +162,8 @@ pub struct DeviceRt {
     pub latencies: std::collections::VecDeque<f64>,
     /// The last plan: registers, holes known, wire prices, and the reads.
     #[allow(clippy::type_complexity)]
-    plan_memo: Option<(Vec<Register>, usize, Wire, Vec<Block>)>,
+    /// The plan of the last read asked for (the count poll asks for the same every time).
+    plan_memo: Option<crate::plan::PollPlan>,
     /// Measured turnaround (seconds, moving average), RTU only.
     turnaround: Option<f64>,
     /// Time between good polls (seconds, moving average), against the configured interval.
@@ -674,15 +675,15 @@ impl DeviceRt {
     /// The reads for `regs`: planned once and reused while the registers, the holes and the
     /// wire's prices stay the same (the count poll asks for the same registers every time).
     fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
-        if let Some((r, holes, wire, blocks)) = &self.plan_memo
-            && r.as_slice() == regs
-            && *holes == self.holes.len()
-            && *wire == self.wire
+        if let Some(p) = &self.plan_memo
+            && p.fits(regs, self.holes.len(), &self.wire)
         {
-            return blocks.clone();
+            return p.blocks.clone();
         }
-        let blocks = plan_reads(regs, &self.holes, &self.wire);
-        self.plan_memo = Some((regs.to_vec(), self.holes.len(), self.wire, blocks.clone()));
+        let p = crate::plan::PollPlan::new(regs, &self.holes, &self.wire);
+        tracing::debug!(device = %self.name, plan = %p.describe(), "poll plan");
+        let blocks = p.blocks.clone();
+        self.plan_memo = Some(p);
         blocks
     }
 
