@@ -139,12 +139,7 @@ fn words_of(value: i64, ty: ValueType, order: crate::profile::WordOrder) -> Vec<
 }
 
 fn f32_words(v: f32, order: crate::profile::WordOrder) -> Vec<u16> {
-    let bits = v.to_bits();
-    let (hi, lo) = ((bits >> 16) as u16, bits as u16);
-    match order {
-        crate::profile::WordOrder::HighFirst => vec![hi, lo],
-        crate::profile::WordOrder::LowFirst => vec![lo, hi],
-    }
+    crate::decode::encode_f32(v, order)
 }
 
 impl SimModule {
