@@ -143,7 +143,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
             Output::BusStats { bus, stats: s } => stats
                 .entry(bus.to_string())
                 .or_default()
-                .push(s["transactions"].as_u64().unwrap()),
+                .push(s.transactions),
             _ if since > warmup && since <= warmup + window => outputs.push(out),
             _ => {}
         }

@@ -56,10 +56,10 @@ pub enum Output {
         device: Arc<str>,
         status: &'static str,
     },
-    /// Health of a bus, as JSON.
+    /// Health of a bus.
     BusStats {
         bus: Arc<str>,
-        stats: serde_json::Value,
+        stats: Box<crate::bus::stats::BusStats>,
     },
     /// The answer to a command, as JSON, and the topics it goes to.
     CommandResult {

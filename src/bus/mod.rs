@@ -12,9 +12,9 @@ pub mod link;
 mod run;
 mod saver;
 pub mod schedule;
+pub mod stats;
 pub mod survey;
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -245,7 +245,7 @@ impl BusTask {
     fn report_stats<D: Driver>(&mut self, core: &mut Core<D>, now: Instant) {
         let (counters, busy) = core.driver.wire();
         let wall = now - core.stats_since;
-        let stats = stats_json(
+        let stats = stats::of(
             (&counters, &core.counters_at_stats),
             &core.devices,
             &core.slots,
@@ -253,12 +253,12 @@ impl BusTask {
             busy - core.busy_at_stats,
         );
         core.counters_at_stats = counters;
-        tracing::info!(bus = %core.name, %stats, "bus stats");
-        self.metrics
-            .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
+        let text = serde_json::to_string(&stats).unwrap_or_default();
+        tracing::info!(bus = %core.name, stats = %text, "bus stats");
+        self.metrics.utilisation(stats.utilisation);
         let _ = self.out.send(Output::BusStats {
             bus: core.name.clone(),
-            stats,
+            stats: Box::new(stats),
         });
         core.stats_since = now;
         core.busy_at_stats = busy;
@@ -539,54 +539,6 @@ fn unclaimed(bus: &str, saved: &BusState, devices: &[DeviceRt]) -> BusState {
         }
     }
     out
-}
-
-fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let idx = ((sorted.len() - 1) as f64 * p).round() as usize;
-    Some(sorted[idx])
-}
-
-/// Bus health since the last report (`since`: the counters then).
-fn stats_json(
-    (c, since): (&WireCounters, &WireCounters),
-    devices: &[DeviceRt],
-    slots: &[Slot],
-    wall: Duration,
-    busy: Duration,
-) -> serde_json::Value {
-    let mut per_device = BTreeMap::new();
-    for (d, s) in devices.iter().zip(slots) {
-        let mut lat: Vec<f64> = d.latencies.iter().copied().collect();
-        lat.sort_by(f64::total_cmp);
-        per_device.insert(
-            d.name.to_string(),
-            serde_json::json!({
-                "online": d.online(),
-                "poll_ms": d.config.poll.as_secs_f64() * 1000.0,
-                "achieved_poll_ms": d.achieved_interval.map(|v| v * 1000.0),
-                "missed": s.missed,
-                "turnaround_ms": d.turnaround().map(|v| v * 1000.0),
-                "latency_p50_ms": percentile(&lat, 0.5).map(|v| v * 1000.0),
-                "latency_p99_ms": percentile(&lat, 0.99).map(|v| v * 1000.0),
-                "last_error": d.availability.last_error(),
-            }),
-        );
-    }
-    serde_json::json!({
-        "utilisation": busy.as_secs_f64() / wall.as_secs_f64().max(1e-9),
-        "transactions": c.transactions,
-        "transactions_per_s": (c.transactions - since.transactions) as f64 / wall.as_secs_f64().max(1e-9),
-        "timeouts": c.timeouts,
-        "garbled": c.garbled,
-        "stale_dropped": c.mismatches,
-        "io_errors": c.io_errors,
-        "exceptions": c.exceptions,
-        "reconnects": c.reconnects,
-        "devices": per_device,
-    })
 }
 
 #[cfg(test)]

@@ -67,13 +67,30 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         ("pg/e1/press1/status", &b"offline"[..])
     );
     assert_eq!((m[0].qos, m[0].retain), (1, true));
+    let stats = crate::bus::stats::BusStats {
+        utilisation: 0.5,
+        transactions: 3,
+        transactions_per_s: 0.1,
+        timeouts: 1,
+        garbled: 0,
+        stale_dropped: 0,
+        io_errors: 0,
+        exceptions: 0,
+        reconnects: 1,
+        devices: Default::default(),
+    };
     let stats = Output::BusStats {
         bus: "line1".into(),
-        stats: serde_json::json!({"polls": 3}),
+        stats: Box::new(stats),
     };
     let m = render(&*json, &stats);
     assert_eq!(m[0].topic, "pg/e1/bus/line1/stats");
     assert!(m[0].transient && m[0].qos == 0);
+    let v: serde_json::Value = serde_json::from_slice(&m[0].payload).unwrap();
+    assert_eq!(
+        (v["transactions"].as_u64(), v["utilisation"].as_f64()),
+        (Some(3), Some(0.5))
+    );
 }
 
 #[test]

@@ -54,7 +54,8 @@ impl Format for Json {
             }
             Output::BusStats { bus, stats } => {
                 // Health is of the moment: not worth spooling.
-                let mut m = Message::new(t.bus_stats(bus), stats.to_string(), 0, false);
+                let body = serde_json::to_string(&**stats).unwrap_or_default();
+                let mut m = Message::new(t.bus_stats(bus), body, 0, false);
                 m.transient = true;
                 vec![m]
             }
