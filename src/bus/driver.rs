@@ -56,8 +56,6 @@ pub trait Driver {
 
 /// What the bus hands a driver for its idle time.
 pub struct Idle<'a> {
-    pub scan: &'a mut Option<Survey>,
-    pub requests: &'a mut Option<Receiver<ScanRequest>>,
     /// The next poll: the idle time ends here.
     pub until: Instant,
     /// Configured units (a scan skips them).
@@ -67,9 +65,11 @@ pub struct Idle<'a> {
     pub shutdown: &'a CancellationToken,
 }
 
-/// Modbus RTU or TCP over one [`Link`].
+/// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
 pub struct Modbus {
     pub link: Link,
+    scan: Option<Survey>,
+    requests: Option<Receiver<ScanRequest>>,
 }
 
 impl Modbus {
@@ -81,7 +81,17 @@ impl Modbus {
                 link.set_unit_baud(d.unit, baud);
             }
         }
-        Modbus { link }
+        Modbus {
+            link,
+            scan: None,
+            requests: None,
+        }
+    }
+
+    /// Takes scan requests from `requests` (see [`super::survey`]).
+    pub fn with_scans(mut self, requests: Option<Receiver<ScanRequest>>) -> Modbus {
+        self.requests = requests;
+        self
     }
 }
 
@@ -127,8 +137,8 @@ impl Driver for Modbus {
 
     async fn idle(&mut self, idle: Idle<'_>) -> bool {
         super::survey::idle_step(
-            idle.scan,
-            idle.requests,
+            &mut self.scan,
+            &mut self.requests,
             &mut self.link,
             idle.until,
             idle.units,

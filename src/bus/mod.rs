@@ -93,8 +93,8 @@ impl BusTask {
 
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
-    pub async fn run(self, shutdown: CancellationToken) {
-        let driver = driver::Modbus::for_bus(&self.bus);
+    pub async fn run(mut self, shutdown: CancellationToken) {
+        let driver = driver::Modbus::for_bus(&self.bus).with_scans(self.scans.take());
         self.run_with(driver, shutdown).await;
     }
 
@@ -203,8 +203,6 @@ impl BusTask {
                 return Next::Loop;
             }
             let idle = driver::Idle {
-                scan: &mut core.scan,
-                requests: &mut self.scans,
                 until: core.slots[i].due,
                 units: &core.units,
                 bus: &core.name,
@@ -362,7 +360,6 @@ struct Core<D> {
     /// of commands slows commands, never polling (each poll waits for at most one command).
     owed: Option<Instant>,
     poll_owed: bool,
-    scan: Option<survey::Survey>,
 }
 
 impl<D: Driver> Core<D> {
@@ -397,7 +394,6 @@ impl<D: Driver> Core<D> {
             pending: Vec::new(),
             owed: None,
             poll_owed: false,
-            scan: None,
         }
     }
 
