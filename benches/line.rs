@@ -25,7 +25,7 @@ use std::time::{Duration, Instant, SystemTime};
 use pulsegate::bus::BusTask;
 use pulsegate::config::Config;
 use pulsegate::reading::Output;
-use pulsegate::sim::{Endpoint, Plant, SimConfig};
+use pulsegate::sim::{Plant, SimConfig};
 
 const TURNAROUND_MS: f64 = 2.0;
 
@@ -79,34 +79,18 @@ fn gateway_toml(
     state_dir: &Path,
     extra: &str,
 ) -> String {
-    let mut t = format!(
-        "[gateway]\nid = \"bench\"\nstate_dir = {state_dir:?}\nstats_interval = \"1h\"\n[mqtt]\nhost = \"127.0.0.1\"\n{extra}\n"
-    );
-    for bus in &plant.buses {
-        match &bus.endpoint {
-            Endpoint::Serial(p) => {
-                t += &format!(
-                    "[buses.{}]\nport = {p:?}\nbaud = {baud}\ntimeout = \"100ms\"\n",
-                    bus.name
-                )
-            }
-            Endpoint::Tcp(a) => {
-                t += &format!(
-                    "[buses.{}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n",
-                    bus.name,
-                    a.ip(),
-                    a.port()
-                )
-            }
-        }
-        for (name, d) in &sim.buses[&bus.name].devices {
-            t += &format!(
-                "[buses.{}.devices.{name}]\nunit = {}\nmodel = {:?}\npoll = {poll:?}\n",
-                bus.name, d.unit, d.model
-            );
-        }
+    let serial = format!("baud = {baud}\ntimeout = \"100ms\"\n");
+    pulsegate::sim::gateway::GatewayToml {
+        id: "bench",
+        state_dir,
+        gateway: "stats_interval = \"1h\"\n",
+        mqtt_host: "127.0.0.1",
+        mqtt_port: None,
+        mqtt: extra,
+        serial: &serial,
+        tcp: "timeout = \"100ms\"\n",
     }
-    t
+    .render(plant, &pulsegate::sim::gateway::every_device(sim, poll))
 }
 
 /// A plant of `buses` RTU buses behind line emulators, `units` YL67 modules each.
@@ -167,7 +151,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
             Output::BusStats { bus, stats: s } => stats
                 .entry(bus.to_string())
                 .or_default()
-                .push(s["transactions"].as_u64().unwrap()),
+                .push(s.transactions),
             _ if since > warmup && since <= warmup + window => outputs.push(out),
             _ => {}
         }
@@ -278,7 +262,7 @@ async fn one_silent(figures: &mut Vec<Figure>) {
 
 /// CPU time of the pipeline stages for one transaction of 4 channels, in-process.
 fn pipeline_cpu(figures: &mut Vec<Figure>) {
-    use pulsegate::counter::{Counter, CounterSpec};
+    use pulsegate::counter::{Counter, CounterSpec, Direction, Stamp};
     use pulsegate::decode::decode;
     use pulsegate::profile::{Profiles, ValueType};
     use pulsegate::reading::Reading;
@@ -286,7 +270,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
     let channels = profile.channels(&[0, 0, 0, 0]).unwrap();
     let spec = CounterSpec {
         modulus: 1 << 32,
-        signed: true,
+        direction: Direction::Both,
         max_rate_hz: 50_000.0,
     };
     let mut counters: Vec<Counter> = channels.iter().map(|_| Counter::new(spec)).collect();
@@ -299,7 +283,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
         for (c, (ch, counter)) in channels.iter().zip(counters.iter_mut()).enumerate() {
             let count = decode(&words[c * 2..], ValueType::I32, profile.word_order).as_i64();
             let ts = SystemTime::now();
-            if let Some(update) = counter.update(count + i as i64, i * 10) {
+            if let Some(update) = counter.update(count + i as i64, Stamp::at(i * 10)) {
                 let r = Reading {
                     device: "d".into(),
                     channel: ch.name.as_str().into(),

@@ -43,7 +43,7 @@ pub async fn run_with_reloads(
     let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
-    for bus in &config.buses {
+    for bus in config.buses.iter().filter(|b| b.enabled) {
         let r = start_bus(bus, &config, &health, &metrics, &out_tx, &shutdown);
         running.insert(bus.name.clone(), r);
     }
@@ -65,21 +65,21 @@ pub async fn run_with_reloads(
     let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
         .await
         .unwrap_or_default();
-    let mqtt = tokio::spawn(async move {
-        crate::publish::mqtt::run(
-            mqtt_config,
-            &spool_dir,
-            flush,
-            out_rx,
-            incoming_tx,
-            mqtt_heart,
-            mqtt_health,
-            boot,
-            mqtt_metrics,
-            mqtt_shutdown,
-        )
-        .await
-    });
+    let task = crate::publish::mqtt::Task {
+        config: mqtt_config,
+        spool_dir,
+        flush_every: flush,
+        heart: mqtt_heart,
+        health: mqtt_health,
+        boot,
+        metrics: mqtt_metrics,
+    };
+    let mqtt = tokio::spawn(crate::publish::mqtt::run(
+        task,
+        out_rx,
+        incoming_tx,
+        mqtt_shutdown,
+    ));
 
     let mut current = config;
     loop {
@@ -246,7 +246,7 @@ async fn apply(
         health.forget(&format!("bus/{name}"));
         tracing::info!(bus = %name, "bus stopped for the new config");
     }
-    for bus in &new.buses {
+    for bus in new.buses.iter().filter(|b| b.enabled) {
         if !running.contains_key(&bus.name) {
             // The gateway and MQTT settings stay those the gateway started with.
             let mut cfg = new.clone();

@@ -148,17 +148,10 @@ pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
     Ok(())
 }
 
-/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd` (the rule
+/// lives with the other topic rules in [`crate::publish::topics`]).
 pub fn parse_topic<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
-    let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
-    let rest = rest.strip_suffix("/cmd")?;
-    match rest.split('/').collect::<Vec<_>>()[..] {
-        [device] if !device.is_empty() => Some((device, None)),
-        [device, channel] if !device.is_empty() && !channel.is_empty() => {
-            Some((device, Some(channel)))
-        }
-        _ => None,
-    }
+    crate::publish::topics::parse_command(root, topic)
 }
 
 /// The parts of a payload before the device is known: op, id.

@@ -1,13 +1,17 @@
 //! Counter truth: a module's count → delta, total and events, so that every pulse is booked once.
 //!
-//! Pure: time comes in as wall-clock milliseconds with each count.
+//! Pure: time comes in as a [`Stamp`] with each count: the wall clock (for `ts` and across
+//! restarts) and a monotonic clock (for elapsed time within a run, so a wall clock that steps
+//! never creates or hides pulses).
 //!
 //! A 32-bit count wraps; a module that restarts or is cleared by someone else jumps to 0; a noisy
-//! read may return a lone wrong value. A jump is a wrap only if the rate it implies is possible
-//! at the channel's highest input rate. Any other jump is *suspect*: the total does not move until
-//! the next read says which story is true. If the next count continues from the old one, the
-//! suspect read was a glitch; if it continues from the suspect one, the module was reset and the
-//! new count is the number of pulses since the reset.
+//! read may return a lone wrong value. A jump is plausible only if the rate it implies is possible
+//! at the channel's highest input rate; a jump across the wrap point must in addition fit what the
+//! channel itself has shown (its observed peak rate, with a margin), so that a module that lost
+//! power during a long absence is a reset, not four billion pulses. Any other jump is *suspect*:
+//! the total does not move until the next read says which story is true. If the next count
+//! continues from the old one, the suspect read was a glitch; if it continues from the suspect
+//! one, the module was reset and the new count is the number of pulses since the reset.
 
 use serde::{Deserialize, Serialize};
 
@@ -27,37 +31,87 @@ pub enum Event {
     Gap,
 }
 
+/// When a count was read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Stamp {
+    /// Milliseconds since the Unix epoch (the wall clock: may step either way).
+    pub wall_ms: u64,
+    /// Milliseconds on a clock that never steps, valid within one run of the gateway.
+    pub mono_ms: u64,
+}
+
+impl Stamp {
+    /// A stamp whose two clocks agree (tests, tools).
+    pub fn at(ms: u64) -> Stamp {
+        Stamp {
+            wall_ms: ms,
+            mono_ms: ms,
+        }
+    }
+}
+
+/// Which way a count moves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Direction {
+    /// Either way, taken the short way round (encoders).
+    Both,
+    /// Only up: a lower count is a wrap or a reset (unsigned inputs, counters counting up).
+    Up,
+    /// Only down (a ZH-YX1600 counter commanded to count down).
+    Down,
+}
+
 /// How a channel counts.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CounterSpec {
     /// Number of distinct count values (2^32 for 32-bit counts).
     pub modulus: i64,
-    /// Signed counts (encoders, ZH-YX1600) move both ways; unsigned ones only up.
-    pub signed: bool,
+    pub direction: Direction,
     /// Highest input rate the module can count, in pulses per second.
     pub max_rate_hz: f64,
 }
 
+/// For this long a channel may go from idle to the datasheet's maximum rate: a wrap within it is
+/// judged by the datasheet alone, as before any history existed.
+pub const BURST_MS: u64 = 10_000;
+/// Margin on the observed peak rate when judging a wrap over a longer time.
+pub const PEAK_MARGIN: f64 = 4.0;
+/// Deltas over shorter times do not teach the peak rate (timing jitter would inflate it).
+const PEAK_MIN_MS: u64 = 50;
+
 impl CounterSpec {
-    /// Largest jump that `elapsed_ms` can explain, with room for timing jitter.
+    /// Largest jump that `elapsed_ms` can explain at the datasheet's maximum input rate, with
+    /// room for timing jitter.
     pub fn plausible(&self, elapsed_ms: u64) -> i64 {
         let secs = elapsed_ms.max(1) as f64 / 1000.0;
         (self.max_rate_hz * secs * 1.25 + 16.0) as i64
     }
 
-    /// The movement from `from` to `to` taken the short way round (signed) or forward
-    /// (unsigned), and whether it crossed the wrap point.
+    /// Largest jump across the wrap point that `elapsed_ms` can explain for a channel whose
+    /// observed peak rate is `peak_hz`: a burst at the datasheet maximum for up to
+    /// [`BURST_MS`], plus [`PEAK_MARGIN`] × the peak for the whole time, and never more than
+    /// the datasheet allows.
+    pub fn plausible_wrap(&self, elapsed_ms: u64, peak_hz: u64) -> i64 {
+        let secs = elapsed_ms as f64 / 1000.0;
+        let burst = self.plausible(elapsed_ms.min(BURST_MS)) as f64;
+        let history = burst + PEAK_MARGIN * peak_hz as f64 * secs;
+        self.plausible(elapsed_ms).min(history as i64)
+    }
+
+    /// The movement from `from` to `to` in the channel's direction, and whether it crossed the
+    /// wrap point.
     fn movement(&self, from: i64, to: i64) -> (i64, bool) {
         let m = self.modulus;
-        if self.signed {
-            let mut d = (to - from).rem_euclid(m);
-            if d >= m / 2 {
-                d -= m;
+        match self.direction {
+            Direction::Both => {
+                let mut d = (to - from).rem_euclid(m);
+                if d >= m / 2 {
+                    d -= m;
+                }
+                (d, d != to - from)
             }
-            (d, d != to - from)
-        } else {
-            let d = (to - from).rem_euclid(m);
-            (d, to < from)
+            Direction::Up => ((to - from).rem_euclid(m), to < from),
+            Direction::Down => (-(from - to).rem_euclid(m), to > from),
         }
     }
 }
@@ -65,7 +119,7 @@ impl CounterSpec {
 /// What a channel remembers between reads, and across restarts (saved in the state file).
 #[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct CounterState {
-    /// The last count booked into the total, and when it was read.
+    /// The last count booked into the total, and when it was read (wall clock).
     pub count: Option<i64>,
     pub at_ms: u64,
     /// Running sum of deltas.
@@ -78,6 +132,14 @@ pub struct CounterState {
     /// The next delta covers a time the gateway did not watch.
     #[serde(default)]
     pub gap: bool,
+    /// Highest rate the channel has shown (pulses per second, rounded up, capped at the
+    /// datasheet maximum): bounds what a wrap after a long absence can be.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub peak_hz: u64,
+}
+
+fn is_zero(v: &u64) -> bool {
+    *v == 0
 }
 
 /// The outcome of one read.
@@ -96,6 +158,19 @@ pub struct Update {
 pub struct Counter {
     pub spec: CounterSpec,
     pub state: CounterState,
+    /// Monotonic time of the last booked read and of the suspect read, in this run. `None`
+    /// after a resume: then the saved wall-clock time is all there is.
+    mono: Option<u64>,
+    suspect_mono: Option<u64>,
+}
+
+/// Time from `then` to `now`: monotonic where `then` was taken in this run, wall clock across a
+/// restart. A wall clock that went backwards gives 0, which makes no jump more plausible.
+fn elapsed(now: Stamp, wall_then: u64, mono_then: Option<u64>) -> u64 {
+    match mono_then {
+        Some(m) => now.mono_ms.saturating_sub(m),
+        None => now.wall_ms.saturating_sub(wall_then),
+    }
 }
 
 impl Counter {
@@ -103,6 +178,8 @@ impl Counter {
         Counter {
             spec,
             state: CounterState::default(),
+            mono: None,
+            suspect_mono: None,
         }
     }
 
@@ -110,7 +187,21 @@ impl Counter {
     /// as a gap, so pulses counted while the gateway was down are booked once.
     pub fn resume(spec: CounterSpec, mut state: CounterState) -> Counter {
         state.gap = state.count.is_some();
-        Counter { spec, state }
+        Counter {
+            spec,
+            state,
+            mono: None,
+            suspect_mono: None,
+        }
+    }
+
+    /// The same state counted under a new spec (a changed run direction): the monotonic times
+    /// of this run are kept.
+    pub fn with_spec(&self, spec: CounterSpec) -> Counter {
+        Counter {
+            spec,
+            ..self.clone()
+        }
     }
 
     /// The device was away: the next delta covers the gap.
@@ -120,77 +211,95 @@ impl Counter {
         }
     }
 
-    /// Books a count read at `at_ms`. `None` when the read is held as suspect: it is not
+    /// Books a count read at `at`. `None` when the read is held as suspect: it is not
     /// published (no phantom value on a dashboard) and the next read decides what it was.
-    pub fn update(&mut self, count: i64, at_ms: u64) -> Option<Update> {
-        let s = &mut self.state;
-        let Some(last) = s.count else {
-            s.count = Some(count);
-            s.at_ms = at_ms;
-            s.seq += 1;
+    pub fn update(&mut self, count: i64, at: Stamp) -> Option<Update> {
+        let Some(last) = self.state.count else {
+            self.state.seq += 1;
+            self.state.count = Some(count);
+            self.state.at_ms = at.wall_ms;
+            self.mono = Some(at.mono_ms);
             return Some(self.outcome(0, None, None));
         };
-        let elapsed = at_ms.saturating_sub(s.at_ms);
+        let since_last = elapsed(at, self.state.at_ms, self.mono);
         let (d, wrapped) = self.spec.movement(last, count);
-        if d.abs() <= self.spec.plausible(elapsed) {
-            let rate = rate(d, elapsed);
-            return Some(self.book(count, at_ms, d, wrapped.then_some(Event::Rollover), rate));
+        let limit = if wrapped {
+            self.spec.plausible_wrap(since_last, self.state.peak_hz)
+        } else {
+            self.spec.plausible(since_last)
+        };
+        if d.abs() <= limit {
+            let event = wrapped.then_some(Event::Rollover);
+            return Some(self.book(count, at, d, event, since_last));
         }
         // Does not follow from the last booked count. Does it follow from a suspect read?
-        if let Some((suspect, suspect_at)) = s.suspect {
-            let since = at_ms.saturating_sub(suspect_at);
+        if let Some((suspect, suspect_at)) = self.state.suspect {
+            let since = elapsed(at, suspect_at, self.suspect_mono);
             let (ds, _) = self.spec.movement(suspect, count);
             if ds.abs() <= self.spec.plausible(since) {
                 // The module was reset: it has counted `count` pulses since (from zero).
-                let rate = rate(ds, since);
-                return Some(self.book(count, at_ms, count, Some(Event::Reset), rate));
+                return Some(self.book(count, at, count, Some(Event::Reset), since));
             }
         }
-        s.suspect = Some((count, at_ms));
+        self.state.suspect = Some((count, at.wall_ms));
+        self.suspect_mono = Some(at.mono_ms);
         None
     }
 
-    /// The gateway cleared or preset the channel and read back `count`: the total stays, the
-    /// next delta is taken from `count`.
-    pub fn rebase(&mut self, count: i64, at_ms: u64, event: Event) -> Update {
+    /// The gateway cleared, preset or (re)started the channel and read back `count`: the total
+    /// stays, the next delta is taken from `count`.
+    pub fn rebase(&mut self, count: i64, at: Stamp, event: Event) -> Update {
         let s = &mut self.state;
         s.seq += 1;
         s.count = Some(count);
-        s.at_ms = at_ms;
+        s.at_ms = at.wall_ms;
         s.suspect = None;
         s.gap = false;
+        self.mono = Some(at.mono_ms);
+        self.suspect_mono = None;
         self.outcome(0, Some(event), None)
     }
 
     /// The gateway wrote `written` (0 for a clear, the preset value) and read back `count`: the
     /// pulses counted between the write and the read-back are booked (the movement from
     /// `written` to `count`), so a clear while counting loses nothing it could see.
-    pub fn rebase_from(&mut self, written: i64, count: i64, at_ms: u64, event: Event) -> Update {
+    pub fn rebase_from(&mut self, written: i64, count: i64, at: Stamp, event: Event) -> Update {
         let (delta, _) = self.spec.movement(written, count);
         let s = &mut self.state;
         s.seq += 1;
         s.count = Some(count);
-        s.at_ms = at_ms;
+        s.at_ms = at.wall_ms;
         s.total += delta;
         s.suspect = None;
         s.gap = false;
+        self.mono = Some(at.mono_ms);
+        self.suspect_mono = None;
         self.outcome(delta, Some(event), None)
     }
 
     fn book(
         &mut self,
         count: i64,
-        at_ms: u64,
+        at: Stamp,
         delta: i64,
         event: Option<Event>,
-        rate: Option<f64>,
+        elapsed_ms: u64,
     ) -> Update {
+        let rate = rate(delta, elapsed_ms);
+        let max = self.spec.max_rate_hz;
         let s = &mut self.state;
+        if elapsed_ms >= PEAK_MIN_MS
+            && let Some(r) = rate
+        {
+            s.peak_hz = s.peak_hz.max(r.abs().min(max).ceil() as u64);
+        }
         s.seq += 1;
         s.count = Some(count);
-        s.at_ms = at_ms;
+        s.at_ms = at.wall_ms;
         s.total += delta;
         s.suspect = None;
+        self.mono = Some(at.mono_ms);
+        self.suspect_mono = None;
         let event = if std::mem::take(&mut s.gap) {
             event.filter(|e| *e == Event::Reset).or(Some(Event::Gap))
         } else {
@@ -223,7 +332,7 @@ mod tests {
     fn di(rate: f64) -> Counter {
         Counter::new(CounterSpec {
             modulus: M,
-            signed: false,
+            direction: Direction::Up,
             max_rate_hz: rate,
         })
     }
@@ -231,14 +340,17 @@ mod tests {
     fn encoder(rate: f64) -> Counter {
         Counter::new(CounterSpec {
             modulus: M,
-            signed: true,
+            direction: Direction::Both,
             max_rate_hz: rate,
         })
     }
 
     /// Feeds (count, ms) pairs and returns the updates (held reads as `None`).
     fn feed(c: &mut Counter, reads: &[(i64, u64)]) -> Vec<Option<Update>> {
-        reads.iter().map(|&(n, t)| c.update(n, t)).collect()
+        reads
+            .iter()
+            .map(|&(n, t)| c.update(n, Stamp::at(t)))
+            .collect()
     }
 
     /// Like [`feed`] for reads that are all booked.
@@ -252,7 +364,7 @@ mod tests {
     #[test]
     fn the_first_read_books_nothing() {
         let mut c = di(1000.0);
-        let u = c.update(500, 0).unwrap();
+        let u = c.update(500, Stamp::at(0)).unwrap();
         assert_eq!((u.delta, u.total, u.seq, u.event), (0, 0, 1, None));
     }
 
@@ -334,9 +446,9 @@ mod tests {
     fn a_clear_by_the_gateway_never_moves_the_total() {
         let mut c = di(1000.0);
         booked(&mut c, &[(0, 0), (500, 500)]);
-        let u = c.rebase(0, 510, Event::Cleared);
+        let u = c.rebase(0, Stamp::at(510), Event::Cleared);
         assert_eq!((u.delta, u.total, u.event), (0, 500, Some(Event::Cleared)));
-        let u = c.update(490, 1000).unwrap();
+        let u = c.update(490, Stamp::at(1000)).unwrap();
         assert_eq!((u.delta, u.total, u.event), (490, 990, None));
     }
 
@@ -344,9 +456,9 @@ mod tests {
     fn a_preset_by_the_gateway_never_moves_the_total() {
         let mut c = encoder(1000.0);
         booked(&mut c, &[(0, 0), (-500, 500)]);
-        let u = c.rebase(3000, 510, Event::Preset);
+        let u = c.rebase(3000, Stamp::at(510), Event::Preset);
         assert_eq!((u.total, u.event), (-500, Some(Event::Preset)));
-        let u = c.update(3100, 600).unwrap();
+        let u = c.update(3100, Stamp::at(600)).unwrap();
         assert_eq!((u.delta, u.total), (100, -400));
     }
 
@@ -356,10 +468,10 @@ mod tests {
         booked(&mut c, &[(0, 0), (1000, 1000)]);
         let saved = c.state.clone();
         let mut c = Counter::resume(c.spec, saved);
-        let u = c.update(6000, 6000).unwrap();
+        let u = c.update(6000, Stamp::at(6000)).unwrap();
         assert_eq!((u.delta, u.total, u.event), (5000, 6000, Some(Event::Gap)));
         assert_eq!(u.seq, 3);
-        let u = c.update(6500, 6500).unwrap();
+        let u = c.update(6500, Stamp::at(6500)).unwrap();
         assert_eq!(u.event, None);
     }
 
@@ -368,7 +480,7 @@ mod tests {
         let mut c = di(1000.0);
         booked(&mut c, &[(0, 0)]);
         c.mark_gap();
-        let u = c.update(3000, 3000).unwrap();
+        let u = c.update(3000, Stamp::at(3000)).unwrap();
         assert_eq!((u.delta, u.event), (3000, Some(Event::Gap)));
     }
 
@@ -389,13 +501,160 @@ mod tests {
         assert_eq!(back, c.state);
     }
 
+    const HOUR: u64 = 3_600_000;
+    const DAY: u64 = 24 * HOUR;
+
+    /// Polls a channel counting `hz` every 200 ms for `n` polls, starting at `count` and
+    /// `at` (wall clock `wall_offset` away from the monotonic one); returns the last count.
+    fn poll_steady(c: &mut Counter, count: i64, at: u64, hz: i64, n: u64, wall: i64) -> i64 {
+        let mut last = count;
+        for i in 0..n {
+            let mono = at + i * 200;
+            last = count + hz * (i as i64) / 5;
+            let stamp = Stamp {
+                wall_ms: (mono as i64 + wall) as u64,
+                mono_ms: mono,
+            };
+            let u = c.update(last, stamp).expect("booked");
+            assert_eq!(u.event, None, "poll {i}");
+        }
+        last
+    }
+
+    #[test]
+    fn a_wall_clock_stepped_back_an_hour_mid_run_books_exactly_the_module_count() {
+        let mut c = di(2000.0);
+        let start = 10 * HOUR;
+        let mid = poll_steady(&mut c, 0, start, 2000, 50, 0);
+        // The same monotonic time goes on; the wall clock is an hour behind from here.
+        let end = poll_steady(
+            &mut c,
+            mid + 400,
+            start + 50 * 200,
+            2000,
+            50,
+            -(HOUR as i64),
+        );
+        assert_eq!(c.state.total, end);
+    }
+
+    #[test]
+    fn a_wall_clock_stepped_forward_an_hour_mid_run_books_exactly_the_module_count() {
+        let mut c = di(2000.0);
+        let mid = poll_steady(&mut c, 0, 0, 2000, 50, 0);
+        let end = poll_steady(&mut c, mid + 400, 50 * 200, 2000, 50, HOUR as i64);
+        assert_eq!(c.state.total, end);
+        assert!(c.state.peak_hz <= 2000, "rates from the monotonic clock");
+    }
+
+    #[test]
+    fn after_two_days_away_a_lower_count_of_a_slow_channel_is_a_reset_not_a_wrap() {
+        let mut c = di(50_000.0);
+        // Counts at 5 Hz for a minute, then the gateway stops (state saved).
+        booked(&mut c, &[(1_000_000, 0), (1_000_300, 60_000)]);
+        assert_eq!(c.state.peak_hz, 5);
+        let saved = c.state.clone();
+        // Two days later the module has restarted from 0 and counted 18, then 20.
+        let mut c = Counter::resume(c.spec, saved);
+        let back = 60_000 + 2 * DAY;
+        assert_eq!(c.update(18, Stamp::at(back)), None, "held, not a wrap");
+        let u = c.update(20, Stamp::at(back + 200)).unwrap();
+        assert_eq!((u.delta, u.event), (20, Some(Event::Reset)));
+        assert_eq!(c.state.total, 300 + 20);
+    }
+
+    #[test]
+    fn a_fast_channel_that_really_wrapped_during_a_long_absence_still_books_the_wrap() {
+        let mut c = di(50_000.0);
+        // 20 kHz, seen by the gateway.
+        booked(
+            &mut c,
+            &[(0, 0), (20_000, 1000), (4_000_000_000, 200_000_000)],
+        );
+        assert_eq!(c.state.peak_hz, 20_000);
+        let saved = c.state.clone();
+        let mut c = Counter::resume(c.spec, saved);
+        // Two days later it has wrapped and stands at 50_000.
+        let u = c
+            .update(50_000, Stamp::at(200_000_000 + 2 * DAY))
+            .expect("a wrap the channel's history allows");
+        assert_eq!(u.delta, (1 << 32) - 4_000_000_000 + 50_000);
+        assert_eq!(u.event, Some(Event::Gap));
+    }
+
+    #[test]
+    fn a_quiet_channel_near_the_top_still_wraps_within_the_burst_time() {
+        let mut c = di(50_000.0);
+        booked(&mut c, &[(4_294_967_000, 0), (4_294_967_000, 60_000)]);
+        assert_eq!(c.state.peak_hz, 0);
+        let u = c.update(500, Stamp::at(65_000)).unwrap();
+        assert_eq!((u.delta, u.event), (796, Some(Event::Rollover)));
+    }
+
+    #[test]
+    fn the_wrap_window_grows_with_the_observed_peak_only() {
+        let spec = di(50_000.0).spec;
+        // Within the burst time the datasheet decides.
+        assert_eq!(spec.plausible_wrap(5_000, 0), spec.plausible(5_000));
+        // Beyond it, the peak with its margin: 2 days at 5 Hz is about 3.5 million pulses.
+        let two_days = spec.plausible_wrap(2 * DAY, 5);
+        assert!((3_000_000..4_500_000).contains(&two_days), "{two_days}");
+        // Never more than the datasheet's maximum.
+        assert_eq!(
+            spec.plausible_wrap(2 * DAY, 1_000_000),
+            spec.plausible(2 * DAY)
+        );
+    }
+
+    #[test]
+    fn across_a_restart_a_wall_clock_that_went_backwards_makes_no_jump_plausible() {
+        let mut c = di(50_000.0);
+        booked(&mut c, &[(0, 10 * HOUR), (1000, 10 * HOUR + 1000)]);
+        let mut c = Counter::resume(c.spec, c.state.clone());
+        // Restarted with the wall clock a day behind: 10 million more is not plausible in 0 s.
+        assert_eq!(c.update(10_001_000, Stamp::at(9 * HOUR)), None);
+    }
+
+    #[test]
+    fn the_peak_rate_is_saved_and_capped_at_the_datasheet_maximum() {
+        let mut c = di(1000.0);
+        booked(&mut c, &[(0, 0), (1000, 1000)]);
+        // A reset confirmed over a short time does not teach an impossible rate.
+        feed(&mut c, &[(3_000_000_000, 1100), (3_000_000_100, 1150)]);
+        assert!(c.state.peak_hz <= 1000, "{}", c.state.peak_hz);
+        let text = serde_json::to_string(&c.state).unwrap();
+        assert!(text.contains("\"peak_hz\":1000"), "{text}");
+        let back: CounterState = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.peak_hz, c.state.peak_hz);
+        // State saved before this field existed loads with no history.
+        let old: CounterState =
+            serde_json::from_str(r#"{"count":5,"at_ms":1,"total":2,"seq":3}"#).unwrap();
+        assert_eq!(old.peak_hz, 0);
+    }
+
+    #[test]
+    fn a_counter_counting_down_books_negative_deltas_and_a_rise_is_suspect() {
+        let mut c = Counter::new(CounterSpec {
+            modulus: M,
+            direction: Direction::Down,
+            max_rate_hz: 1000.0,
+        });
+        let u = booked(&mut c, &[(0, 0), (-300, 500)]);
+        assert_eq!((u[1].delta, u[1].event), (-300, None));
+        assert_eq!(
+            c.update(-100, Stamp::at(600)),
+            None,
+            "a rise is not counting down"
+        );
+    }
+
     #[test]
     fn a_clear_books_the_pulses_counted_between_the_write_and_the_read_back() {
         let mut c = di(1000.0);
         booked(&mut c, &[(500, 0), (700, 200)]);
-        let u = c.rebase_from(0, 7, 210, Event::Cleared);
+        let u = c.rebase_from(0, 7, Stamp::at(210), Event::Cleared);
         assert_eq!((u.delta, u.total, u.event), (7, 207, Some(Event::Cleared)));
-        let next = c.update(57, 260).expect("booked");
+        let next = c.update(57, Stamp::at(260)).expect("booked");
         assert_eq!((next.delta, next.total), (50, 257));
     }
 
@@ -403,6 +662,10 @@ mod tests {
     fn a_preset_of_an_encoder_books_its_movement_both_ways() {
         let mut c = encoder(1000.0);
         booked(&mut c, &[(10, 0)]);
-        assert_eq!(c.rebase_from(3000, 2996, 10, Event::Preset).delta, -4);
+        assert_eq!(
+            c.rebase_from(3000, 2996, Stamp::at(10), Event::Preset)
+                .delta,
+            -4
+        );
     }
 }

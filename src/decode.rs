@@ -69,9 +69,29 @@ pub fn encode_int(value: i64, ty: ValueType, order: WordOrder) -> Option<Vec<u16
     })
 }
 
+/// Words of an IEEE 754 float register in `order` (the simulator's frequency registers).
+pub fn encode_f32(value: f32, order: WordOrder) -> Vec<u16> {
+    let bits = value.to_bits();
+    let (hi, lo) = ((bits >> 16) as u16, bits as u16);
+    match order {
+        WordOrder::HighFirst => vec![hi, lo],
+        WordOrder::LowFirst => vec![lo, hi],
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_float_is_encoded_in_the_word_order_the_decoder_reads() {
+        // 1000.0 is 0x447A0000 in IEEE 754 single precision.
+        assert_eq!(encode_f32(1000.0, WordOrder::HighFirst), [0x447A, 0x0000]);
+        assert_eq!(encode_f32(1000.0, WordOrder::LowFirst), [0x0000, 0x447A]);
+        let words = encode_f32(-12.5, WordOrder::LowFirst);
+        let back = decode(&words, ValueType::F32, WordOrder::LowFirst).as_f64();
+        assert_eq!(back, -12.5);
+    }
 
     /// Registers of a read answer frame: address, function, byte count, data, CRC.
     fn frame_words(frame: &[u8]) -> Vec<u16> {

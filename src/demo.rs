@@ -12,7 +12,7 @@ use rumqttc::v5::{AsyncClient, Event, MqttOptions};
 use tokio_util::sync::CancellationToken;
 
 use crate::config::Config;
-use crate::sim::{Endpoint, Plant, SimConfig};
+use crate::sim::{Plant, SimConfig};
 
 /// The demo could not start.
 #[derive(Debug, thiserror::Error)]
@@ -79,32 +79,18 @@ fn gateway_config(
     port: u16,
     state_dir: &Path,
 ) -> Result<Config, DemoError> {
-    let mut text = format!(
-        "[gateway]\nid = \"demo\"\nstate_dir = {state_dir:?}\nstats_interval = \"30s\"\n\
-         [mqtt]\nhost = {host:?}\nport = {port}\n"
-    );
-    for bus in &plant.buses {
-        match &bus.endpoint {
-            Endpoint::Serial(path) => {
-                text += &format!("[buses.{}]\nport = {:?}\nbaud = 9600\n", bus.name, path)
-            }
-            Endpoint::Tcp(addr) => {
-                text += &format!(
-                    "[buses.{}]\nhost = \"{}\"\nport = {}\n",
-                    bus.name,
-                    addr.ip(),
-                    addr.port()
-                )
-            }
-        }
-        let sim = plant_config();
-        for (name, d) in &sim.buses[&bus.name].devices {
-            text += &format!(
-                "[buses.{}.devices.{name}]\nunit = {}\nmodel = {:?}\npoll = \"500ms\"\n",
-                bus.name, d.unit, d.model
-            );
-        }
+    let sim = plant_config();
+    let text = crate::sim::gateway::GatewayToml {
+        id: "demo",
+        state_dir,
+        gateway: "stats_interval = \"30s\"\n",
+        mqtt_host: host,
+        mqtt_port: Some(port),
+        mqtt: "",
+        serial: "baud = 9600\n",
+        tcp: "",
     }
+    .render(plant, &crate::sim::gateway::every_device(&sim, "500ms"));
     Ok(Config::from_toml(
         &text,
         &state_dir.join("demo.toml"),

@@ -27,7 +27,7 @@ fn targets_of(
         .filter_map(|(bus, d)| {
             let target = Target {
                 bus: buses.get(&bus.name)?.clone(),
-                commands: d.commands,
+                commands: d.commands && d.enabled && bus.enabled,
                 channels: d
                     .profile
                     .all_channels()
@@ -111,7 +111,7 @@ impl Router {
     /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
     fn scan(&self, bus: &str, msg: &Incoming) {
         let mut reply = Reply {
-            topics: vec![format!("{}/result", msg.topic)],
+            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         let refuse = |reply: &Reply, error: &str, message: String| {
@@ -193,27 +193,11 @@ impl Router {
             return;
         };
         let mut reply = Reply {
-            topics: vec![format!("{}/result", msg.topic)],
+            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        // MQTT v5 properties are checked before anything is published to them: a response
-        // topic the gateway cannot publish to must not reach the spool.
-        if let Some(c) = &msg.correlation
-            && c.len() > command::MAX_CORRELATION
-        {
-            let e = CommandError::TooLarge {
-                what: "the correlation data",
-                size: c.len(),
-                limit: command::MAX_CORRELATION,
-            };
+        if let Err(e) = reply_to(&msg, &mut reply) {
             return self.refuse(&msg.topic, &reply, None, None, e);
-        }
-        if let Some(rt) = &msg.response_topic {
-            if let Err(e) = command::check_response_topic(rt) {
-                return self.refuse(&msg.topic, &reply, None, None, e);
-            }
-            reply.topics.push(rt.clone());
-            reply.correlation = msg.correlation.clone();
         }
         let parsed = match command::parse_payload(&msg.payload, channel.is_some()) {
             Ok(p) => p,
@@ -252,6 +236,20 @@ impl Router {
             }
             return refuse(e);
         }
+        self.forward(&msg.topic, &target.bus, device, channel, parsed, reply);
+    }
+
+    /// Hands an admitted command to its bus; its result is published when the bus answers.
+    fn forward(
+        &self,
+        topic: &str,
+        bus: &UnboundedSender<BusCommand>,
+        device: &str,
+        channel: Option<&str>,
+        parsed: command::Parsed,
+        reply: Reply,
+    ) {
+        let (op, id) = (parsed.op.name(), parsed.id.as_deref());
         let now = Instant::now();
         let (done, result) = oneshot::channel();
         let request = Request {
@@ -263,10 +261,10 @@ impl Router {
             received: now,
             expires: now + EXPIRY,
         };
-        if target.bus.send(BusCommand { request, done }).is_err() {
+        if bus.send(BusCommand { request, done }).is_err() {
             lock(&self.admission).done(device);
             return self.finish(
-                &msg.topic,
+                topic,
                 &reply,
                 id,
                 op,
@@ -276,7 +274,7 @@ impl Router {
         let out = self.out.clone();
         let dedupe = self.dedupe.clone();
         let admission = self.admission.clone();
-        let topic = msg.topic.clone();
+        let topic = topic.to_string();
         let id = parsed.id.clone();
         let device = device.to_string();
         tokio::spawn(async move {
@@ -349,4 +347,24 @@ impl Router {
             payload,
         });
     }
+}
+/// Checks the MQTT v5 properties of a command before anything is published to them (a
+/// response topic the gateway cannot publish to must not reach the spool) and adds the response
+/// topic and correlation data to `reply`.
+fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
+    if let Some(c) = &msg.correlation
+        && c.len() > command::MAX_CORRELATION
+    {
+        return Err(CommandError::TooLarge {
+            what: "the correlation data",
+            size: c.len(),
+            limit: command::MAX_CORRELATION,
+        });
+    }
+    if let Some(rt) = &msg.response_topic {
+        command::check_response_topic(rt)?;
+        reply.topics.push(rt.clone());
+        reply.correlation = msg.correlation.clone();
+    }
+    Ok(())
 }

@@ -19,6 +19,18 @@ struct Cli {
     command: Command,
 }
 
+#[derive(Subcommand)]
+enum StateAction {
+    /// Every saved channel: bus, unit/model/channel, total, count, and its device.
+    List,
+    /// Remove saved state that matches no configured device (a dry run unless --apply).
+    /// Stop the gateway first: a running one saves what it holds.
+    Prune {
+        #[arg(long)]
+        apply: bool,
+    },
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum LogFormat {
     Human,
@@ -41,6 +53,13 @@ enum Command {
     Plan {
         #[arg(long, default_value = DEFAULT_PATH)]
         config: PathBuf,
+    },
+    /// Show the saved counter state, or prune what matches no configured device.
+    State {
+        #[arg(long, default_value = DEFAULT_PATH, global = true)]
+        config: PathBuf,
+        #[command(subcommand)]
+        action: StateAction,
     },
     /// Serve simulated modules on pseudo-terminals and TCP ports.
     Simulate {
@@ -209,6 +228,13 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             pulsegate::app::run_with_reloads(config, shutdown, reloads).await;
             Ok(ExitCode::SUCCESS)
         }
+        Command::State { config, action } => {
+            let config = match load(&config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            state_command(&config, action)
+        }
         Command::Simulate { config } => {
             let text = std::fs::read_to_string(&config)
                 .with_context(|| format!("reading {}", config.display()))?;
@@ -233,4 +259,42 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `pulsegate state list|prune`.
+fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCode> {
+    use pulsegate::saved;
+    use pulsegate::state::BusState;
+    let files = saved::files(&config.gateway.state_dir)?;
+    let mut unmatched = 0;
+    for (bus, path) in files {
+        let state = BusState::load(&path)?;
+        let entries = saved::entries(config, &bus, &state);
+        unmatched += entries.iter().filter(|e| e.device.is_none()).count();
+        match action {
+            StateAction::List => {
+                for e in &entries {
+                    println!("{}", saved::line(e));
+                }
+            }
+            StateAction::Prune { apply } => {
+                for e in entries.iter().filter(|e| e.device.is_none()) {
+                    let verb = if apply { "removed" } else { "would remove" };
+                    println!("{verb}: {}", saved::line(e));
+                }
+                let kept = saved::pruned(config, &bus, &state);
+                if apply && kept != state {
+                    kept.save(&path)?;
+                }
+            }
+        }
+    }
+    if let StateAction::Prune { apply: false } = action
+        && unmatched > 0
+    {
+        println!(
+            "dry run: {unmatched} saved channel(s) match no configured device; --apply removes them"
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -50,6 +50,65 @@ impl Block {
     }
 }
 
+/// The device turnaround assumed before it is measured (the planner, `check` and `plan`; the bus
+/// measures it at run time).
+pub const DEFAULT_TURNAROUND: Duration = Duration::from_millis(2);
+
+/// Characters of one read of `registers` registers on the wire: the request (address,
+/// function, start, quantity, CRC = 8) and the answer (address, function, byte count, CRC = 5,
+/// plus 2 per register). The one place for Modbus RTU frame sizes.
+pub fn read_chars(registers: u16) -> f64 {
+    8.0 + 5.0 + 2.0 * f64::from(registers)
+}
+
+/// The reads of one device's poll, as a value: built when the registers change (a work-mode
+/// change), when a hole is learned or the wire's prices change; executed by the driver as it
+/// is; `check` and `plan` print the same value ([`PollPlan::describe`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PollPlan {
+    pub registers: Vec<Register>,
+    pub blocks: Vec<Block>,
+    /// What it was built for: holes known, the wire's prices.
+    holes: usize,
+    wire: Wire,
+}
+
+impl PollPlan {
+    pub fn new(registers: &[Register], holes: &[Range<u16>], wire: &Wire) -> PollPlan {
+        PollPlan {
+            registers: registers.to_vec(),
+            blocks: plan_reads(registers, holes, wire),
+            holes: holes.len(),
+            wire: *wire,
+        }
+    }
+
+    /// Still the plan for these registers, holes and prices.
+    pub fn fits(&self, registers: &[Register], holes: usize, wire: &Wire) -> bool {
+        self.registers == registers && self.holes == holes && self.wire == *wire
+    }
+
+    /// Registers read per poll (the plan may bridge gaps).
+    pub fn registers_read(&self) -> u16 {
+        self.blocks.iter().map(|b| b.len).sum()
+    }
+
+    /// `2 request(s) [0+10, 20+4], 14 registers`.
+    pub fn describe(&self) -> String {
+        let reads: Vec<String> = self
+            .blocks
+            .iter()
+            .map(|b| format!("{}+{}", b.start, b.len))
+            .collect();
+        format!(
+            "{} request(s) [{}], {} registers",
+            self.blocks.len(),
+            reads.join(", "),
+            self.registers_read()
+        )
+    }
+}
+
 /// How the wire prices a read, in characters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Wire {
@@ -60,12 +119,11 @@ pub struct Wire {
 impl Wire {
     /// RTU at `timing`, with the device's turnaround.
     pub fn rtu(timing: &LineTiming, turnaround: Duration) -> Wire {
-        // Request: addr fc start(2) qty(2) crc(2) = 8; answer: addr fc count crc(2) = 5.
         let silences =
             2.0 * timing.silent_interval().as_secs_f64() / timing.char_time().as_secs_f64();
         let turnaround = turnaround.as_secs_f64() / timing.char_time().as_secs_f64();
         Wire {
-            request_overhead: 8.0 + 5.0 + silences + turnaround,
+            request_overhead: read_chars(0) + silences + turnaround,
         }
     }
 
@@ -170,10 +228,7 @@ pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec
 pub fn line_time(blocks: &[Block], timing: &LineTiming, turnaround: Duration) -> Duration {
     blocks
         .iter()
-        .map(|b| {
-            let chars = 8.0 + 5.0 + 2.0 * f64::from(b.len);
-            timing.chars(chars) + timing.silent_interval() * 2 + turnaround
-        })
+        .map(|b| timing.chars(read_chars(b.len)) + timing.silent_interval() * 2 + turnaround)
         .sum()
 }
 
@@ -193,6 +248,26 @@ mod tests {
         Wire {
             request_overhead: overhead,
         }
+    }
+
+    #[test]
+    fn a_poll_plan_is_kept_until_its_registers_holes_or_prices_change() {
+        let v = [u32_at(16), u32_at(128)];
+        let plan = PollPlan::new(&v, &[], &wire(20.0));
+        assert_eq!(plan.describe(), "2 request(s) [16+2, 128+2], 4 registers");
+        assert!(plan.fits(&v, 0, &wire(20.0)));
+        assert!(!plan.fits(&v[..1], 0, &wire(20.0)), "another work mode");
+        assert!(!plan.fits(&v, 1, &wire(20.0)), "a hole learned");
+        assert!(!plan.fits(&v, 0, &wire(400.0)), "the wire priced anew");
+        let bridged = PollPlan::new(&v, &[], &wire(400.0));
+        assert_eq!(bridged.describe(), "1 request(s) [16+114], 114 registers");
+    }
+
+    #[test]
+    fn a_modbus_read_of_n_registers_is_13_plus_2n_characters() {
+        // Request 01 03 00 10 00 02 CRC CRC (8); answer 01 03 04 + 4 data + CRC CRC (5 + 4).
+        assert_eq!(read_chars(2), 17.0);
+        assert_eq!(read_chars(0), 13.0);
     }
 
     #[test]

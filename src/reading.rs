@@ -50,10 +50,16 @@ pub enum Output {
         device: Arc<str>,
         online: bool,
     },
-    /// Health of a bus, as JSON.
+    /// The device has a problem that stops some or all of its readings:
+    /// `<root>/<device>/status` = `status` (`wrong_model`, `mode_mismatch`).
+    DeviceProblem {
+        device: Arc<str>,
+        status: &'static str,
+    },
+    /// Health of a bus.
     BusStats {
         bus: Arc<str>,
-        stats: serde_json::Value,
+        stats: Box<crate::bus::stats::BusStats>,
     },
     /// The answer to a command, as JSON, and the topics it goes to.
     CommandResult {
@@ -68,4 +74,24 @@ pub fn unix_ms(t: SystemTime) -> u64 {
     t.duration_since(SystemTime::UNIX_EPOCH)
         .map(|d| d.as_millis() as u64)
         .unwrap_or(0)
+}
+
+/// The process's monotonic epoch: monotonic milliseconds are counted from the first use.
+fn epoch() -> std::time::Instant {
+    static EPOCH: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+    *EPOCH.get_or_init(std::time::Instant::now)
+}
+
+/// The stamp of an answer that arrived at wall time `wall` and monotonic time `mono`.
+pub fn stamp(wall: SystemTime, mono: std::time::Instant) -> crate::counter::Stamp {
+    crate::counter::Stamp {
+        wall_ms: unix_ms(wall),
+        mono_ms: mono.saturating_duration_since(epoch()).as_millis() as u64,
+    }
+}
+
+/// Now, on both clocks.
+pub fn now() -> (SystemTime, std::time::Instant) {
+    epoch();
+    (SystemTime::now(), std::time::Instant::now())
 }

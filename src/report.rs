@@ -4,11 +4,11 @@ use std::fmt::Write;
 use std::time::Duration;
 
 use crate::config::{Config, Link};
-use crate::plan::{Wire, line_time, plan_reads};
+use crate::plan::{PollPlan, Wire, line_time};
 use crate::profile::Register;
 
-/// Assumed device turnaround when estimating line time (the planner measures it at run time).
-const TURNAROUND: Duration = Duration::from_millis(2);
+/// Assumed device turnaround when estimating line time (the bus measures it at run time).
+const TURNAROUND: Duration = crate::plan::DEFAULT_TURNAROUND;
 
 /// One line per device with its reads, registers and line time per poll, and per bus the share
 /// of the line its intervals need (a warning when above 100%). Work modes are not known before
@@ -27,30 +27,21 @@ pub fn poll_plan(config: &Config) -> String {
         for d in &bus.devices {
             let modes: Vec<u16> = vec![0; d.profile.mode_registers().len()];
             let channels = d.profile.channels(&modes).unwrap_or_default();
-            let values: Vec<Register> = channels
-                .iter()
-                .flat_map(|c| std::iter::once(c.count).chain(c.freq))
-                .collect();
-            let blocks = plan_reads(&values, &[], &wire);
-            let regs: u16 = blocks.iter().map(|b| b.len).sum();
-            let reads: Vec<String> = blocks
-                .iter()
-                .map(|b| format!("{}+{}", b.start, b.len))
-                .collect();
-            let time = timing.map(|t| line_time(&blocks, &t, TURNAROUND));
+            let values: Vec<Register> = channels.iter().flat_map(|c| c.polled()).collect();
+            // The same value the bus builds and executes for this mode.
+            let plan = PollPlan::new(&values, &[], &wire);
+            let time = timing.map(|t| line_time(&plan.blocks, &t, TURNAROUND));
             if let Some(t) = time {
                 load += t.as_secs_f64() / d.poll.as_secs_f64();
             }
             let _ = writeln!(
                 out,
-                "  {:<16} unit {:>3} {:<10} every {:<8} {} request(s) [{}], {} registers, {} channels{}",
+                "  {:<16} unit {:>3} {:<10} every {:<8} {}, {} channels{}",
                 d.name,
                 d.unit,
                 d.profile.model,
                 humantime::format_duration(d.poll).to_string(),
-                blocks.len(),
-                reads.join(", "),
-                regs,
+                plan.describe(),
                 channels.len(),
                 time.map(|t| format!(", {:.1} ms on the line", t.as_secs_f64() * 1000.0))
                     .unwrap_or_default(),

@@ -1,71 +1,240 @@
 //! Device availability: online at the first good answer, offline after `offline_after`
-//! consecutive failures, then probed with backoff. Logged once per change, not per poll.
+//! consecutive failures, then probed with backoff. [`Availability`] is the state machine (no
+//! I/O: events in, [`Transition`]s out); the functions below it are the bus task's shell, which
+//! logs each transition once and publishes the status changes.
 
 use std::time::Duration;
 
 use tokio::sync::mpsc::UnboundedSender;
 
 use super::device::{DeviceRt, PollError};
-use crate::config::Bus;
+use super::schedule::Backoff;
 use crate::reading::Output;
+
+/// What changed, as a value: the shell logs it and publishes the status ones.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Transition {
+    /// An error other than the last one (each logged once per change, not once per poll).
+    Error(String),
+    /// Answering again after an error while online.
+    Recovered,
+    /// Online: the first good answer, or `back` after being offline.
+    Online { back: bool },
+    /// Offline after `failures` consecutive failures.
+    Offline { failures: u32 },
+}
+
+/// The availability of one device.
+#[derive(Debug, Clone)]
+pub struct Availability {
+    online: Option<bool>,
+    failures: u32,
+    last_error: Option<String>,
+    backoff: Backoff,
+    offline_after: u32,
+}
+
+/// What a failed poll means: its transitions and, when the device is offline, how long to wait
+/// before probing it again (`None`: keep its schedule).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Verdict {
+    pub transitions: Vec<Transition>,
+    pub wait: Option<Duration>,
+}
+
+impl Availability {
+    /// Not yet seen; offline after `offline_after` failures; probes back off from `min` to `max`.
+    pub fn new(offline_after: u32, min: Duration, max: Duration) -> Availability {
+        Availability {
+            online: None,
+            failures: 0,
+            last_error: None,
+            backoff: Backoff::new(min, max),
+            offline_after: offline_after.max(1),
+        }
+    }
+
+    /// `Some(true)` online, `Some(false)` offline, `None` not yet seen (or out of service).
+    pub fn online(&self) -> Option<bool> {
+        self.online
+    }
+
+    /// The last error, until the device answers again.
+    pub fn last_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    /// The device answered a whole poll.
+    pub fn answered(&mut self) -> Vec<Transition> {
+        let mut out = Vec::new();
+        self.failures = 0;
+        self.backoff.reset();
+        if self.last_error.take().is_some() && self.online == Some(true) {
+            out.push(Transition::Recovered);
+        }
+        if self.online != Some(true) {
+            out.push(Transition::Online {
+                back: self.online == Some(false),
+            });
+            self.online = Some(true);
+        }
+        out
+    }
+
+    /// A poll failed with `message`. `answered`: the device answered (an exception, a garbled
+    /// answer on a noisy line), so it is there and this is no step towards offline.
+    /// `line_fault`: the line itself is down (adapter gone): offline devices are probed every
+    /// `min` so the bus is back within seconds of the line.
+    pub fn failed(&mut self, message: String, answered: bool, line_fault: bool) -> Verdict {
+        let mut transitions = Vec::new();
+        if self.last_error.as_deref() != Some(message.as_str()) {
+            self.last_error = Some(message.clone());
+            transitions.push(Transition::Error(message));
+        }
+        if answered {
+            self.failures = 0;
+            return Verdict {
+                transitions,
+                wait: None,
+            };
+        }
+        self.failures += 1;
+        if self.failures < self.offline_after {
+            return Verdict {
+                transitions,
+                wait: None,
+            };
+        }
+        if self.online != Some(false) {
+            self.online = Some(false);
+            transitions.push(Transition::Offline {
+                failures: self.failures,
+            });
+        }
+        let wait = if line_fault {
+            self.backoff.min
+        } else {
+            self.backoff.next_wait()
+        };
+        Verdict {
+            transitions,
+            wait: Some(wait),
+        }
+    }
+
+    /// Taken out of service (the wrong model answers): neither online nor offline.
+    pub fn out_of_service(&mut self) {
+        self.online = None;
+        self.failures = 0;
+    }
+
+    /// The line is answering again: an offline device is probed at once (`true`).
+    pub fn line_back(&mut self) -> bool {
+        let offline = self.online == Some(false);
+        if offline {
+            self.backoff.reset();
+        }
+        offline
+    }
+}
 
 /// The device answered a whole poll.
 pub(super) fn answered(d: &mut DeviceRt, bus: &str, out: &UnboundedSender<Output>) {
-    d.failures = 0;
-    d.backoff.reset();
-    if d.last_error.take().is_some() && d.online == Some(true) {
-        tracing::info!(bus, device = %d.name, "device answering again");
-    }
-    if d.online != Some(true) {
-        if d.online == Some(false) {
-            tracing::info!(bus, device = %d.name, "device back online");
+    for t in d.availability.answered() {
+        match t {
+            Transition::Recovered => {
+                tracing::info!(bus, device = %d.name, "device answering again");
+            }
+            Transition::Online { back } => {
+                if back {
+                    tracing::info!(bus, device = %d.name, "device back online");
+                }
+                let _ = out.send(Output::DeviceStatus {
+                    device: d.name.clone(),
+                    online: true,
+                });
+            }
+            Transition::Error(_) | Transition::Offline { .. } => {}
         }
-        d.online = Some(true);
-        let _ = out.send(Output::DeviceStatus {
-            device: d.name.clone(),
-            online: true,
-        });
     }
 }
 
 /// A poll failed. Returns how long to wait before probing the device again when it is (now)
-/// offline; `None` to keep its schedule. While the line itself is down (adapter gone), offline
-/// devices are probed every `backoff_min` so the bus is back within seconds of the line.
+/// offline; `None` to keep its schedule.
 pub(super) fn failed(
     d: &mut DeviceRt,
     e: &PollError,
-    bus: &Bus,
     line_fault: bool,
-    bus_name: &str,
+    bus: &str,
     out: &UnboundedSender<Output>,
 ) -> Option<Duration> {
-    let message = e.to_string();
-    if d.last_error.as_deref() != Some(message.as_str()) {
-        tracing::warn!(bus = bus_name, device = %d.name, unit = d.unit, "{message}");
-        d.last_error = Some(message);
+    let verdict = d
+        .availability
+        .failed(e.to_string(), e.device_answered(), line_fault);
+    for t in verdict.transitions {
+        match t {
+            Transition::Error(message) => {
+                tracing::warn!(bus, device = %d.name, unit = d.unit, "{message}");
+                // A module that starts refusing registers it answered before may be another
+                // module, or have restarted in another work mode: identity and modes are read
+                // again (once per new refusal, so a device that keeps refusing costs no extra
+                // reads).
+                if matches!(e, PollError::Refused { .. }) && d.discovered() {
+                    d.module_restarted();
+                }
+            }
+            Transition::Offline { failures } => {
+                tracing::warn!(bus, device = %d.name, failures, "device offline");
+                d.mark_gap();
+                // Whatever answers at this address next may be another module.
+                d.identify_due = true;
+                let _ = out.send(Output::DeviceStatus {
+                    device: d.name.clone(),
+                    online: false,
+                });
+            }
+            Transition::Recovered | Transition::Online { .. } => {}
+        }
     }
-    if e.device_answered() {
-        // It is there (an exception, a garbled answer on a noisy line): not a step towards
-        // offline.
-        d.failures = 0;
-        return None;
-    }
-    d.failures += 1;
-    if d.failures < bus.offline_after {
-        return None;
-    }
-    if d.online != Some(false) {
-        tracing::warn!(bus = bus_name, device = %d.name, failures = d.failures, "device offline");
-        d.online = Some(false);
-        d.mark_gap();
-        let _ = out.send(Output::DeviceStatus {
-            device: d.name.clone(),
-            online: false,
-        });
-    }
-    Some(if line_fault {
-        bus.backoff_min
-    } else {
-        d.backoff.next_wait()
-    })
+    verdict.wait
 }
+
+/// The module is not the configured model: out of service with status `wrong_model` (logged and
+/// published once per change); its counters' next deltas cover the time out of service.
+pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &UnboundedSender<Output>) {
+    if d.wrong_model.as_deref() == Some(why.as_str()) {
+        return;
+    }
+    tracing::error!(bus, device = %d.name, unit = d.unit, "module taken out of service: {why}");
+    d.wrong_model = Some(why);
+    d.metrics.wrong_model(true);
+    d.availability.out_of_service();
+    d.mark_gap();
+    let _ = out.send(Output::DeviceProblem {
+        device: d.name.clone(),
+        status: "wrong_model",
+    });
+}
+
+/// A quadrature pair's mode words disagree (or agree again): status `mode_mismatch` while they
+/// do, `online` again after.
+pub(super) fn mode_mismatch(d: &mut DeviceRt, out: &UnboundedSender<Output>) {
+    let Some(now) = d.take_mismatch_change() else {
+        return;
+    };
+    let status = match now {
+        Some(_) => Output::DeviceProblem {
+            device: d.name.clone(),
+            status: "mode_mismatch",
+        },
+        None => Output::DeviceStatus {
+            device: d.name.clone(),
+            online: true,
+        },
+    };
+    let _ = out.send(status);
+}
+
+#[cfg(test)]
+#[path = "availability_tests.rs"]
+mod tests;

@@ -8,15 +8,16 @@ use std::time::{Duration, SystemTime};
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
+use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
-use super::schedule::Backoff;
-use crate::config::{Bus, Device};
-use crate::counter::{Counter, CounterSpec, CounterState};
+use super::run::RunState;
+use crate::config::{Bus, ChannelConfig, Device, Run};
+use crate::counter::{Counter, CounterSpec, CounterState, Direction, Stamp};
 use crate::decode::decode;
 use crate::metrics::DeviceMetrics;
 use crate::plan::{Block, Wire, plan_reads};
-use crate::profile::{ChannelSpec, Profile, Register, ValueType};
-use crate::reading::{Reading, unix_ms};
+use crate::profile::{ChannelKind, ChannelSpec, Profile, Register, ValueType};
+use crate::reading::Reading;
 use crate::state::{channel_key, device_key};
 
 /// Why a poll produced no readings.
@@ -35,6 +36,9 @@ pub enum PollError {
     /// A command is waiting: the poll stepped aside after the transaction in flight.
     #[error("poll interrupted by a command")]
     Preempted,
+    /// The module is not the configured model: out of service, no readings.
+    #[error("wrong model: {0}")]
+    WrongModel(String),
 }
 
 impl PollError {
@@ -58,6 +62,18 @@ pub(super) struct ChannelRt {
     pub(super) name: Arc<str>,
     pub(super) counter: Counter,
     pub(super) ppr: Option<f64>,
+    /// What to do when the counter is found stopped (modules with a command register).
+    pub(super) run: Run,
+    /// Resume the counter when it is found paused.
+    pub(super) resume_paused: bool,
+    /// The command register, where the module starts and stops counters by register.
+    pub(super) command: Option<Register>,
+    /// The counting window of a frequency register that holds pulses per window, in seconds;
+    /// `None` while unknown (then no frequency is published).
+    pub(super) window_s: Option<f64>,
+    window_bad: bool,
+    /// The power-on state was checked (and set where configured) in this run.
+    pub(super) power_on_done: bool,
 }
 
 impl ChannelRt {
@@ -86,16 +102,33 @@ impl ChannelRt {
     }
 }
 
+/// When an answer arrived: the wall clock for `ts`, both clocks for the counter.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct At {
+    pub(super) wall: SystemTime,
+    pub(super) stamp: Stamp,
+}
+
+impl At {
+    pub(super) fn now() -> At {
+        let (wall, mono) = crate::reading::now();
+        At {
+            wall,
+            stamp: crate::reading::stamp(wall, mono),
+        }
+    }
+}
+
 /// Times a read of an online device is asked again after noise (timeout, garbled, mismatch).
 const NOISE_RETRIES: u32 = 2;
 
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
-    blocks: Vec<(Block, Vec<u16>, SystemTime)>,
+    blocks: Vec<(Block, Vec<u16>, At)>,
 }
 
 impl Snapshot {
-    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], SystemTime)> {
+    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], At)> {
         self.blocks
             .iter()
             .find(|(b, ..)| b.covers(r))
@@ -123,20 +156,31 @@ pub struct DeviceRt {
     saved: BTreeMap<String, CounterState>,
     last_slow: Option<Instant>,
     slow_every: Duration,
-    pub failures: u32,
-    pub online: Option<bool>,
-    pub backoff: Backoff,
-    pub last_error: Option<String>,
+    /// Online, offline, not yet seen; failures and backoff (a state machine of its own).
+    pub availability: super::availability::Availability,
     /// Poll latencies (seconds), most recent last, for p50/p99.
     pub latencies: std::collections::VecDeque<f64>,
     /// The last plan: registers, holes known, wire prices, and the reads.
     #[allow(clippy::type_complexity)]
-    plan_memo: Option<(Vec<Register>, usize, Wire, Vec<Block>)>,
+    /// The plan of the last read asked for (the count poll asks for the same every time).
+    plan_memo: Option<crate::plan::PollPlan>,
     /// Measured turnaround (seconds, moving average), RTU only.
     turnaround: Option<f64>,
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
+    /// The module's identity is to be checked before the next poll (at discovery, after a
+    /// reset).
+    pub(super) identify_due: bool,
+    /// Identification of every known model, to name what a wrong module is.
+    pub(super) known: Arc<[Identity]>,
+    /// Why the device is out of service, when its module is the wrong model.
+    pub wrong_model: Option<String>,
+    unidentified_warned: bool,
+    /// Quadrature pairs whose two mode words disagree, described; and its last change, not
+    /// yet published.
+    pub mode_mismatch: Option<String>,
+    mismatch_changed: Option<Option<String>>,
     /// This device's Prometheus handles.
     pub metrics: DeviceMetrics,
 }
@@ -175,15 +219,22 @@ impl DeviceRt {
                 .collect(),
             last_slow: None,
             slow_every: bus.slow_poll,
-            failures: 0,
-            online: None,
-            backoff: Backoff::new(bus.backoff_min, bus.backoff_max),
-            last_error: None,
+            availability: super::availability::Availability::new(
+                bus.offline_after,
+                bus.backoff_min,
+                bus.backoff_max,
+            ),
             latencies: std::collections::VecDeque::new(),
             plan_memo: None,
             turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
+            identify_due: true,
+            known: Arc::from(Vec::new()),
+            wrong_model: None,
+            unidentified_warned: false,
+            mode_mismatch: None,
+            mismatch_changed: None,
             metrics: DeviceMetrics::disabled(),
             config: config.clone(),
         }
@@ -218,6 +269,11 @@ impl DeviceRt {
         self.modes.is_some()
     }
 
+    /// `Some(true)` online, `Some(false)` offline, `None` not yet seen.
+    pub fn online(&self) -> Option<bool> {
+        self.availability.online()
+    }
+
     /// The device was away: every channel's next delta covers the gap.
     pub fn mark_gap(&mut self) {
         for ch in &mut self.channels {
@@ -232,6 +288,86 @@ impl DeviceRt {
         link: &mut Link,
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Vec<Reading>, PollError> {
+        self.discover(link, preempt).await?;
+        let fast = std::mem::take(&mut self.fast);
+        let snapshot = self.read_registers(link, &fast, preempt).await;
+        self.fast = fast;
+        let snapshot = snapshot?;
+        let order = self.profile.word_order;
+        let mut readings = Vec::with_capacity(self.channels.len());
+        let mut stopped = Vec::new();
+        let mut paused = Vec::new();
+        let mut restarted = false;
+        for (i, ch) in self.channels.iter_mut().enumerate() {
+            let Some((words, at)) = snapshot.get(&ch.spec.count) else {
+                continue;
+            };
+            let count = decode(words, ch.spec.count.ty, order).as_i64();
+            let freq_hz = ch
+                .spec
+                .freq
+                .and_then(|r| snapshot.get(&r))
+                .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
+                .filter(|f| f.is_finite())
+                .and_then(|f| match ch.spec.freq_window {
+                    // Pulses in the module's counting window → Hz.
+                    Some(_) => ch.window_s.map(|s| f / s),
+                    None => Some(f),
+                });
+            let rpm = match (freq_hz, ch.ppr) {
+                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
+                _ => None,
+            };
+            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
+                match super::run::run_state(&ch.spec, w[0]) {
+                    // The module cleared it; the gateway starts it after this read.
+                    RunState::Stopped if ch.run != Run::Leave => {
+                        stopped.push((i, count, at, freq_hz, rpm));
+                        continue;
+                    }
+                    RunState::Running(d) => ch.counter.spec.direction = d,
+                    RunState::Paused if ch.resume_paused => paused.push(i),
+                    _ => {}
+                }
+            }
+            // A read the counter holds as suspect is not published.
+            let Some(update) = ch.counter.update(count, at.stamp) else {
+                tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
+                continue;
+            };
+            if update.event == Some(crate::counter::Event::Reset) {
+                restarted = true;
+            }
+            let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);
+            self.metrics.reading(&reading);
+            readings.push(reading);
+        }
+        for (i, count, at, freq_hz, rpm) in stopped {
+            if let Some(reading) = self.start_stopped(link, i, count, at, freq_hz, rpm).await {
+                self.metrics.reading(&reading);
+                readings.push(reading);
+            }
+        }
+        for i in paused {
+            self.resume_paused(link, i).await;
+        }
+        if restarted {
+            self.module_restarted();
+        }
+        self.note_good_poll();
+        Ok(readings)
+    }
+
+    /// Discovery when due (identity, then the work modes and slow registers that give the
+    /// channels), and the slow registers' refresh.
+    pub async fn discover(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        if self.identify_due {
+            self.check_identity(link).await?;
+        }
         let slow_due = self
             .last_slow
             .is_none_or(|t| t.elapsed() >= self.slow_every);
@@ -250,43 +386,63 @@ impl DeviceRt {
                 Ok(()) => {}
             }
         }
-        let fast = std::mem::take(&mut self.fast);
-        let snapshot = self.read_registers(link, &fast, preempt).await;
-        self.fast = fast;
-        let snapshot = snapshot?;
-        let order = self.profile.word_order;
-        let mut readings = Vec::with_capacity(self.channels.len());
-        for ch in &mut self.channels {
-            let Some((words, at)) = snapshot.get(&ch.spec.count) else {
-                continue;
-            };
-            let count = decode(words, ch.spec.count.ty, order).as_i64();
-            let freq_hz = ch
-                .spec
-                .freq
-                .and_then(|r| snapshot.get(&r))
-                .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
-                .filter(|f| f.is_finite());
-            let rpm = match (freq_hz, ch.ppr) {
-                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
-                _ => None,
-            };
-            // A read the counter holds as suspect is not published.
-            let Some(update) = ch.counter.update(count, unix_ms(at)) else {
-                tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
-                continue;
-            };
-            let reading = ch.reading(&self.name, at, count, freq_hz, rpm, update);
-            self.metrics.reading(&reading);
-            readings.push(reading);
-        }
+        Ok(())
+    }
+
+    /// The achieved poll interval (moving average), for the bus stats.
+    fn note_good_poll(&mut self) {
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
             let gap = (now - last).as_secs_f64();
             self.achieved_interval =
                 Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
         }
-        Ok(readings)
+    }
+
+    /// The module restarted (or was reset by someone else): it may be another module now, and
+    /// mode words written before take effect at a restart. Both are read again next poll.
+    pub(super) fn module_restarted(&mut self) {
+        self.identify_due = true;
+        self.last_slow = None;
+    }
+
+    /// Records the mode-word mismatch found now (logged once per change).
+    fn set_mismatch(&mut self, now: Option<String>) {
+        if self.mode_mismatch == now {
+            return;
+        }
+        match &now {
+            Some(why) => {
+                tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
+            }
+            None => tracing::info!(device = %self.name, "mode words agree again"),
+        }
+        self.mode_mismatch = now.clone();
+        self.mismatch_changed = Some(now);
+    }
+
+    /// The mode-word mismatch, when it changed since the last call.
+    pub(super) fn take_mismatch_change(&mut self) -> Option<Option<String>> {
+        self.mismatch_changed.take()
+    }
+
+    /// Checks the module's identity (due at discovery and after a reset).
+    async fn check_identity(&mut self, link: &mut Link) -> Result<(), PollError> {
+        match self.identify(link).await? {
+            Verdict::Confirmed => {}
+            Verdict::Unidentified => {
+                if !std::mem::replace(&mut self.unidentified_warned, true) {
+                    tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
+                }
+            }
+            Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
+        }
+        self.identify_due = false;
+        if let Some(was) = self.wrong_model.take() {
+            tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
+            self.metrics.wrong_model(false);
+        }
+        Ok(())
     }
 
     /// Reads work modes (and with them the channel set) and pulses per revolution.
@@ -296,22 +452,54 @@ impl DeviceRt {
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<(), PollError> {
         let mode_regs = self.profile.mode_registers();
+        let word = |address| Register {
+            address,
+            ty: ValueType::U16,
+        };
+        // The mode words, then the partner words that must agree with them.
         let regs: Vec<Register> = mode_regs
             .iter()
-            .map(|m| Register {
-                address: m.address,
-                ty: ValueType::U16,
-            })
+            .map(|m| word(m.address))
+            .chain(mode_regs.iter().filter_map(|m| m.partner.map(word)))
             .collect();
         let snap = self.read_registers(link, &regs, preempt).await?;
+        // Masked: bits outside the mask (a counter's power-on state) are no work mode.
+        let masks = mode_regs.iter().map(|m| m.mask).chain(
+            mode_regs
+                .iter()
+                .filter(|m| m.partner.is_some())
+                .map(|m| m.mask),
+        );
         let modes: Vec<u16> = regs
             .iter()
-            .filter_map(|r| snap.get(r).map(|(w, _)| w[0]))
+            .zip(masks)
+            .filter_map(|(r, mask)| snap.get(r).map(|(w, _)| w[0] & mask))
             .collect();
-        let specs = self
+        let mut specs = self
             .profile
             .channels(&modes)
             .map_err(|e| PollError::Profile(e.to_string()))?;
+        let value = |a| snap.get(&word(a)).map(|(w, _)| w[0]);
+        // (mode word, description) of each pair whose two words disagree.
+        let mismatched: Vec<(u16, String)> = mode_regs
+            .iter()
+            .filter_map(|m| {
+                let (own, partner) = (value(m.address)?, value(m.partner?)?);
+                ((own ^ partner) & m.mask != 0).then(|| {
+                    let why = format!(
+                        "mode words {:#06x} = {own:#06x} and {:#06x} = {partner:#06x} disagree on bits {:#06x}",
+                        m.address,
+                        m.partner.expect("checked"),
+                        m.mask
+                    );
+                    (m.address, why)
+                })
+            })
+            .collect();
+        // The module does not count such a pair: publish no channel that never moves.
+        specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
+        let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
+        self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
         if self.modes.as_ref() != Some(&modes) {
             if self.modes.is_some() {
                 tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
@@ -333,13 +521,52 @@ impl DeviceRt {
                 ch.ppr = configured.or(read.filter(|p| *p > 0.0));
             }
         }
+        self.read_windows(link, preempt).await?;
+        self.set_power_on(link).await;
         self.replan_with_turnaround(link);
         self.last_slow = Some(Instant::now());
         Ok(())
     }
 
+    /// Reads the counting windows of frequency registers that count pulses per window.
+    async fn read_windows(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        let regs: Vec<Register> = self
+            .channels
+            .iter()
+            .filter_map(|c| c.spec.freq_window.map(|w| w.register))
+            .collect();
+        if regs.is_empty() {
+            return Ok(());
+        }
+        let snap = self.read_registers(link, &regs, preempt).await?;
+        let order = self.profile.word_order;
+        for ch in &mut self.channels {
+            let Some(w) = ch.spec.freq_window else {
+                continue;
+            };
+            let Some((words, _)) = snap.get(&w.register) else {
+                continue;
+            };
+            let raw = decode(words, w.register.ty, order).as_i64() as u64;
+            let seconds = w.seconds(raw);
+            if seconds.is_none() && !std::mem::replace(&mut ch.window_bad, true) {
+                tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
+            }
+            ch.window_bad = seconds.is_none();
+            ch.window_s = seconds;
+        }
+        Ok(())
+    }
+
+    /// Builds the channels of the current work mode. A channel keeps its counter across the
+    /// rebuild; a channel the new mode does not have (or a disabled one) keeps its state for
+    /// when it comes back, resumed with a gap.
     fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
-        let old: BTreeMap<String, Counter> = self
+        let mut old: BTreeMap<String, Counter> = self
             .channels
             .drain(..)
             .map(|c| (c.name.to_string(), c.counter))
@@ -351,32 +578,35 @@ impl DeviceRt {
                 .get(&spec.name)
                 .cloned()
                 .unwrap_or_default();
-            let counter_spec = CounterSpec {
-                modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
-                signed: matches!(spec.count.ty, ValueType::I32 | ValueType::I16),
-                max_rate_hz: overrides.max_rate_hz.unwrap_or(spec.max_rate_hz),
-            };
+            if !overrides.enabled {
+                continue;
+            }
+            let counter_spec = counter_spec(&spec, &overrides);
             let key = channel_key(self.unit, &self.config.model, &spec.name);
-            let counter = match (old.get(&spec.name), self.saved.remove(&key)) {
-                (Some(c), _) => Counter {
-                    spec: counter_spec,
-                    state: c.state.clone(),
-                },
+            let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
+                (Some(c), _) => c.with_spec(counter_spec),
                 (None, Some(saved)) => Counter::resume(counter_spec, saved),
                 (None, None) => Counter::new(counter_spec),
             };
             self.channels.push(ChannelRt {
                 name: Arc::from(spec.name.as_str()),
                 ppr: overrides.ppr,
+                run: overrides.run,
+                resume_paused: overrides.resume_paused,
+                command: super::run::command_register(&spec),
+                window_s: None,
+                window_bad: false,
+                power_on_done: false,
                 spec,
                 counter,
             });
         }
-        self.fast = self
-            .channels
-            .iter()
-            .flat_map(|c| std::iter::once(c.spec.count).chain(c.spec.freq))
-            .collect();
+        for (name, gone) in old {
+            let key = channel_key(self.unit, &self.config.model, &name);
+            tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
+            self.saved.insert(key, gone.state);
+        }
+        self.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
     }
 
     /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
@@ -403,7 +633,9 @@ impl DeviceRt {
                 // again: on a noisy line a corrupted request gets no answer at all, and three
                 // of those in a row must not make a healthy device offline. An offline device
                 // is not asked twice (a dead one costs the others one timeout per probe).
-                Err(e) if e.is_noise() && self.online == Some(true) && retries < NOISE_RETRIES => {
+                Err(e)
+                    if e.is_noise() && self.online() == Some(true) && retries < NOISE_RETRIES =>
+                {
                     retries += 1;
                     continue;
                 }
@@ -413,7 +645,7 @@ impl DeviceRt {
             match answer {
                 Ok(words) => {
                     self.record_latency(started.elapsed(), link, b.len);
-                    out.push((b, words, SystemTime::now()));
+                    out.push((b, words, At::now()));
                     i += 1;
                 }
                 Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
@@ -443,15 +675,15 @@ impl DeviceRt {
     /// The reads for `regs`: planned once and reused while the registers, the holes and the
     /// wire's prices stay the same (the count poll asks for the same registers every time).
     fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
-        if let Some((r, holes, wire, blocks)) = &self.plan_memo
-            && r.as_slice() == regs
-            && *holes == self.holes.len()
-            && *wire == self.wire
+        if let Some(p) = &self.plan_memo
+            && p.fits(regs, self.holes.len(), &self.wire)
         {
-            return blocks.clone();
+            return p.blocks.clone();
         }
-        let blocks = plan_reads(regs, &self.holes, &self.wire);
-        self.plan_memo = Some((regs.to_vec(), self.holes.len(), self.wire, blocks.clone()));
+        let p = crate::plan::PollPlan::new(regs, &self.holes, &self.wire);
+        tracing::debug!(device = %self.name, plan = %p.describe(), "poll plan");
+        let blocks = p.blocks.clone();
+        self.plan_memo = Some(p);
         blocks
     }
 
@@ -459,7 +691,7 @@ impl DeviceRt {
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
             .timing_for(self.unit)
-            .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
+            .map(|t| t.chars(crate::plan::read_chars(len)))
             .unwrap_or_default();
         self.answer_timeout + line
     }
@@ -473,7 +705,7 @@ impl DeviceRt {
         }
         self.latencies.push_back(d.as_secs_f64());
         if let Some(t) = link.timing_for(self.unit) {
-            let line = t.chars(8.0 + 5.0 + 2.0 * f64::from(len));
+            let line = t.chars(crate::plan::read_chars(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.turnaround = Some(match self.turnaround {
                 Some(old) => old * 0.9 + turnaround * 0.1,
@@ -493,5 +725,24 @@ impl DeviceRt {
         if let (Some(t), Some(ta)) = (link.timing_for(self.unit), self.turnaround) {
             self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
+    }
+}
+
+/// How a channel's count moves: encoders both ways; inputs counting on their own only up, or
+/// in the direction the gateway runs them (ZH-YX1600 counters are signed and can count down).
+fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
+    let signed = matches!(spec.count.ty, ValueType::I32 | ValueType::I16);
+    let direction = match (spec.kind, signed, config.run) {
+        (ChannelKind::Encoder, ..) => Direction::Both,
+        (ChannelKind::Counter, false, _) => Direction::Up,
+        (ChannelKind::Counter, true, _) if spec.clear.restart.is_empty() => Direction::Both,
+        (ChannelKind::Counter, true, Run::Up) => Direction::Up,
+        (ChannelKind::Counter, true, Run::Down) => Direction::Down,
+        (ChannelKind::Counter, true, Run::Leave) => Direction::Both,
+    };
+    CounterSpec {
+        modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
+        direction,
+        max_rate_hz: config.max_rate_hz.unwrap_or(spec.max_rate_hz),
     }
 }

@@ -6,13 +6,13 @@ use std::collections::BTreeSet;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::DeviceRt;
+use super::device::{DeviceRt, Snapshot};
 use super::link::Link;
 use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
 use crate::decode::{decode, encode_int};
 use crate::profile::Register;
-use crate::reading::{Reading, unix_ms};
+use crate::reading::Reading;
 
 /// The outcome of a command: readings to publish (booked counts and the event readings) and the
 /// result (the count read back for a single channel).
@@ -43,29 +43,7 @@ impl DeviceRt {
         req: &Request,
         readings: &mut Vec<Reading>,
     ) -> Result<Option<i64>, CommandError> {
-        let targets: Vec<usize> = match (&req.channel, req.op) {
-            (Some(name), _) => {
-                let i = self
-                    .channels
-                    .iter()
-                    .position(|c| &*c.name == name)
-                    .ok_or_else(|| CommandError::UnknownChannel {
-                        device: self.name.to_string(),
-                        channel: name.clone(),
-                    })?;
-                vec![i]
-            }
-            (None, _) => (0..self.channels.len()).collect(),
-        };
-        if let Op::Preset(v) = req.op {
-            let ch = &self.channels[targets[0]];
-            if !ch.spec.accepts_preset(v) {
-                return Err(CommandError::OutOfRange {
-                    channel: ch.name.to_string(),
-                    value: v,
-                });
-            }
-        }
+        let targets = self.targets_of(req)?;
         // 1. Book what was counted up to now.
         let counts: Vec<Register> = targets
             .iter()
@@ -80,42 +58,95 @@ impl DeviceRt {
             let ch = &mut self.channels[i];
             if let Some((w, at)) = before.get(&ch.spec.count) {
                 let count = decode(w, ch.spec.count.ty, order).as_i64();
-                let Some(update) = ch.counter.update(count, unix_ms(at)) else {
+                let Some(update) = ch.counter.update(count, at.stamp) else {
                     continue;
                 };
-                readings.push(ch.reading(&self.name, at, count, None, None, update));
+                readings.push(ch.reading(&self.name, at.wall, count, None, None, update));
             }
         }
         // 2. Write.
         let written = Instant::now();
-        let expected: i64 =
-            match req.op {
-                Op::Preset(v) => {
-                    let ch = &self.channels[targets[0]];
-                    let words = encode_int(v, ch.spec.count.ty, self.profile.word_order)
-                        .ok_or_else(|| CommandError::OutOfRange {
-                            channel: ch.name.to_string(),
-                            value: v,
-                        })?;
-                    let timeout = self.timeout_for(link, 0);
-                    link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
-                        .await
-                        .map_err(write_failed)?
-                        .map_err(exception)?;
-                    v
-                }
-                Op::Clear | Op::ClearAll => {
-                    self.write_clears(link, &targets, req.op == Op::ClearAll)
-                        .await?;
-                    0
-                }
-            };
+        let expected = self.write(link, req, &targets).await?;
         // 3. Read back and rebase.
         let after = self
             .read_registers(link, &counts, &|| false)
             .await
             .map_err(|e| write_failed(format!("reading back: {e}")))?;
         let elapsed_ms = written.elapsed().as_millis() as u64;
+        self.rebase(req, &targets, &after, expected, elapsed_ms, readings)
+    }
+
+    /// The channels `req` acts on; a preset out of the channel's range is refused here.
+    fn targets_of(&self, req: &Request) -> Result<Vec<usize>, CommandError> {
+        let targets: Vec<usize> = match &req.channel {
+            Some(name) => {
+                let i = self
+                    .channels
+                    .iter()
+                    .position(|c| &*c.name == name)
+                    .ok_or_else(|| CommandError::UnknownChannel {
+                        device: self.name.to_string(),
+                        channel: name.clone(),
+                    })?;
+                vec![i]
+            }
+            None => (0..self.channels.len()).collect(),
+        };
+        if let Op::Preset(v) = req.op {
+            let ch = &self.channels[targets[0]];
+            if !ch.spec.accepts_preset(v) {
+                return Err(CommandError::OutOfRange {
+                    channel: ch.name.to_string(),
+                    value: v,
+                });
+            }
+        }
+        Ok(targets)
+    }
+
+    /// Writes the preset or the clears; returns the count expected afterwards.
+    async fn write(
+        &mut self,
+        link: &mut Link,
+        req: &Request,
+        targets: &[usize],
+    ) -> Result<i64, CommandError> {
+        match req.op {
+            Op::Preset(v) => {
+                let ch = &self.channels[targets[0]];
+                let words =
+                    encode_int(v, ch.spec.count.ty, self.profile.word_order).ok_or_else(|| {
+                        CommandError::OutOfRange {
+                            channel: ch.name.to_string(),
+                            value: v,
+                        }
+                    })?;
+                let timeout = self.timeout_for(link, 0);
+                link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
+                    .await
+                    .map_err(write_failed)?
+                    .map_err(exception)?;
+                Ok(v)
+            }
+            Op::Clear | Op::ClearAll => {
+                self.write_clears(link, targets, req.op == Op::ClearAll)
+                    .await?;
+                Ok(0)
+            }
+        }
+    }
+
+    /// Rebases the counters on what was read back (`after`), booking the pulses counted
+    /// between the write and the read-back; a count that is not what was written is an error.
+    fn rebase(
+        &mut self,
+        req: &Request,
+        targets: &[usize],
+        after: &Snapshot,
+        expected: i64,
+        elapsed_ms: u64,
+        readings: &mut Vec<Reading>,
+    ) -> Result<Option<i64>, CommandError> {
         let event = if matches!(req.op, Op::Preset(_)) {
             Event::Preset
         } else {
@@ -123,7 +154,7 @@ impl DeviceRt {
         };
         let mut mismatch = None;
         let mut single = None;
-        for &i in &targets {
+        for &i in targets {
             let order = self.profile.word_order;
             let ch = &mut self.channels[i];
             let Some((w, at)) = after.get(&ch.spec.count) else {
@@ -135,12 +166,12 @@ impl DeviceRt {
             let update = if (got - expected).abs() > slack {
                 // The write did not take as asked: book nothing, go on from what is there.
                 mismatch.get_or_insert(CommandError::ReadBack { expected, got });
-                ch.counter.rebase(got, unix_ms(at), event)
+                ch.counter.rebase(got, at.stamp, event)
             } else {
                 // Pulses counted between the write and the read-back are booked.
-                ch.counter.rebase_from(expected, got, unix_ms(at), event)
+                ch.counter.rebase_from(expected, got, at.stamp, event)
             };
-            readings.push(ch.reading(&self.name, at, got, None, None, update));
+            readings.push(ch.reading(&self.name, at.wall, got, None, None, update));
             single = Some(got);
         }
         match mismatch {
@@ -184,25 +215,23 @@ impl DeviceRt {
                     .map_err(write_failed)?
                     .map_err(exception)?;
             } else {
-                // The register also runs the counter: note its direction, clear, restart it so.
+                // The register also runs the counter: note its state (up, down, paused or
+                // stopped), clear (which stops it), and put it back in that state.
                 let state = link
                     .read(self.unit, clear.register, 1, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                let restart = if clear.restart.contains(&state[0]) {
-                    state[0]
-                } else {
-                    clear.restart[0]
-                };
                 link.write_register(self.unit, clear.register, clear.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                link.write_register(self.unit, clear.register, restart, timeout)
-                    .await
-                    .map_err(write_failed)?
-                    .map_err(exception)?;
+                if state[0] != clear.code {
+                    link.write_register(self.unit, clear.register, state[0], timeout)
+                        .await
+                        .map_err(write_failed)?
+                        .map_err(exception)?;
+                }
             }
         }
         Ok(())

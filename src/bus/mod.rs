@@ -3,17 +3,20 @@
 
 mod availability;
 pub mod device;
+pub mod driver;
 mod emit;
 mod execute;
+mod identity;
 mod ledger;
 pub mod link;
+mod run;
 mod saver;
 mod serial;
 pub mod schedule;
+pub mod stats;
 pub mod survey;
 mod timer;
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -27,12 +30,12 @@ use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
 use crate::metrics::BusMetrics;
-use crate::plan::Wire;
 use crate::reading::Output;
 use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
-use link::{Link, WireCounters};
+use driver::Driver;
+use link::WireCounters;
 use schedule::{Slot, earliest};
 
 /// A checked command for a device on this bus, and where its outcome goes.
@@ -93,11 +96,53 @@ impl BusTask {
     /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
     pub async fn run(mut self, shutdown: CancellationToken) {
-        let bus = &self.bus;
-        let name: Arc<str> = Arc::from(bus.name.as_str());
-        let Some(mut saved) = self.load_state(&name, &shutdown).await else {
+        let driver = driver::Modbus::for_bus(&self.bus).with_scans(self.scans.take());
+        self.run_with(driver, shutdown).await;
+    }
+
+    /// [`BusTask::run`] over a given driver (a protocol, or a scripted one in tests).
+    pub async fn run_with<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
+        let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
+        let stall = stall_hook(&self.bus.name);
+        while let Some(i) = earliest(&core.slots) {
+            self.heart.beat();
+            if stall.is_some_and(|at| core.start.elapsed() >= at) {
+                tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
+                shutdown.cancelled().await;
+                break;
+            }
+            match self.between_polls(&mut core, i, &shutdown).await {
+                Next::Loop => continue,
+                Next::Stop => break,
+                Next::Poll => {}
+            }
+            let commands = &self.commands;
+            let owed = core.poll_owed;
+            // A poll owed after a command runs to its end; otherwise it gives way to a command.
+            let before = core.driver.wire().0;
+            let d = &mut core.devices[i];
+            let result = core.driver.poll(d, &|| !owed && !commands.is_empty()).await;
+            let (counters, busy) = core.driver.wire();
+            d.metrics.wire(&before, &counters);
+            self.metrics.wire(&counters, busy);
+            self.after_poll(&mut core, i, result);
+            let d = &core.devices[i];
+            d.metrics.up(d.online());
+        }
+        self.finish(core).await;
+    }
+
+    /// Loads the state and builds the devices, their slots and the driver.
+    async fn start<D: Driver>(
+        &mut self,
+        driver: D,
+        shutdown: &CancellationToken,
+    ) -> Option<Core<D>> {
+        let bus = &self.bus;
+        let name: Arc<str> = Arc::from(bus.name.as_str());
+        let mut saved = self.load_state(&name, shutdown).await?;
         let after_seq = if saved.clean {
             Default::default()
         } else {
@@ -107,196 +152,265 @@ impl BusTask {
             saver::Saver::new(self.state_path.clone(), name.clone()),
             after_seq,
         );
-        let mut link = Link::new(bus.link.clone(), bus.guard);
-        for d in &bus.devices {
-            if let Some(baud) = d.baud {
-                link.set_unit_baud(d.unit, baud);
-            }
-        }
-        let wire = match link.timing() {
-            Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
-            None => Wire::tcp(),
-        };
-        let mut devices: Vec<DeviceRt> = bus
+        let wire = driver.wire_pricing();
+        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
+        let known = identity::known(&configured);
+        let devices: Vec<DeviceRt> = bus
             .devices
             .iter()
+            .filter(|d| d.enabled)
             .map(|d| {
-                DeviceRt::new(
-                    bus,
-                    d,
-                    wire,
-                    &saved.channels,
-                    saved.holes_of(&crate::state::device_key(d.unit, &d.model)),
-                )
-                .with_metrics(self.metrics.device(&d.name))
+                let key = crate::state::device_key(d.unit, &d.model);
+                let mut rt = DeviceRt::new(bus, d, wire, &saved.channels, saved.holes_of(&key))
+                    .with_metrics(self.metrics.device(&d.name));
+                rt.known = known.clone();
+                rt
             })
             .collect();
-        log_dropped_state(&name, &saved, &devices);
-
-        let start = Instant::now();
-        let mut slots: Vec<Slot> = devices
-            .iter()
-            .map(|d| Slot::new(start, d.config.poll))
-            .collect();
-        let mut flush_at = start + self.state_flush;
-        let mut stats_at = start + self.stats_interval;
-        let mut stats_since = start;
-        let mut busy_at_stats = Duration::ZERO;
-        let mut counters_at_stats = link::WireCounters::default();
-        let mut line_down = false;
+        durable.orphans = unclaimed(&name, &saved, &devices);
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
+        Some(Core::new(
+            name,
+            driver,
+            devices,
+            durable,
+            bus.devices.iter().map(|d| d.unit).collect(),
+            self.state_flush,
+            self.stats_interval,
+        ))
+    }
 
-        let mut pending: Vec<BusCommand> = Vec::new();
-        // Polls due when the last command ended: they go before the next command, so a burst
-        // of commands slows commands, never polling (each poll waits for at most one command).
-        let mut owed: Option<Instant> = None;
-        let mut scan: Option<survey::Survey> = None;
-        let configured: Vec<u8> = bus.devices.iter().map(|d| d.unit).collect();
-        let stall = stall_hook(&bus.name);
-        while let Some(i) = earliest(&slots) {
-            self.heart.beat();
-            if stall.is_some_and(|at| start.elapsed() >= at) {
-                tracing::error!(bus = %name, "test hook: this bus loop now stalls");
-                shutdown.cancelled().await;
-                break;
-            }
-            while let Ok(c) = self.commands.try_recv() {
-                pending.push(c);
-            }
-            let poll_owed = owed.is_some_and(|at| slots[i].due <= at);
-            durable.collect(&devices, &self.out).await;
-            if !poll_owed {
-                owed = None;
-                if let Some((from, readings)) =
-                    run_one_command(&mut pending, &mut devices, &mut link).await
-                {
-                    let outputs = self.emitter.emit(&mut devices[from], readings);
-                    durable.publish(outputs, from, &devices, &self.out);
-                    owed = Some(Instant::now());
-                    continue;
-                }
-            }
-            let idle_until = slots[i].due;
-            if !poll_owed
-                && survey::idle_step(
-                    &mut scan,
-                    &mut self.scans,
-                    &mut link,
-                    idle_until,
-                    &configured,
-                    &name,
-                    &self.out,
-                    &shutdown,
-                )
-                .await
+    /// Between polls: commands (one at a time), idle-time scans, the state flush and the bus
+    /// stats; then waits for the next poll. `Next::Poll` when device `i` is due now.
+    async fn between_polls<D: Driver>(
+        &mut self,
+        core: &mut Core<D>,
+        i: usize,
+        shutdown: &CancellationToken,
+    ) -> Next {
+        while let Ok(c) = self.commands.try_recv() {
+            core.pending.push(c);
+        }
+        core.poll_owed = core.owed.is_some_and(|at| core.slots[i].due <= at);
+        core.durable.collect(&core.devices, &self.out).await;
+        if !core.poll_owed {
+            core.owed = None;
+            if let Some((from, readings)) =
+                run_one_command(&mut core.pending, &mut core.devices, &mut core.driver).await
             {
-                continue;
+                let outputs = self.emitter.emit(&mut core.devices[from], readings);
+                core.durable
+                    .publish(outputs, from, &core.devices, &self.out);
+                core.owed = Some(Instant::now());
+                return Next::Loop;
             }
-            let expiry = pending.iter().map(|c| c.request.expires).min();
-            // Wake at least every second so the heart beats while the devices are slow.
-            // Held readings are released as soon as their save is done.
-            let soon = if durable.holding() { 20 } else { 1000 };
-            let wake = slots[i]
-                .due
-                .min(Instant::now() + Duration::from_millis(soon))
-                .min(flush_at)
-                .min(stats_at)
-                .min(expiry.unwrap_or(flush_at));
-            tokio::select! {
-                biased;
-                () = shutdown.cancelled() => break,
-                Some(c) = self.commands.recv(), if !poll_owed => {
-                    pending.push(c);
-                    continue;
-                }
-                () = tokio::time::sleep_until(wake) => {}
+            let idle = driver::Idle {
+                until: core.slots[i].due,
+                units: &core.units,
+                bus: &core.name,
+                out: &self.out,
+                shutdown,
+            };
+            if core.driver.idle(idle).await {
+                return Next::Loop;
             }
-            let now = Instant::now();
-            if now >= flush_at {
-                durable.saver.start(snapshot(&devices, false));
-                flush_at = now + self.state_flush;
+        }
+        let wake = core.wake(i);
+        tokio::select! {
+            biased;
+            () = shutdown.cancelled() => return Next::Stop,
+            Some(c) = self.commands.recv(), if !core.poll_owed => {
+                core.pending.push(c);
+                return Next::Loop;
             }
-            if now >= stats_at {
-                let wall = now - stats_since;
-                let stats = stats_json(
-                    &link,
-                    &counters_at_stats,
-                    &devices,
-                    &slots,
-                    wall,
-                    link.busy - busy_at_stats,
-                );
-                counters_at_stats = link.counters;
-                tracing::info!(bus = %name, %stats, "bus stats");
-                self.metrics
-                    .utilisation(stats["utilisation"].as_f64().unwrap_or(0.0));
-                let _ = self.out.send(Output::BusStats {
-                    bus: name.clone(),
-                    stats,
-                });
-                stats_since = now;
-                busy_at_stats = link.busy;
-                stats_at = now + self.stats_interval;
-            }
-            if slots[i].due > now {
-                continue;
-            }
-            let d = &mut devices[i];
-            let commands = &self.commands;
-            // A poll owed after a command runs to its end; otherwise it gives way to a command.
-            let before = link.counters;
-            let result = d
-                .poll(&mut link, &|| !poll_owed && !commands.is_empty())
-                .await;
-            d.metrics.wire(&before, &link.counters);
-            self.metrics.wire(&link.counters, link.busy);
-            let now = Instant::now();
-            match result {
-                Err(e) if e.is_preempted() => continue,
-                Ok(readings) => {
-                    if std::mem::take(&mut line_down) {
-                        tracing::info!(bus = %name, "line is answering again");
-                        // Devices that went offline with the line are probed at once.
-                        for (j, other) in devices.iter_mut().enumerate() {
-                            if other.online == Some(false) {
-                                other.backoff.reset();
-                                slots[j].defer_to(now);
-                            }
+            () = tokio::time::sleep_until(wake) => {}
+        }
+        let now = Instant::now();
+        if now >= core.flush_at {
+            let state = snapshot(&core.devices, &core.durable.orphans, false);
+            core.durable.saver.start(state);
+            core.flush_at = now + self.state_flush;
+        }
+        if now >= core.stats_at {
+            self.report_stats(core, now);
+        }
+        if core.slots[i].due > now {
+            Next::Loop
+        } else {
+            Next::Poll
+        }
+    }
+
+    /// Publishes the bus health of the interval that ends `now`.
+    fn report_stats<D: Driver>(&mut self, core: &mut Core<D>, now: Instant) {
+        let (counters, busy) = core.driver.wire();
+        let wall = now - core.stats_since;
+        let stats = stats::of(
+            (&counters, &core.counters_at_stats),
+            &core.devices,
+            &core.slots,
+            wall,
+            busy - core.busy_at_stats,
+        );
+        core.counters_at_stats = counters;
+        let text = serde_json::to_string(&stats).unwrap_or_default();
+        tracing::info!(bus = %core.name, stats = %text, "bus stats");
+        self.metrics.utilisation(stats.utilisation);
+        let _ = self.out.send(Output::BusStats {
+            bus: core.name.clone(),
+            stats: Box::new(stats),
+        });
+        core.stats_since = now;
+        core.busy_at_stats = busy;
+        core.stats_at = now + self.stats_interval;
+    }
+
+    /// What a poll of device `i` means: readings out, availability, the next deadline.
+    fn after_poll<D: Driver>(
+        &mut self,
+        core: &mut Core<D>,
+        i: usize,
+        result: Result<Vec<crate::reading::Reading>, PollError>,
+    ) {
+        let now = Instant::now();
+        let name = core.name.clone();
+        match result {
+            Err(e) if e.is_preempted() => {}
+            Ok(readings) => {
+                if std::mem::take(&mut core.line_down) {
+                    tracing::info!(bus = %name, "line is answering again");
+                    // Devices that went offline with the line are probed at once.
+                    for (j, other) in core.devices.iter_mut().enumerate() {
+                        if other.availability.line_back() {
+                            core.slots[j].defer_to(now);
                         }
                     }
-                    self.heart.set_up(true);
-                    availability::answered(&mut devices[i], &name, &self.out);
-                    let outputs = self.emitter.emit(&mut devices[i], readings);
-                    durable.publish(outputs, i, &devices, &self.out);
-                    slots[i].advance(now);
                 }
-                Err(e) => {
-                    let line_fault = matches!(&e, PollError::Link(l) if l.is_line_fault());
-                    self.heart.set_up(!line_fault);
-                    if line_fault && !std::mem::replace(&mut line_down, true) {
-                        tracing::error!(bus = %name, "line fault: {e}");
-                        self.metrics.line_fault();
-                    }
-                    match availability::failed(d, &e, bus, line_fault, &name, &self.out) {
-                        Some(wait) => slots[i].defer_to(now + wait),
-                        None => slots[i].advance(now),
-                    }
+                self.heart.set_up(true);
+                let d = &mut core.devices[i];
+                availability::answered(d, &name, &self.out);
+                availability::mode_mismatch(d, &self.out);
+                let outputs = self.emitter.emit(d, readings);
+                core.durable.publish(outputs, i, &core.devices, &self.out);
+                core.slots[i].advance(now);
+            }
+            Err(PollError::WrongModel(why)) => {
+                availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
+                core.slots[i].defer_to(now + self.bus.backoff_max);
+            }
+            Err(e) => {
+                let line_fault = core.driver.is_line_fault(&e);
+                self.heart.set_up(!line_fault);
+                if line_fault && !std::mem::replace(&mut core.line_down, true) {
+                    tracing::error!(bus = %name, "line fault: {e}");
+                    self.metrics.line_fault();
+                }
+                let d = &mut core.devices[i];
+                match availability::failed(d, &e, line_fault, &name, &self.out) {
+                    Some(wait) => core.slots[i].defer_to(now + wait),
+                    None => core.slots[i].advance(now),
                 }
             }
-            devices[i].metrics.up(devices[i].online);
         }
-        if durable.finish(&devices, &self.out).await {
-            tracing::info!(bus = %name, "state saved");
+    }
+
+    /// Saves the state (clean), says the devices are offline, closes the line.
+    async fn finish<D: Driver>(&mut self, mut core: Core<D>) {
+        if core.durable.finish(&core.devices, &self.out).await {
+            tracing::info!(bus = %core.name, "state saved");
         }
-        for d in &devices {
-            if d.online == Some(true) {
+        for d in &core.devices {
+            if d.online() == Some(true) {
                 let _ = self.out.send(Output::DeviceStatus {
                     device: d.name.clone(),
                     online: false,
                 });
             }
         }
-        link.close();
+        core.driver.close();
+    }
+}
+
+/// What the loop does after the work between polls.
+enum Next {
+    /// Start over (a command ran, a scan step ran, a command arrived, nothing is due yet).
+    Loop,
+    /// Poll the device that is due.
+    Poll,
+    /// Shut down.
+    Stop,
+}
+
+/// The running bus: devices, their slots, the driver and the loop's bookkeeping.
+struct Core<D> {
+    name: Arc<str>,
+    driver: D,
+    devices: Vec<DeviceRt>,
+    slots: Vec<Slot>,
+    durable: saver::Durable,
+    /// Configured units (a scan skips them).
+    units: Vec<u8>,
+    start: Instant,
+    flush_at: Instant,
+    stats_at: Instant,
+    stats_since: Instant,
+    busy_at_stats: Duration,
+    counters_at_stats: WireCounters,
+    line_down: bool,
+    pending: Vec<BusCommand>,
+    /// Polls due when the last command ended: they go before the next command, so a burst
+    /// of commands slows commands, never polling (each poll waits for at most one command).
+    owed: Option<Instant>,
+    poll_owed: bool,
+}
+
+impl<D: Driver> Core<D> {
+    fn new(
+        name: Arc<str>,
+        driver: D,
+        devices: Vec<DeviceRt>,
+        durable: saver::Durable,
+        units: Vec<u8>,
+        state_flush: Duration,
+        stats_interval: Duration,
+    ) -> Core<D> {
+        let start = Instant::now();
+        let slots = devices
+            .iter()
+            .map(|d| Slot::new(start, d.config.poll))
+            .collect();
+        Core {
+            name,
+            driver,
+            devices,
+            slots,
+            durable,
+            units,
+            start,
+            flush_at: start + state_flush,
+            stats_at: start + stats_interval,
+            stats_since: start,
+            busy_at_stats: Duration::ZERO,
+            counters_at_stats: WireCounters::default(),
+            line_down: false,
+            pending: Vec::new(),
+            owed: None,
+            poll_owed: false,
+        }
+    }
+
+    /// When to wake: the poll of `i`, a flush, the stats, a command's expiry, or a second at
+    /// most so the heart beats while the devices are slow (20 ms while readings are held for a
+    /// save, so they go out as soon as it is done).
+    fn wake(&self, i: usize) -> Instant {
+        let expiry = self.pending.iter().map(|c| c.request.expires).min();
+        let soon = if self.durable.holding() { 20 } else { 1000 };
+        self.slots[i]
+            .due
+            .min(Instant::now() + Duration::from_millis(soon))
+            .min(self.flush_at)
+            .min(self.stats_at)
+            .min(expiry.unwrap_or(self.flush_at))
     }
 }
 
@@ -339,10 +453,10 @@ fn stall_hook(bus: &str) -> Option<Duration> {
 /// the line between commands); answers expired ones with `offline`; keeps the rest waiting for
 /// their device. Returns the device and readings of the command that went on the line, if one
 /// did.
-async fn run_one_command(
+async fn run_one_command<D: driver::Driver>(
     pending: &mut Vec<BusCommand>,
     devices: &mut [DeviceRt],
-    link: &mut Link,
+    driver: &mut D,
 ) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
     let mut waiting = Vec::new();
@@ -358,10 +472,10 @@ async fn run_one_command(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
-        if ran.is_none() && d.online == Some(true) && d.discovered() {
-            let before = link.counters;
-            let executed = d.execute(link, &c.request).await;
-            d.metrics.wire(&before, &link.counters);
+        if ran.is_none() && d.online() == Some(true) && driver.ready_for_commands(d) {
+            let before = driver.wire().0;
+            let executed = driver.execute(d, &c.request).await;
+            d.metrics.wire(&before, &driver.wire().0);
             ran = Some((i, executed.readings));
             if let Err(e) = &executed.result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
@@ -381,11 +495,13 @@ async fn run_one_command(
     ran
 }
 
-/// The bus's state now; `clean` only for the save after the last reading at shutdown.
-fn snapshot(devices: &[DeviceRt], clean: bool) -> BusState {
+/// The bus's state now: every device's, plus the saved state no configured device claims
+/// (kept, never attached to another meter); `clean` only for the save after the last reading
+/// at shutdown.
+fn snapshot(devices: &[DeviceRt], orphans: &BusState, clean: bool) -> BusState {
     let mut s = BusState {
         clean,
-        ..BusState::default()
+        ..orphans.clone()
     };
     for d in devices {
         s.channels.extend(d.counter_states());
@@ -399,65 +515,30 @@ fn snapshot(devices: &[DeviceRt], clean: bool) -> BusState {
     s
 }
 
-/// Saved channels that no configured device can have are not attached to anything: say so.
-fn log_dropped_state(bus: &str, saved: &BusState, devices: &[DeviceRt]) {
-    let kept: std::collections::BTreeSet<String> = devices
+/// Saved state that no configured (and enabled) device can have: kept as it is, so a device
+/// taken out of the config or disabled resumes its total, with a gap, when it comes back.
+/// `pulsegate state prune` removes it.
+fn unclaimed(bus: &str, saved: &BusState, devices: &[DeviceRt]) -> BusState {
+    let claimed: std::collections::BTreeSet<String> = devices
         .iter()
         .flat_map(|d| d.counter_states().into_keys())
         .collect();
+    let holes: std::collections::BTreeSet<String> = devices.iter().map(|d| d.holes_key()).collect();
+    let mut out = BusState::default();
     for (key, state) in &saved.channels {
-        if !kept.contains(key) {
-            tracing::warn!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; dropped");
+        if !claimed.contains(key) {
+            tracing::info!(bus, channel = %key, total = state.total, "saved counter state matches no configured device; kept for when it comes back");
+            out.channels.insert(key.clone(), state.clone());
         }
     }
+    for (key, h) in &saved.holes {
+        if !holes.contains(key) {
+            out.holes.insert(key.clone(), h.clone());
+        }
+    }
+    out
 }
 
-fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let idx = ((sorted.len() - 1) as f64 * p).round() as usize;
-    Some(sorted[idx])
-}
-
-/// Bus health since the last report (`since`: the counters then).
-fn stats_json(
-    link: &Link,
-    since: &WireCounters,
-    devices: &[DeviceRt],
-    slots: &[Slot],
-    wall: Duration,
-    busy: Duration,
-) -> serde_json::Value {
-    let c = link.counters;
-    let mut per_device = BTreeMap::new();
-    for (d, s) in devices.iter().zip(slots) {
-        let mut lat: Vec<f64> = d.latencies.iter().copied().collect();
-        lat.sort_by(f64::total_cmp);
-        per_device.insert(
-            d.name.to_string(),
-            serde_json::json!({
-                "online": d.online,
-                "poll_ms": d.config.poll.as_secs_f64() * 1000.0,
-                "achieved_poll_ms": d.achieved_interval.map(|v| v * 1000.0),
-                "missed": s.missed,
-                "turnaround_ms": d.turnaround().map(|v| v * 1000.0),
-                "latency_p50_ms": percentile(&lat, 0.5).map(|v| v * 1000.0),
-                "latency_p99_ms": percentile(&lat, 0.99).map(|v| v * 1000.0),
-                "last_error": d.last_error,
-            }),
-        );
-    }
-    serde_json::json!({
-        "utilisation": busy.as_secs_f64() / wall.as_secs_f64().max(1e-9),
-        "transactions": c.transactions,
-        "transactions_per_s": (c.transactions - since.transactions) as f64 / wall.as_secs_f64().max(1e-9),
-        "timeouts": c.timeouts,
-        "garbled": c.garbled,
-        "stale_dropped": c.mismatches,
-        "io_errors": c.io_errors,
-        "exceptions": c.exceptions,
-        "reconnects": c.reconnects,
-        "devices": per_device,
-    })
-}
+#[cfg(test)]
+#[path = "core_tests.rs"]
+mod core_tests;

@@ -109,6 +109,8 @@ pub struct Durable {
     /// Outputs waiting for a save, with the channel key and seq of each reading in them, in
     /// order.
     held: std::collections::VecDeque<(Vec<(String, u64)>, Output)>,
+    /// Saved state no configured device claims, written back with every save.
+    pub orphans: crate::state::BusState,
 }
 
 use crate::reading::{Output, Reading};
@@ -137,6 +139,7 @@ impl Durable {
             ledger: Ledger::default(),
             after_seq,
             held: Default::default(),
+            orphans: Default::default(),
         }
     }
 
@@ -155,7 +158,8 @@ impl Durable {
         self.saver.collect(&mut self.ledger).await;
         self.release(out);
         if self.holding() {
-            self.saver.start(super::snapshot(devices, false));
+            self.saver
+                .start(super::snapshot(devices, &self.orphans, false));
         }
     }
 
@@ -179,7 +183,8 @@ impl Durable {
         }
         self.release(out);
         if self.holding() {
-            self.saver.start(super::snapshot(devices, false));
+            self.saver
+                .start(super::snapshot(devices, &self.orphans, false));
         }
     }
 
@@ -207,7 +212,10 @@ impl Durable {
     ) -> bool {
         let saved = self
             .saver
-            .save_now(super::snapshot(devices, true), &mut self.ledger)
+            .save_now(
+                super::snapshot(devices, &self.orphans, true),
+                &mut self.ledger,
+            )
             .await;
         self.release(out);
         saved

@@ -30,9 +30,7 @@ pub struct ScanRequest {
 
 /// `<root>/bus/<bus>/scan` → the bus name.
 pub fn parse_scan_topic<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
-    let rest = topic.strip_prefix(root)?.strip_prefix("/bus/")?;
-    let bus = rest.strip_suffix("/scan")?;
-    (!bus.is_empty() && !bus.contains('/')).then_some(bus)
+    crate::publish::topics::parse_scan(root, topic)
 }
 
 /// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.

@@ -130,7 +130,7 @@ fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
 pub fn timeout_for(answer: Duration, link: &Link, len: u16) -> Duration {
     let line = link
         .timing()
-        .map(|t| t.chars(8.0 + 5.0 + 2.0 * f64::from(len)))
+        .map(|t| t.chars(crate::plan::read_chars(len)))
         .unwrap_or_default();
     answer + line
 }

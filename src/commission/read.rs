@@ -14,7 +14,7 @@ use super::line::{Target, timeout_for};
 use crate::bus::device::DeviceRt;
 use crate::bus::link::Link;
 use crate::command::{Op, Reply, Request};
-use crate::config::{Bus, Device};
+use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::plan::Wire;
 use crate::profile::{Profile, Profiles};
 
@@ -97,7 +97,19 @@ pub(super) fn poller(
         backoff_max: Duration::from_secs(1),
         slow_poll: Duration::from_secs(3600),
         devices: Vec::new(),
+        enabled: true,
     };
+    // Commissioning reads: a counter found stopped or paused is left so (the gateway's own
+    // start of a stopped ZH-YX1600 counter is a write, which a read must never make).
+    let leave = ChannelConfig {
+        run: Run::Leave,
+        ..ChannelConfig::default()
+    };
+    let channels = profile
+        .all_channels()
+        .into_iter()
+        .map(|c| (c.name, leave.clone()))
+        .collect();
     let device = Device {
         name: format!("unit{unit}"),
         unit,
@@ -107,12 +119,13 @@ pub(super) fn poller(
         timeout: None,
         commands: true,
         baud: None,
-        channels: BTreeMap::new(),
+        channels,
         publish: Default::default(),
         payload: None,
+        enabled: true,
     };
     let wire = match link.timing() {
-        Some(t) => Wire::rtu(&t, Duration::from_millis(2)),
+        Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
         None => Wire::tcp(),
     };
     DeviceRt::new(&bus, &device, wire, &BTreeMap::new(), Vec::new())

@@ -7,7 +7,7 @@ use std::time::Duration;
 use config::Value;
 
 use super::walk::{Errors, Table, join};
-use super::{Bus, ChannelConfig, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
+use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
 /// Longest answer timeout (a module that needs longer is not answering).
@@ -198,8 +198,18 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         spool_bytes: 64 << 20,
         commands: true,
         protocol: super::MqttProtocol::V5,
+        format: "json".into(),
     };
     let Some(mut t) = table else { return m };
+    if let Some(v) = t.opt::<String>("format", errs) {
+        if crate::publish::format::NAMES.contains(&v.as_str()) {
+            m.format = v;
+        } else {
+            let names = crate::publish::format::NAMES.join(", ");
+            let why = format!("unknown output format {v:?}: one of {names}");
+            errs.push(&join(&t.path, "format"), t.origin(), why);
+        }
+    }
     if let Some(v) = t.opt::<String>("protocol", errs) {
         match v.as_str() {
             "5" => m.protocol = super::MqttProtocol::V5,
@@ -224,10 +234,19 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         m.client_id = v;
     }
     m.username = t.opt("username", errs);
-    m.password = t.opt::<String>("password", errs).map(super::Secret);
+    m.password = mqtt_password(&mut t, errs);
+    m.tls = mqtt_tls(&mut t, errs);
+    mqtt_delivery(&mut t, &mut m, errs);
+    t.finish(errs);
+    m
+}
+
+/// `mqtt.password`, `mqtt.password_file`, or systemd's credential.
+fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Secret> {
+    let mut password = t.opt::<String>("password", errs).map(super::Secret);
     if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
         match std::fs::read_to_string(&file) {
-            Ok(p) => m.password = Some(secret(p)),
+            Ok(p) => password = Some(secret(p)),
             Err(e) => errs.push(
                 &join(&t.path, "password_file"),
                 t.origin(),
@@ -235,57 +254,66 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             ),
         }
     }
-    if m.password.is_none() {
+    if password.is_none() {
         // systemd's LoadCredential=mqtt-password:… puts it here for this service only.
         if let Some(dir) = std::env::var_os("CREDENTIALS_DIRECTORY") {
             if let Ok(p) = std::fs::read_to_string(Path::new(&dir).join("mqtt-password")) {
-                m.password = Some(secret(p));
+                password = Some(secret(p));
             }
         }
     }
-    if let Some(mut tt) = t.table("tls", errs) {
-        let tt_path = tt.path.clone();
-        let ca_file = tt.req::<PathBuf>("ca_file", errs);
-        let cert_file = tt.opt::<PathBuf>("cert_file", errs);
-        let key_file = tt.opt::<PathBuf>("key_file", errs);
-        if cert_file.is_some() != key_file.is_some() {
+    password
+}
+
+/// `[mqtt.tls]`, built as `run` builds it.
+fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
+    let mut tt = t.table("tls", errs)?;
+    let tt_path = tt.path.clone();
+    let ca_file = tt.req::<PathBuf>("ca_file", errs);
+    let cert_file = tt.opt::<PathBuf>("cert_file", errs);
+    let key_file = tt.opt::<PathBuf>("key_file", errs);
+    if cert_file.is_some() != key_file.is_some() {
+        errs.push(
+            &tt.path.clone(),
+            tt.origin(),
+            "cert_file and key_file go together",
+        );
+    }
+    for (key, file) in [
+        ("ca_file", &ca_file),
+        ("cert_file", &cert_file),
+        ("key_file", &key_file),
+    ] {
+        if let Some(f) = file
+            && !f.is_file()
+        {
             errs.push(
-                &tt.path.clone(),
+                &join(&tt.path, key),
                 tt.origin(),
-                "cert_file and key_file go together",
+                format!("no such file {}", f.display()),
             );
         }
-        for (key, file) in [
-            ("ca_file", &ca_file),
-            ("cert_file", &cert_file),
-            ("key_file", &key_file),
-        ] {
-            if let Some(f) = file
-                && !f.is_file()
-            {
-                errs.push(
-                    &join(&tt.path, key),
-                    tt.origin(),
-                    format!("no such file {}", f.display()),
-                );
-            }
-        }
-        tt.finish(errs);
-        m.tls = ca_file.map(|ca_file| super::Tls {
-            ca_file,
-            cert_file,
-            key_file,
-        });
-        // Built here exactly as `run` builds it, so `check` (run as the service user) reports
-        // a file the service could not read, and the gateway never starts without TLS.
-        let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
-        if let Some(tls) = &m.tls
-            && files_exist
-            && let Err(e) = crate::publish::tls::client_config(tls)
-        {
-            errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
-        }
     }
+    tt.finish(errs);
+    let tls = ca_file.map(|ca_file| super::Tls {
+        ca_file,
+        cert_file,
+        key_file,
+    });
+    // Built here exactly as `run` builds it, so `check` (run as the service user) reports
+    // a file the service could not read, and the gateway never starts without TLS.
+    let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
+    if let Some(tls) = &tls
+        && files_exist
+        && let Err(e) = crate::publish::tls::client_config(tls)
+    {
+        errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
+    }
+    tls
+}
+
+/// Keep-alive, QoS, retain, commands, spool size and topic root.
+fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
     // MQTT carries it in 16 bits of seconds.
     let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
     if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
@@ -329,8 +357,6 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
             );
         }
     }
-    t.finish(errs);
-    m
 }
 
 fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Option<Bus> {
@@ -343,65 +369,9 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             "bus name must be letters, digits, '-' or '_'",
         );
     }
-    let has_port = t.has("port");
-    let has_host = t.has("host");
-    let link = if has_host {
-        let host = t.req::<String>("host", errs);
-        let port = t.int::<u16>("port", errs).unwrap_or(502);
-        if port == 0 {
-            errs.push(
-                &join(&path, "port"),
-                t.origin(),
-                "TCP port must be 1..65535",
-            );
-        }
-        for key in ["baud", "parity", "stop_bits"] {
-            if t.has(key) {
-                let _ = t.opt::<toml::Value>(key, errs);
-                errs.push(&join(&path, key), t.origin(), "serial setting on a TCP bus");
-            }
-        }
-        host.map(|host| Link::Tcp { host, port })
-    } else if has_port {
-        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
-        if !BAUDS.contains(&baud) {
-            errs.push(
-                &join(&path, "baud"),
-                t.origin(),
-                format!("{baud} is not a rate the modules support ({BAUDS:?})"),
-            );
-        }
-        let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
-        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
-        if !(1..=2).contains(&stop_bits) {
-            errs.push(&join(&path, "stop_bits"), t.origin(), "must be 1 or 2");
-        }
-        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
-            let ok = p.is_absolute();
-            if !ok {
-                errs.push(
-                    &join(&path, "port"),
-                    t.origin(),
-                    "must be an absolute path such as /dev/ttyUSB0",
-                );
-            }
-            ok
-        });
-        port.map(|port| Link::Rtu {
-            port,
-            baud,
-            parity,
-            stop_bits,
-        })
-    } else {
-        errs.push(
-            &path,
-            t.origin(),
-            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP)",
-        );
-        None
-    };
+    let link = bus_link(&mut t, &path, errs);
 
+    let t_origin = t.origin().map(str::to_string);
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let guard = t
         .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
@@ -430,15 +400,112 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
     let slow_poll = t
         .duration("slow_poll", errs)
         .unwrap_or(Duration::from_secs(60));
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
 
+    let devices = bus_devices(&mut t, &path, profiles, errs);
+    if matches!(link, Some(Link::Tcp { .. })) {
+        for d in devices.iter().filter(|d| d.baud.is_some()) {
+            errs.push(
+                &format!("{path}.devices.{}.baud", d.name),
+                t.origin(),
+                "serial setting on a TCP bus",
+            );
+        }
+    }
+    t.finish(errs);
+    let mut link = link?;
+    if let Link::Tcp { port, .. } = &mut link
+        && *port == 0
+    {
+        *port = default_tcp_port(&path, &devices, t_origin.as_deref(), errs);
+    }
+    Some(Bus {
+        name: name.to_string(),
+        link,
+        timeout,
+        guard,
+        offline_after,
+        backoff_min,
+        backoff_max,
+        slow_poll,
+        enabled,
+        devices,
+    })
+}
+
+/// The bus's link: `host` (Modbus TCP) or `port` (a serial device, Modbus RTU) and its settings.
+fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Link> {
+    let has_port = t.has("port");
+    let has_host = t.has("host");
+    if has_host {
+        let host = t.req::<String>("host", errs);
+        let port = t.int::<u16>("port", errs).unwrap_or(0);
+        if port == 0 && has_port {
+            errs.push(&join(path, "port"), t.origin(), "TCP port must be 1..65535");
+        }
+        for key in ["baud", "parity", "stop_bits"] {
+            if t.has(key) {
+                let _ = t.opt::<toml::Value>(key, errs);
+                errs.push(&join(path, key), t.origin(), "serial setting on a TCP bus");
+            }
+        }
+        host.map(|host| Link::Tcp { host, port })
+    } else if has_port {
+        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
+        if !BAUDS.contains(&baud) {
+            errs.push(
+                &join(path, "baud"),
+                t.origin(),
+                format!("{baud} is not a rate the modules support ({BAUDS:?})"),
+            );
+        }
+        let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
+        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
+        if !(1..=2).contains(&stop_bits) {
+            errs.push(&join(path, "stop_bits"), t.origin(), "must be 1 or 2");
+        }
+        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
+            let ok = p.is_absolute();
+            if !ok {
+                errs.push(
+                    &join(path, "port"),
+                    t.origin(),
+                    "must be an absolute path such as /dev/ttyUSB0",
+                );
+            }
+            ok
+        });
+        port.map(|port| Link::Rtu {
+            port,
+            baud,
+            parity,
+            stop_bits,
+        })
+    } else {
+        errs.push(
+            path,
+            t.origin(),
+            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP)",
+        );
+        None
+    }
+}
+
+/// The devices of a bus; a unit used twice is an error.
+fn bus_devices(
+    t: &mut Table<'_>,
+    path: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> Vec<super::Device> {
     let mut devices = Vec::new();
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
     let entries = t.entries("devices", errs);
     if entries.is_empty() {
-        errs.push(&join(&path, "devices"), t.origin(), "no device on this bus");
+        errs.push(&join(path, "devices"), t.origin(), "no device on this bus");
     }
     for (dname, dvalue) in entries {
-        if let Some(d) = device(&path, &dname, dvalue, profiles, errs) {
+        if let Some(d) = device(path, &dname, dvalue, profiles, errs) {
             if let Some(other) = units.insert(d.unit, d.name.clone()) {
                 errs.push(
                     &format!("{path}.devices.{dname}.unit"),
@@ -452,27 +519,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             devices.push(d);
         }
     }
-    if matches!(link, Some(Link::Tcp { .. })) {
-        for d in devices.iter().filter(|d| d.baud.is_some()) {
-            errs.push(
-                &format!("{path}.devices.{}.baud", d.name),
-                t.origin(),
-                "serial setting on a TCP bus",
-            );
-        }
-    }
-    t.finish(errs);
-    Some(Bus {
-        name: name.to_string(),
-        link: link?,
-        timeout,
-        guard,
-        offline_after,
-        backoff_min,
-        backoff_max,
-        slow_poll,
-        devices,
-    })
+    devices
 }
 
 fn device(
@@ -508,23 +555,13 @@ fn device(
         }
     });
     let model = t.req::<String>("model", errs);
-    let profile = model.as_ref().and_then(|m| {
-        let p = profiles.get(m);
-        if p.is_none() {
-            errs.push(
-                &join(&path, "model"),
-                t.origin(),
-                format!(
-                    "unknown model {m:?}; known: {}",
-                    profiles.names().join(", ")
-                ),
-            );
-        }
-        p
-    });
+    let profile = model
+        .as_ref()
+        .and_then(|m| device_profile(&t, &path, m, profiles, errs));
     let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
+    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
     let baud = t.int::<u32>("baud", errs);
     if let (Some(b), Some(p)) = (baud, &profile)
         && !p.bauds.contains(&b)
@@ -543,41 +580,11 @@ fn device(
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
-        let Some(mut ct) = Table::of(cvalue, &cpath, errs) else {
+        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
             continue;
         };
-        if let Some(p) = &profile
-            && !p.all_channels().iter().any(|c| c.name == cname)
-        {
-            errs.push(
-                &cpath,
-                ct.origin(),
-                format!("model {} has no channel {cname}", p.model),
-            );
-        }
-        let ppr = ct.opt::<f64>("ppr", errs);
-        let max_rate_hz = ct.opt::<f64>("max_rate_hz", errs);
-        for (key, v) in [("ppr", ppr), ("max_rate_hz", max_rate_hz)] {
-            if v.is_some_and(|v| !(v > 0.0 && v.is_finite())) {
-                errs.push(
-                    &join(&cpath, key),
-                    ct.origin(),
-                    "must be a number greater than zero",
-                );
-            }
-        }
-        let units = super::channel::units(&mut ct, errs);
-        let publish = super::publish::policy(&mut ct, errs);
-        ct.finish(errs);
-        channels.insert(
-            cname,
-            ChannelConfig {
-                ppr,
-                max_rate_hz,
-                units,
-                publish,
-            },
-        );
+        let c = super::channel::channel(ct, &cname, profile.as_deref(), errs);
+        channels.insert(cname, c);
     }
     t.finish(errs);
     Some(Device {
@@ -590,7 +597,56 @@ fn device(
         commands,
         baud,
         channels,
+        enabled,
         publish,
         payload,
     })
+}
+
+/// The profile of `model`; an unknown model is an error naming the known ones.
+fn device_profile(
+    t: &Table<'_>,
+    path: &str,
+    model: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> Option<std::sync::Arc<crate::profile::Profile>> {
+    let p = profiles.get(model);
+    if p.is_none() {
+        let known = profiles.names().join(", ");
+        let why = format!("unknown model {model:?}; known: {known}");
+        errs.push(&join(path, "model"), t.origin(), why);
+    }
+    p
+}
+
+/// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:
+/// 20108), or Modbus's 502 when none gives one. Devices whose datasheets disagree need `port`.
+fn default_tcp_port(
+    path: &str,
+    devices: &[Device],
+    origin: Option<&str>,
+    errs: &mut Errors,
+) -> u16 {
+    let given: std::collections::BTreeSet<(u16, &str)> = devices
+        .iter()
+        .map(|d| (d.profile.tcp_port.unwrap_or(502), d.profile.model.as_str()))
+        .collect();
+    let ports: std::collections::BTreeSet<u16> = given.iter().map(|(p, _)| *p).collect();
+    match ports.len() {
+        0 => 502,
+        1 => *ports.first().expect("one"),
+        _ => {
+            let list: Vec<String> = given
+                .iter()
+                .map(|(p, m)| format!("{m} listens on {p}"))
+                .collect();
+            errs.push(
+                &join(path, "port"),
+                origin,
+                format!("missing, and the datasheets disagree: {}", list.join(", ")),
+            );
+            502
+        }
+    }
 }

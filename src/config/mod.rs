@@ -18,6 +18,7 @@ use std::time::Duration;
 
 use crate::profile::Profile;
 
+pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
 pub use metrics::Metrics as MetricsEndpoint;
 pub use publish::HomeAssistant;
@@ -139,6 +140,8 @@ pub struct Mqtt {
     pub commands: bool,
     /// `mqtt.protocol`: "5" (default) or "3.1.1".
     pub protocol: MqttProtocol,
+    /// `mqtt.format`: how events become payloads, one of [`crate::publish::format::NAMES`].
+    pub format: String,
 }
 
 /// The MQTT protocol version spoken to the broker.
@@ -167,6 +170,8 @@ pub struct Bus {
     pub backoff_max: Duration,
     /// How often slow registers (mode, pulses per revolution) are re-read.
     pub slow_poll: Duration,
+    /// `false`: the bus is not opened; its devices' saved state is kept.
+    pub enabled: bool,
     pub devices: Vec<Device>,
 }
 
@@ -234,6 +239,8 @@ pub struct Device {
     pub baud: Option<u32>,
     /// Per-channel settings keyed by channel name.
     pub channels: BTreeMap<String, ChannelConfig>,
+    /// `false`: not polled or published; its saved state is kept.
+    pub enabled: bool,
     /// Publish policy keys of this device (over the gateway's).
     pub publish: PolicyOverride,
     /// `payload` of this device, when it overrides the gateway's.
@@ -250,22 +257,12 @@ impl PartialEq for Device {
             && self.commands == other.commands
             && self.baud == other.baud
             && self.channels == other.channels
+            && self.enabled == other.enabled
+            // A profile file edited since: the bus restarts with the new profile.
+            && self.profile.fingerprint == other.profile.fingerprint
             && self.publish == other.publish
             && self.payload == other.payload
     }
-}
-
-/// `[buses.<bus>.devices.<device>.channels.<name>]`
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ChannelConfig {
-    /// Pulses per revolution where the module has no register for it.
-    pub ppr: Option<f64>,
-    /// Highest plausible input rate; overrides the profile's.
-    pub max_rate_hz: Option<f64>,
-    /// Engineering units: scale, unit, rate unit and time base, device class.
-    pub units: channel::ChannelUnits,
-    /// Publish policy keys of this channel (over the device's).
-    pub publish: PolicyOverride,
 }
 
 impl Device {
@@ -332,6 +329,12 @@ impl Config {
         self.buses
             .iter()
             .flat_map(|b| b.devices.iter().map(move |d| (b, d)))
+    }
+
+    /// The devices that are polled and published: neither they nor their bus have
+    /// `enabled = false`.
+    pub fn enabled_devices(&self) -> impl Iterator<Item = (&Bus, &Device)> {
+        self.devices().filter(|(b, d)| b.enabled && d.enabled)
     }
 }
 

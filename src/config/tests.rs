@@ -204,6 +204,58 @@ fn topic_safe_names() {
 }
 
 #[test]
+fn a_tcp_bus_of_zh_yx1600_modules_needs_no_port_the_datasheet_gives_20108() {
+    let c = check(
+        "[buses.hall]\nhost = \"10.0.0.7\"\n[buses.hall.devices.doors]\nunit = 1\nmodel = \"zh-yx1600\"\n",
+    )
+    .unwrap();
+    assert_eq!(
+        c.buses[0].link,
+        Link::Tcp {
+            host: "10.0.0.7".into(),
+            port: 20108
+        }
+    );
+    let c = check(
+        "[buses.gw]\nhost = \"10.0.0.8\"\n[buses.gw.devices.press]\nunit = 1\nmodel = \"yl67\"\n",
+    )
+    .unwrap();
+    assert!(matches!(c.buses[0].link, Link::Tcp { port: 502, .. }));
+    let e = errors(
+        "[buses.gw]\nhost = \"10.0.0.8\"\n[buses.gw.devices.press]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.gw.devices.doors]\nunit = 2\nmodel = \"zh-yx1600\"\n",
+    )
+    .join("\n");
+    assert!(
+        e.contains("buses.gw.port") && e.contains("zh-yx1600 listens on 20108"),
+        "{e}"
+    );
+}
+
+#[test]
+fn enabled_and_run_are_read_at_bus_device_and_channel_level() {
+    let c = check(
+        "[buses.hall]\nhost = \"10.0.0.7\"\nenabled = false\n[buses.hall.devices.doors]\nunit = 1\nmodel = \"zh-yx1600\"\nenabled = false\n\
+         [buses.hall.devices.doors.channels.di1]\nrun = \"down\"\n[buses.hall.devices.doors.channels.di2]\nrun = \"leave\"\nenabled = false\n",
+    )
+    .unwrap();
+    let bus = &c.buses[0];
+    assert!(!bus.enabled && !bus.devices[0].enabled);
+    let ch = &bus.devices[0].channels;
+    assert_eq!(ch["di1"].run, Run::Down);
+    assert!(ch["di1"].enabled);
+    assert_eq!((ch["di2"].run, ch["di2"].enabled), (Run::Leave, false));
+    let e = errors(
+        "[buses.hall]\nhost = \"h\"\n[buses.hall.devices.doors]\nunit = 1\nmodel = \"zh-yx1600\"\nchannels.di1 = { run = \"sideways\" }\n",
+    )
+    .join("\n");
+    assert!(
+        e.contains("buses.hall.devices.doors.channels.di1.run"),
+        "{e}"
+    );
+}
+
+#[test]
 fn an_fqdn_hostname_becomes_a_visible_id_never_a_shared_default() {
     use super::id_from_host;
     assert_eq!(

@@ -53,87 +53,122 @@ fn opts(name: &str, help: &str) -> Opts {
     Opts::new(name, help)
 }
 
+/// A family's name and help text.
+type Family = (&'static str, &'static str);
+
 macro_rules! family {
-    ($r:expr, $ty:ident, $name:expr, $help:expr, $labels:expr) => {
+    ($r:expr, $ty:ident, $family:expr, $labels:expr) => {
         reg(
             $r,
-            $ty::new(opts($name, $help), $labels).expect("valid metric name"),
+            $ty::new(opts($family.0, $family.1), $labels).expect("valid metric name"),
         )
     };
-    ($r:expr, $ty:ident, $name:expr, $help:expr) => {
+    ($r:expr, $ty:ident, $family:expr) => {
         reg(
             $r,
-            $ty::with_opts(opts($name, $help)).expect("valid metric name"),
+            $ty::with_opts(opts($family.0, $family.1)).expect("valid metric name"),
         )
     };
 }
 
+const CHANNEL_PULSES: Family = (
+    "pulsegate_channel_pulses_total",
+    "Pulses counted on an input counting on its own (running total, survives wrap, resets and restarts).",
+);
+const CHANNEL_POSITION: Family = (
+    "pulsegate_channel_position_pulses",
+    "An encoder's position: the running sum of its signed deltas.",
+);
+const CHANNEL_RATE: Family = (
+    "pulsegate_channel_rate_hertz",
+    "Pulses per second between the channel's last two readings.",
+);
+const DEVICE_UP: Family = (
+    "pulsegate_device_up",
+    "1 while the device answers (online), 0 when offline or not yet seen.",
+);
+const DEVICE_WRONG_MODEL: Family = (
+    "pulsegate_device_wrong_model",
+    "1 when the module identifies as another model than configured.",
+);
+const DEVICE_TRANSACTIONS: Family = (
+    "pulsegate_device_transactions_total",
+    "Modbus transactions with the device (polls and commands).",
+);
+const DEVICE_TIMEOUTS: Family = (
+    "pulsegate_device_timeouts_total",
+    "Transactions the device did not answer in time.",
+);
+const DEVICE_GARBLED: Family = (
+    "pulsegate_device_garbled_answers_total",
+    "Answers that arrived garbled (bad CRC, cut short).",
+);
+const DEVICE_EXCEPTIONS: Family = (
+    "pulsegate_device_exception_answers_total",
+    "Modbus exception answers.",
+);
+const BUS_TRANSACTIONS: Family = (
+    "pulsegate_bus_transactions_total",
+    "Modbus transactions on the bus.",
+);
+const BUS_RECONNECTS: Family = (
+    "pulsegate_bus_reconnects_total",
+    "Times the bus's port or TCP connection was (re)opened.",
+);
+const BUS_LINE_FAULTS: Family = (
+    "pulsegate_bus_line_faults_total",
+    "Line faults (adapter gone, port or connection failing), counted when each starts.",
+);
+const BUS_BUSY: Family = (
+    "pulsegate_bus_busy_seconds_total",
+    "Time the line was busy with transactions; its rate is the line utilisation.",
+);
+const BUS_UTILISATION: Family = (
+    "pulsegate_bus_utilisation_ratio",
+    "Share of the last stats interval the line was busy.",
+);
+const MQTT_CONNECTED: Family = (
+    "pulsegate_mqtt_connected",
+    "1 while connected to the MQTT broker.",
+);
+const SPOOL_MESSAGES: Family = (
+    "pulsegate_spool_messages",
+    "Messages waiting in the store-and-forward spool.",
+);
+const SPOOL_BYTES: Family = (
+    "pulsegate_spool_bytes",
+    "Bytes the spool's messages take (memory and disk).",
+);
+const SPOOL_DROPPED: Family = (
+    "pulsegate_spool_dropped_messages_total",
+    "Oldest messages dropped because the spool was full.",
+);
+const COMMANDS_RECEIVED: Family = (
+    "pulsegate_commands_received_total",
+    "Commands answered (a retained command message is ignored, not counted).",
+);
+const COMMANDS_REFUSED: Family = (
+    "pulsegate_commands_refused_total",
+    "Commands answered with an error, by error code.",
+);
+const START_TIME: Family = (
+    "process_start_time_seconds",
+    "Start time of the process since the Unix epoch, in seconds.",
+);
+const BUILD_INFO: Family = ("pulsegate_build_info", "Always 1; the version is a label.");
+
 impl Families {
     pub fn register(r: &Registry) -> Families {
         Families {
-            channel_pulses: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_channel_pulses_total",
-                "Pulses counted on an input counting on its own (running total, survives wrap, resets and restarts).",
-                CHANNEL
-            ),
-            channel_position: family!(
-                r,
-                IntGaugeVec,
-                "pulsegate_channel_position_pulses",
-                "An encoder's position: the running sum of its signed deltas.",
-                CHANNEL
-            ),
-            channel_rate: family!(
-                r,
-                GaugeVec,
-                "pulsegate_channel_rate_hertz",
-                "Pulses per second between the channel's last two readings.",
-                CHANNEL
-            ),
-            device_up: family!(
-                r,
-                IntGaugeVec,
-                "pulsegate_device_up",
-                "1 while the device answers (online), 0 when offline or not yet seen.",
-                DEVICE
-            ),
-            device_wrong_model: family!(
-                r,
-                IntGaugeVec,
-                "pulsegate_device_wrong_model",
-                "1 when the module identifies as another model than configured.",
-                DEVICE
-            ),
-            device_transactions: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_device_transactions_total",
-                "Modbus transactions with the device (polls and commands).",
-                DEVICE
-            ),
-            device_timeouts: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_device_timeouts_total",
-                "Transactions the device did not answer in time.",
-                DEVICE
-            ),
-            device_garbled: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_device_garbled_answers_total",
-                "Answers that arrived garbled (bad CRC, cut short).",
-                DEVICE
-            ),
-            device_exceptions: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_device_exception_answers_total",
-                "Modbus exception answers.",
-                DEVICE
-            ),
+            channel_pulses: family!(r, IntCounterVec, CHANNEL_PULSES, CHANNEL),
+            channel_position: family!(r, IntGaugeVec, CHANNEL_POSITION, CHANNEL),
+            channel_rate: family!(r, GaugeVec, CHANNEL_RATE, CHANNEL),
+            device_up: family!(r, IntGaugeVec, DEVICE_UP, DEVICE),
+            device_wrong_model: family!(r, IntGaugeVec, DEVICE_WRONG_MODEL, DEVICE),
+            device_transactions: family!(r, IntCounterVec, DEVICE_TRANSACTIONS, DEVICE),
+            device_timeouts: family!(r, IntCounterVec, DEVICE_TIMEOUTS, DEVICE),
+            device_garbled: family!(r, IntCounterVec, DEVICE_GARBLED, DEVICE),
+            device_exceptions: family!(r, IntCounterVec, DEVICE_EXCEPTIONS, DEVICE),
             device_latency: reg(
                 r,
                 HistogramVec::new(
@@ -146,91 +181,19 @@ impl Families {
                 )
                 .expect("valid histogram"),
             ),
-            bus_transactions: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_bus_transactions_total",
-                "Modbus transactions on the bus.",
-                BUS
-            ),
-            bus_reconnects: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_bus_reconnects_total",
-                "Times the bus's port or TCP connection was (re)opened.",
-                BUS
-            ),
-            bus_line_faults: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_bus_line_faults_total",
-                "Line faults (adapter gone, port or connection failing), counted when each starts.",
-                BUS
-            ),
-            bus_busy: family!(
-                r,
-                CounterVec,
-                "pulsegate_bus_busy_seconds_total",
-                "Time the line was busy with transactions; its rate is the line utilisation.",
-                BUS
-            ),
-            bus_utilisation: family!(
-                r,
-                GaugeVec,
-                "pulsegate_bus_utilisation_ratio",
-                "Share of the last stats interval the line was busy.",
-                BUS
-            ),
-            mqtt_connected: family!(
-                r,
-                IntGauge,
-                "pulsegate_mqtt_connected",
-                "1 while connected to the MQTT broker."
-            ),
-            spool_messages: family!(
-                r,
-                IntGauge,
-                "pulsegate_spool_messages",
-                "Messages waiting in the store-and-forward spool."
-            ),
-            spool_bytes: family!(
-                r,
-                IntGauge,
-                "pulsegate_spool_bytes",
-                "Bytes the spool's messages take (memory and disk)."
-            ),
-            spool_dropped: family!(
-                r,
-                IntCounter,
-                "pulsegate_spool_dropped_messages_total",
-                "Oldest messages dropped because the spool was full."
-            ),
-            commands_received: family!(
-                r,
-                IntCounter,
-                "pulsegate_commands_received_total",
-                "Commands answered (a retained command message is ignored, not counted)."
-            ),
-            commands_refused: family!(
-                r,
-                IntCounterVec,
-                "pulsegate_commands_refused_total",
-                "Commands answered with an error, by error code.",
-                &["code"]
-            ),
-            start_time: family!(
-                r,
-                Gauge,
-                "process_start_time_seconds",
-                "Start time of the process since the Unix epoch, in seconds."
-            ),
-            build_info: family!(
-                r,
-                IntGaugeVec,
-                "pulsegate_build_info",
-                "Always 1; the version is a label.",
-                &["version"]
-            ),
+            bus_transactions: family!(r, IntCounterVec, BUS_TRANSACTIONS, BUS),
+            bus_reconnects: family!(r, IntCounterVec, BUS_RECONNECTS, BUS),
+            bus_line_faults: family!(r, IntCounterVec, BUS_LINE_FAULTS, BUS),
+            bus_busy: family!(r, CounterVec, BUS_BUSY, BUS),
+            bus_utilisation: family!(r, GaugeVec, BUS_UTILISATION, BUS),
+            mqtt_connected: family!(r, IntGauge, MQTT_CONNECTED),
+            spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
+            spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
+            spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
+            commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
+            commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
+            start_time: family!(r, Gauge, START_TIME),
+            build_info: family!(r, IntGaugeVec, BUILD_INFO, &["version"]),
         }
     }
 }

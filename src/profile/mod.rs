@@ -69,6 +69,8 @@ pub struct ClearSpec {
     pub register: u16,
     pub code: u16,
     pub restart: Vec<u16>,
+    /// The code that pauses the counter, where the register runs it.
+    pub pause: Option<u16>,
 }
 
 /// A single register write of a fixed code (clear-all).
@@ -94,11 +96,82 @@ pub struct ChannelSpec {
     pub max_rate_hz: f64,
     /// The clear-all write that covers this channel, where the mode has one.
     pub clear_all: Option<CodeWrite>,
+    /// Values a preset may write (inclusive), where the datasheet narrows the register's range.
+    pub preset_range: Option<(i64, i64)>,
+    /// The frequency register counts pulses over this window (ZH-YX1600), not Hz.
+    pub freq_window: Option<FreqWindow>,
+    /// The mode word this channel's existence depends on.
+    pub mode_register: u16,
+    /// Where the module keeps the counter's run state after power-up.
+    pub power_on: Option<PowerOn>,
+}
+
+/// The power-on run state of a counter: `mask` bits of the word at `address`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PowerOn {
+    pub address: u16,
+    pub mask: u16,
+    pub up: u16,
+    pub down: u16,
+}
+
+impl PowerOn {
+    /// `word` with its power-on bits set to count up (`down == false`) or down; other bits kept.
+    pub fn apply(&self, word: u16, down: bool) -> u16 {
+        (word & !self.mask) | if down { self.down } else { self.up }
+    }
+}
+
+/// A frequency register that holds the pulses counted in a window set by another register.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FreqWindow {
+    pub register: Register,
+    pub unit_ms: u32,
+    pub zero_ms: u32,
+}
+
+/// Longest window taken as real: a day. A larger value is not a window the module was set to
+/// (the ZH-YX1600 datasheet puts live lower limits, 0x8000_0000 at the factory, at addresses
+/// that overlap the windows).
+pub const LONGEST_WINDOW_MS: u64 = 24 * 3600 * 1000;
+
+impl FreqWindow {
+    /// The window in seconds for a register value, or `None` when the value cannot be a window.
+    pub fn seconds(&self, raw: u64) -> Option<f64> {
+        let ms = if raw == 0 {
+            u64::from(self.zero_ms)
+        } else {
+            raw.checked_mul(u64::from(self.unit_ms))?
+        };
+        (ms > 0 && ms <= LONGEST_WINDOW_MS).then(|| ms as f64 / 1000.0)
+    }
 }
 
 impl ChannelSpec {
+    /// The register that starts and stops the counter, where the module has one (ZH-YX1600):
+    /// the clear register of a channel whose clear restarts it.
+    pub fn command_register(&self) -> Option<Register> {
+        (!self.clear.restart.is_empty()).then_some(Register {
+            address: self.clear.register,
+            ty: ValueType::U16,
+        })
+    }
+
+    /// The registers every poll reads for this channel: count, frequency and run state. `check`
+    /// prints the plan of these, and the bus executes it.
+    pub fn polled(&self) -> impl Iterator<Item = Register> + '_ {
+        std::iter::once(self.count)
+            .chain(self.freq)
+            .chain(self.command_register())
+    }
+
     /// Whether a preset value fits the channel's count register.
     pub fn accepts_preset(&self, value: i64) -> bool {
+        if let Some((lo, hi)) = self.preset_range
+            && !(lo..=hi).contains(&value)
+        {
+            return false;
+        }
         match self.count.ty {
             ValueType::I32 => i32::try_from(value).is_ok(),
             ValueType::U32 => u32::try_from(value).is_ok(),
@@ -116,6 +189,8 @@ pub struct ModeRegister {
     pub instance: u16,
     pub address: u16,
     pub mask: u16,
+    /// A second mode word that must agree with this one under `mask`.
+    pub partner: Option<u16>,
 }
 
 /// A checked module profile.
@@ -129,8 +204,12 @@ pub struct Profile {
     pub word_order: WordOrder,
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
+    /// The factory Modbus TCP port of the Ethernet model, where the datasheet gives one.
+    pub tcp_port: Option<u16>,
     pub identify: Option<(u16, Vec<u16>)>,
     pub autosave: Option<u16>,
+    /// A hash of the profile's text: a reload sees an edited profile file.
+    pub fingerprint: u64,
     /// Settings `pulsegate setup` may write, by name (`unit`, `baud`, ...).
     pub settings: BTreeMap<String, Setting>,
     groups: Vec<raw::Group>,
@@ -162,8 +241,15 @@ impl Profile {
             word_order: raw.word_order,
             answer_timeout: raw.answer_timeout,
             bauds: raw.bauds,
+            tcp_port: raw.tcp_port,
             identify: raw.identify.map(|i| (i.address, i.words)),
             autosave: raw.autosave.map(|a| a.address),
+            fingerprint: {
+                use std::hash::{Hash, Hasher};
+                let mut h = std::collections::hash_map::DefaultHasher::new();
+                text.hash(&mut h);
+                h.finish()
+            },
             settings,
             groups: raw.groups,
         };
@@ -195,6 +281,10 @@ impl Profile {
                     instance: i,
                     address: group.mode.address + i * group.mode.stride,
                     mask: group.mode.mask,
+                    partner: group
+                        .mode
+                        .partner
+                        .map(|o| group.mode.address + i * group.mode.stride + o),
                 });
             }
         }
@@ -219,7 +309,9 @@ impl Profile {
                     value,
                 })?;
             for ch in &mode.channels {
-                out.push(resolve(ch, reg.instance, mode.clear_all));
+                let mut c = resolve(ch, reg.instance, mode.clear_all);
+                c.mode_register = reg.address;
+                out.push(c);
             }
         }
         Ok(out)
@@ -233,7 +325,9 @@ impl Profile {
             for i in 0..group.instances {
                 for mode in &group.modes {
                     for ch in &mode.channels {
-                        out.push(resolve(ch, i, mode.clear_all));
+                        let mut c = resolve(ch, i, mode.clear_all);
+                        c.mode_register = group.mode.address + i * group.mode.stride;
+                        out.push(c);
                     }
                 }
             }
@@ -362,12 +456,29 @@ fn resolve(ch: &raw::ChannelTemplate, i: u16, clear_all: Option<raw::CodeTemplat
             register: ch.clear.address + i * ch.clear.stride,
             code: ch.clear.code + i * ch.clear.code_stride,
             restart: ch.clear.restart.clone(),
+            pause: ch.clear.pause,
         },
         retains_count: ch.retains_count,
         max_rate_hz: ch.max_rate_hz,
         clear_all: clear_all.map(|c| CodeWrite {
             register: c.address,
             code: c.code,
+        }),
+        preset_range: ch.preset_range.map(|[lo, hi]| (lo, hi)),
+        freq_window: ch.freq_window.map(|w| FreqWindow {
+            register: Register {
+                address: w.address + i * w.stride,
+                ty: w.ty,
+            },
+            unit_ms: w.unit_ms,
+            zero_ms: w.zero_ms,
+        }),
+        mode_register: 0,
+        power_on: ch.power_on.map(|p| PowerOn {
+            address: p.address + i * p.stride,
+            mask: p.mask,
+            up: p.up,
+            down: p.down,
         }),
     }
 }

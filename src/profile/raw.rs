@@ -59,6 +59,9 @@ pub(super) struct Profile {
     #[serde(with = "humantime_serde")]
     pub answer_timeout: Duration,
     pub bauds: Vec<u32>,
+    /// The port the Ethernet model listens on at the factory (Modbus TCP).
+    #[serde(default)]
+    pub tcp_port: Option<u16>,
     pub identify: Option<Identify>,
     pub autosave: Option<Autosave>,
     #[serde(default)]
@@ -96,6 +99,10 @@ pub(super) struct ModeTemplate {
     pub stride: u16,
     #[serde(default = "all_bits")]
     pub mask: u16,
+    /// Offset of a second mode word that must agree under `mask` (a ZH-YX1600 quadrature
+    /// pair counts only when both of its mode words select quadrature).
+    #[serde(default)]
+    pub partner: Option<u16>,
 }
 
 fn all_bits() -> u16 {
@@ -130,6 +137,40 @@ pub(super) struct ChannelTemplate {
     pub clear: ClearTemplate,
     pub retains_count: bool,
     pub max_rate_hz: f64,
+    /// Values a preset may write, where the datasheet narrows the register's range.
+    #[serde(default)]
+    pub preset_range: Option<[i64; 2]>,
+    /// Where the frequency register holds pulses per window rather than Hz: the window.
+    #[serde(default)]
+    pub freq_window: Option<WindowTemplate>,
+    /// The bits of a settings word that say how the counter runs after power-up.
+    #[serde(default)]
+    pub power_on: Option<PowerOnTemplate>,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct PowerOnTemplate {
+    pub address: u16,
+    #[serde(default)]
+    pub stride: u16,
+    pub mask: u16,
+    pub up: u16,
+    pub down: u16,
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct WindowTemplate {
+    pub address: u16,
+    #[serde(default)]
+    pub stride: u16,
+    #[serde(rename = "type")]
+    pub ty: ValueType,
+    /// Milliseconds per unit of the register.
+    pub unit_ms: u32,
+    /// The window when the register reads 0.
+    pub zero_ms: u32,
 }
 
 #[derive(Debug, Clone, Copy, Deserialize)]
@@ -160,4 +201,7 @@ pub(super) struct ClearTemplate {
     pub code_stride: u16,
     #[serde(default)]
     pub restart: Vec<u16>,
+    /// The code that pauses the counter (kept, not counting), where the register runs it.
+    #[serde(default)]
+    pub pause: Option<u16>,
 }

@@ -129,6 +129,20 @@ fn presets_must_fit_the_count_register() {
 }
 
 #[test]
+fn encoder_presets_follow_the_datasheets_range_of_plus_minus_2147483647() {
+    // YL67 and WJ157 datasheets: encoder counts -2147483647..+2147483647.
+    for (model, modes) in [("yl67", &[0u16, 0, 0, 0][..]), ("wj157", &[0][..])] {
+        let enc = &profile(model).channels(modes).unwrap()[0];
+        assert!(enc.accepts_preset(-2_147_483_647), "{model}");
+        assert!(enc.accepts_preset(2_147_483_647), "{model}");
+        assert!(!enc.accepts_preset(-2_147_483_648), "{model}");
+    }
+    // The ZH-YX1600 counter takes the whole i32 range (0x8000_0000..0x7FFF_FFFF).
+    let zh = &profile("zh-yx1600").channels(&[0]).unwrap()[0];
+    assert!(zh.accepts_preset(-2_147_483_648));
+}
+
+#[test]
 fn a_broken_user_profile_is_an_error_naming_the_file() {
     let err = Profile::from_toml(
         "model = \"x\"\nword_order = \"sideways\"",
@@ -151,6 +165,41 @@ fn user_profiles_are_loaded_from_a_directory() {
     let p = Profiles::with_dir(&dir).unwrap();
     assert!(p.get("my-counter").is_some() && p.get("yl67").is_some());
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn zh_yx1600_frequency_is_pulses_per_window_set_at_0x1140_in_units_of_10ms() {
+    let p = profile("zh-yx1600");
+    let chans = p.channels(&[0]).unwrap();
+    let w1 = chans[0].freq_window.unwrap();
+    let w2 = chans[1].freq_window.unwrap();
+    assert_eq!((w1.register.address, w2.register.address), (0x1140, 0x1142));
+    assert_eq!(w1.seconds(0), Some(1.0), "0 means one second");
+    assert_eq!(
+        w1.seconds(6000),
+        Some(60.0),
+        "the datasheet's one-minute example"
+    );
+    // A factory live lower limit (0x8000_0000) read from the overlapping address is no window.
+    assert_eq!(w1.seconds(0x8000_0000), None);
+    assert!(
+        profile("yl67")
+            .all_channels()
+            .iter()
+            .all(|c| c.freq_window.is_none())
+    );
+}
+
+#[test]
+fn zh_yx1600_power_on_state_is_the_pauto_bits_9_8_of_each_counters_mode_word() {
+    let p = profile("zh-yx1600");
+    let chans = p.channels(&[0]).unwrap();
+    let (di1, di2) = (chans[0].power_on.unwrap(), chans[1].power_on.unwrap());
+    assert_eq!((di1.address, di2.address), (0x0700, 0x0701));
+    // Section 8.5: pAuto = 1 counts up, 2 counts down; the other bits are kept.
+    assert_eq!(di1.apply(0x0000, false), 0x0100);
+    assert_eq!(di1.apply(0x0002, true), 0x0202);
+    assert_eq!(di1.apply(0x0302, false), 0x0102);
 }
 
 /// A user profile with absurd values is an error naming the cause, never a panic.

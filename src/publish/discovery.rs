@@ -88,7 +88,7 @@ impl Discovery {
     /// At start: the gateway device and each module's device-wide entities.
     pub fn start(&mut self) -> Vec<Announce> {
         let mut entities = gateway_entities(&self.site);
-        for (bus, device) in self.config.devices() {
+        for (bus, device) in self.config.enabled_devices() {
             let m = Module {
                 bus: &bus.name,
                 device,
@@ -100,7 +100,11 @@ impl Discovery {
 
     /// A reading went by: the first of a channel announces its entities.
     pub fn reading(&mut self, r: &Reading) -> Vec<Announce> {
-        let Some((bus, device)) = self.config.devices().find(|(_, d)| *d.name == *r.device) else {
+        let Some((bus, device)) = self
+            .config
+            .enabled_devices()
+            .find(|(_, d)| *d.name == *r.device)
+        else {
             return Vec::new();
         };
         let key = (bus.name.clone(), device.unit, r.channel.to_string(), r.kind);
@@ -138,7 +142,7 @@ impl Discovery {
     /// Recomputes the topics settled modules do not have.
     fn refresh_unwanted(&mut self) {
         let mut unwanted = BTreeSet::new();
-        for (bus, device) in self.config.devices() {
+        for (bus, device) in self.config.enabled_devices() {
             if !self.settled.contains(&(bus.name.clone(), device.unit)) {
                 continue;
             }
@@ -228,7 +232,7 @@ impl Discovery {
         for (bus, unit, channel, kind) in learned {
             let config = self.config.clone();
             let Some((b, device)) = config
-                .devices()
+                .enabled_devices()
                 .find(|(b, d)| b.name == bus && d.unit == unit)
             else {
                 continue;

@@ -278,3 +278,43 @@ fn after_a_full_poll_configs_of_another_work_modes_channels_are_cleared() {
         "a late retained one too"
     );
 }
+
+#[test]
+fn a_disabled_device_or_channel_has_no_entities_and_its_configs_are_cleared() {
+    let mut d = Discovery::new(&config(CONFIG));
+    d.start();
+    d.reading(&reading("meter", "a0"));
+    d.reading(&reading("meter", "a1"));
+    d.reading(&reading("press", "enc0"));
+    let disabled = CONFIG
+        .replace(
+            "device_class = \"energy\"\n",
+            "device_class = \"energy\"\nenabled = false\n",
+        )
+        .replace("commands = false\n", "commands = false\nenabled = false\n");
+    let out = d.reload(&config(&disabled));
+    let cleared: Vec<&str> = out
+        .iter()
+        .filter(|a| a.payload.is_empty())
+        .map(|a| a.topic.as_str())
+        .collect();
+    for gone in [
+        "homeassistant/sensor/edge/line1_u3_a0_total/config",
+        "homeassistant/sensor/edge/line1_u3_a0_rate/config",
+        "homeassistant/button/edge/line1_u3_a0_clear/config",
+        "homeassistant/sensor/edge/line1_u4_enc0_position/config",
+    ] {
+        assert!(cleared.contains(&gone), "{gone} not in {cleared:?}");
+    }
+    let kept = "homeassistant/sensor/edge/line1_u3_a1_total/config";
+    assert!(!cleared.contains(&kept), "{cleared:?}");
+    // A config of a disabled channel retained on the broker is cleared too, and readings of
+    // disabled ones announce nothing.
+    assert!(
+        d.config_seen("homeassistant/sensor/edge/line1_u3_a0_total/config", b"{}")
+            .is_some()
+    );
+    assert!(d.config_seen(kept, b"{}").is_none());
+    assert!(d.reading(&reading("press", "enc0")).is_empty());
+    assert!(d.reading(&reading("meter", "a0")).is_empty());
+}

@@ -181,7 +181,7 @@ pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
     let config = merge(
         common(site, m, "button", object, "Clear all"),
         json!({
-            "command_topic": format!("{}/cmd", site.topics.device(&m.device.name)),
+            "command_topic": site.topics.device_command(&m.device.name),
             "payload_press": r#"{"op":"clear_all"}"#,
             "qos": 1,
             "retain": false,
@@ -315,9 +315,13 @@ fn rate(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) ->
 }
 
 /// Every entity of one channel of a module: total, rate, frequency and rpm where the model has
-/// them, and a clear button where commands are enabled.
+/// them, and a clear button where commands are enabled. None for a channel with
+/// `enabled = false` (not published, so its configs are cleared).
 pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<Entity> {
     let ch = &spec.name;
+    if m.device.channels.get(ch).is_some_and(|c| !c.enabled) {
+        return Vec::new();
+    }
     let units = m
         .device
         .channels
@@ -363,7 +367,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
         let config = merge(
             common(site, m, "button", &object, &format!("{ch} clear")),
             json!({
-                "command_topic": format!("{}/cmd", site.topics.reading(&m.device.name, ch)),
+                "command_topic": site.topics.channel_command(&m.device.name, ch),
                 "payload_press": r#"{"op":"clear"}"#,
                 "qos": 1,
                 "retain": false,
@@ -396,7 +400,7 @@ pub fn possible_topics(site: &Site, config: &Config) -> BTreeSet<String> {
         .iter()
         .map(|e| e.topic(site))
         .collect();
-    for (bus, device) in config.devices() {
+    for (bus, device) in config.enabled_devices() {
         let m = Module {
             bus: &bus.name,
             device,

@@ -2,7 +2,9 @@
 
 pub mod decimal;
 pub mod discovery;
+pub mod format;
 pub mod homeassistant;
+pub mod json;
 pub mod mqtt;
 pub mod payload;
 pub mod policy;

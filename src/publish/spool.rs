@@ -18,41 +18,7 @@ use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use serde::{Deserialize, Serialize};
-
-/// A message waiting for the broker.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Entry {
-    /// Spool sequence number: strictly increasing, across restarts.
-    pub seq: u64,
-    pub topic: String,
-    /// Shared, so handing it to the MQTT client (and again after a reconnect) copies nothing.
-    #[serde(with = "text")]
-    pub payload: bytes::Bytes,
-    pub qos: u8,
-    pub retain: bool,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub correlation: Option<Vec<u8>>,
-}
-
-/// Payloads are UTF-8 (JSON and status words): stored as text in the segment files.
-mod text {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(b: &bytes::Bytes, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(&String::from_utf8_lossy(b))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<bytes::Bytes, D::Error> {
-        Ok(bytes::Bytes::from(String::deserialize(d)?))
-    }
-}
-
-impl Entry {
-    fn bytes(&self) -> u64 {
-        (self.topic.len() + self.payload.len() + 64) as u64
-    }
-}
+pub use crate::outbox::Entry;
 
 /// A spool failure (disk full, permissions): logged by the caller; memory keeps working.
 #[derive(Debug, thiserror::Error)]
@@ -262,7 +228,8 @@ impl Spool {
         self.mem_bytes + self.segments.iter().map(|s| s.bytes).sum::<u64>()
     }
 
-    /// Adds a message; returns its sequence number.
+    /// Adds a message; returns its sequence number. Drops the oldest messages while over the
+    /// bound: stand-alone use, with nothing in flight (the outbox evicts around its window).
     pub fn push(
         &mut self,
         topic: String,
@@ -271,29 +238,30 @@ impl Spool {
         retain: bool,
         correlation: Option<Vec<u8>>,
     ) -> Result<u64, SpoolError> {
-        let entry = Entry {
-            seq: self.next_seq,
-            topic,
-            payload: payload.into(),
-            qos,
-            retain,
-            correlation,
-        };
+        let mut m = crate::outbox::Message::new(topic, payload, qos, retain);
+        m.properties.correlation = correlation.map(bytes::Bytes::from);
+        let seq = self.insert(m)?;
+        self.enforce_bound(0);
+        Ok(seq)
+    }
+
+    /// Stores a message without enforcing the bound.
+    fn insert(&mut self, m: crate::outbox::Message) -> Result<u64, SpoolError> {
+        let entry = Entry::of(self.next_seq, m);
         self.next_seq += 1;
         let seq = entry.seq;
         let to_disk = self.spilling
             || self.segments.iter().any(|s| !s.loaded)
-            || self.mem_bytes + entry.bytes() > self.mem_limit;
+            || self.mem_bytes + entry.size() > self.mem_limit;
         if to_disk {
             self.append(&entry)?;
         } else {
-            self.mem_bytes += entry.bytes();
+            self.mem_bytes += entry.size();
             self.mem.push_back(MemEntry {
                 entry,
                 on_disk: false,
             });
         }
-        self.enforce_bound(0);
         Ok(seq)
     }
 
@@ -394,7 +362,7 @@ impl Spool {
         });
         for &i in &pending {
             self.mem[i].on_disk = true;
-            self.mem_bytes -= self.mem[i].entry.bytes();
+            self.mem_bytes -= self.mem[i].entry.size();
         }
         let seg = Segment {
             first,
@@ -456,7 +424,7 @@ impl Spool {
         for _ in 0..n {
             let Some(m) = self.mem.pop_front() else { break };
             if !m.on_disk {
-                self.mem_bytes -= m.entry.bytes();
+                self.mem_bytes -= m.entry.size();
             }
             last = Some(m.entry.seq);
         }
@@ -475,12 +443,14 @@ impl Spool {
         }
     }
 
-    /// Drops the oldest messages beyond the first `keep` (those in flight) while over the bound.
-    fn enforce_bound(&mut self, keep: usize) {
+    /// Drops the oldest messages beyond the first `keep` (those in flight) while over the bound;
+    /// returns how many.
+    fn enforce_bound(&mut self, keep: usize) -> u64 {
+        let before = self.dropped;
         while self.total_bytes() > self.max_bytes {
             if let Some(i) = (keep..self.mem.len()).find(|&i| !self.mem[i].on_disk) {
                 let m = self.mem.remove(i).expect("index checked");
-                self.mem_bytes -= m.entry.bytes();
+                self.mem_bytes -= m.entry.size();
                 self.dropped += 1;
                 continue;
             }
@@ -507,6 +477,35 @@ impl Spool {
             self.syncer.send(Job::Remove(s.path.clone()));
             self.dropped += s.count;
         }
+        self.dropped - before
+    }
+}
+
+impl crate::outbox::Store for Spool {
+    type Error = SpoolError;
+
+    fn push(&mut self, message: crate::outbox::Message) -> Result<u64, SpoolError> {
+        self.insert(message)
+    }
+
+    fn get(&mut self, i: usize) -> Option<&Entry> {
+        Spool::get(self, i)
+    }
+
+    fn ack_front(&mut self, n: usize) {
+        Spool::ack_front(self, n)
+    }
+
+    fn evict(&mut self, keep: usize) -> u64 {
+        self.enforce_bound(keep)
+    }
+
+    fn len(&self) -> u64 {
+        Spool::len(self)
+    }
+
+    fn broker_away(&mut self, away: bool) {
+        self.set_spilling(away)
     }
 }
 
@@ -597,6 +596,56 @@ mod tests {
         assert_eq!(left.len() as u64 + s.dropped, 5000);
         assert!(left.windows(2).all(|w| w[0] < w[1]), "still in order");
         assert_eq!(*left.last().unwrap(), 5000, "the newest are kept");
+    }
+
+    #[test]
+    fn a_full_spool_on_disk_never_drops_what_the_outbox_has_in_flight() {
+        use crate::outbox::{Message, Outbox, Step};
+        let now = std::time::Instant::now();
+        let d = dir("inflight");
+        let mut spool = Spool::open(&d, 100_000).unwrap();
+        spool.mem_limit = 1000;
+        let mut o = Outbox::new(spool, 3, now);
+        o.connected(None, now);
+        let m = |i: u64| Message::new(format!("t/{i}"), format!("{{\"n\":{i}}}"), 1, false);
+        for i in 0..3 {
+            o.enqueue(m(i)).unwrap();
+        }
+        for pkid in 1..=3 {
+            assert!(matches!(o.next(now), Some(Step::Send(e)) if e.seq == u64::from(pkid)));
+            o.sent(pkid);
+        }
+        for i in 3..5000 {
+            o.enqueue(m(i)).unwrap();
+        }
+        assert!(o.evicted > 0);
+        let held: Vec<u64> = (0..3).map(|i| o.store_mut().get(i).unwrap().seq).collect();
+        assert_eq!(held, [1, 2, 3], "the messages in flight are still stored");
+        let oldest_left = o.store_mut().get(3).unwrap().seq;
+        for pkid in 1..=3 {
+            o.acked(pkid, now);
+        }
+        assert!(matches!(o.next(now), Some(Step::Send(e)) if e.seq == oldest_left));
+        assert_eq!(
+            o.store_mut().get(0).unwrap().seq,
+            oldest_left,
+            "1..=3 released"
+        );
+    }
+
+    #[test]
+    fn a_binary_payload_comes_back_unchanged_after_a_restart() {
+        let d = dir("binary");
+        let payload = vec![0u8, 0xff, 0x80, b'\n', b'"'];
+        {
+            let mut s = Spool::open(&d, 64 << 20).unwrap();
+            s.set_spilling(true);
+            let m = crate::outbox::Message::new("t".into(), payload.clone(), 1, false);
+            crate::outbox::Store::push(&mut s, m).unwrap();
+            s.spill().unwrap();
+        }
+        let mut s = Spool::open(&d, 64 << 20).unwrap();
+        assert_eq!(&s.get(0).unwrap().payload[..], &payload[..]);
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! Topic names under the gateway's root. Pure.
+//! Topic names under the gateway's root, both ways: what the gateway publishes, what it
+//! subscribes to, and how an arriving topic is read. The one place for these rules. Pure.
 
 /// Topics of one gateway.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -46,6 +47,61 @@ impl Topics {
     pub fn bus_stats(&self, bus: &str) -> String {
         format!("{}/bus/{bus}/stats", self.root)
     }
+
+    /// `<root>/<device>/cmd`: commands to a whole device (clear all).
+    pub fn device_command(&self, device: &str) -> String {
+        format!("{}/cmd", self.device(device))
+    }
+
+    /// `<root>/<device>/<channel>/cmd`: commands to one channel.
+    pub fn channel_command(&self, device: &str, channel: &str) -> String {
+        format!("{}/cmd", self.reading(device, channel))
+    }
+
+    /// `<request>/result`: where the answer to a command or scan request goes.
+    pub fn result(request: &str) -> String {
+        format!("{request}/result")
+    }
+
+    /// The filters that take commands and scan requests: `<root>/+/+/cmd`, `<root>/+/cmd`,
+    /// `<root>/bus/+/scan`.
+    pub fn command_filters(&self) -> [String; 3] {
+        [
+            format!("{}/+/+/cmd", self.root),
+            format!("{}/+/cmd", self.root),
+            format!("{}/bus/+/scan", self.root),
+        ]
+    }
+
+    /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+    pub fn parse_command<'a>(&self, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
+        parse_command(&self.root, topic)
+    }
+
+    /// Reads a scan request topic `<root>/bus/<bus>/scan`: the bus.
+    pub fn parse_scan<'a>(&self, topic: &'a str) -> Option<&'a str> {
+        parse_scan(&self.root, topic)
+    }
+}
+
+/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
+    let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
+    let rest = rest.strip_suffix("/cmd")?;
+    match rest.split('/').collect::<Vec<_>>()[..] {
+        [device] if !device.is_empty() => Some((device, None)),
+        [device, channel] if !device.is_empty() && !channel.is_empty() => {
+            Some((device, Some(channel)))
+        }
+        _ => None,
+    }
+}
+
+/// The bus of a scan request topic `<root>/bus/<bus>/scan`.
+pub fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
+    let rest = topic.strip_prefix(root)?.strip_prefix("/bus/")?;
+    let bus = rest.strip_suffix("/scan")?;
+    (!bus.is_empty() && !bus.contains('/')).then_some(bus)
 }
 
 #[cfg(test)]
@@ -60,5 +116,27 @@ mod tests {
         assert_eq!(t.reading("press1", "enc0"), "pulsegate/edge-01/press1/enc0");
         assert_eq!(t.bus_stats("line1"), "pulsegate/edge-01/bus/line1/stats");
         assert_eq!(t.device("press1"), "pulsegate/edge-01/press1");
+    }
+
+    #[test]
+    fn every_topic_the_gateway_subscribes_to_is_read_back_by_its_parser() {
+        let t = Topics::new("pg/e1");
+        let cmd = t.channel_command("press", "enc0");
+        assert_eq!(t.parse_command(&cmd), Some(("press", Some("enc0"))));
+        assert_eq!(
+            t.parse_command(&t.device_command("press")),
+            Some(("press", None))
+        );
+        assert_eq!(t.parse_scan("pg/e1/bus/line1/scan"), Some("line1"));
+        assert_eq!(
+            t.parse_command(&Topics::result(&cmd)),
+            None,
+            "results are not commands"
+        );
+        let [channel, device, scan] = t.command_filters();
+        let matches = |filter: &str, topic: &str| rumqttc::matches(topic, filter);
+        assert!(matches(&channel, &cmd));
+        assert!(matches(&device, &t.device_command("press")));
+        assert!(matches(&scan, "pg/e1/bus/line1/scan"));
     }
 }

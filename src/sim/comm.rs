@@ -145,31 +145,10 @@ fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Optio
     Some(stored)
 }
 
-/// ZH-YX1600 at power-up: each counter's command register (0x1100 + n) takes the pAuto bits 9:8
-/// of its mode word (0x0700 + n): "模块上电后，计数器初始运行状态，上电或复位会导入至
-/// 0x1100~0x110F 命令寄存器" — 0 stopped, 1 counting up (0x00A2), 2 counting down (0x00A3).
-fn power_on_state(m: &mut SimModule, now: f64) {
-    if m.profile.model != "zh-yx1600" {
-        return;
-    }
-    for n in 0..16u16 {
-        let Some(mode) = m.stored(0x0700 + n) else {
-            continue;
-        };
-        let command = match (mode >> 8) & 0b11 {
-            1 => 0x00A2,
-            2 => 0x00A3,
-            // "Torde=0x0001: 定时器暂停" (paused, not cleared; the count is 0 after power loss).
-            _ => 0x0001,
-        };
-        // The even counter of a quadrature pair is dead and has no command of its own here.
-        let _ = m.write_one(now, 0x1100 + n, command);
-    }
-}
-
 impl Plant {
     /// Power loss and return of one module: counts it does not keep go, and it comes back with
-    /// the address and baud rate in its registers. Returns the unit it answers at afterwards.
+    /// the address and baud rate in its registers (and a ZH-YX1600's counters in the run state
+    /// of their pAuto bits: `SimModule::power_cycle`). Returns the unit it answers at afterwards.
     pub fn power_cycle(&self, bus: &str, unit: u8) -> Result<u8, SimError> {
         let now = self.now();
         let b = self
@@ -181,7 +160,6 @@ impl Plant {
             message: format!("no module at unit {unit}"),
         })?;
         m.power_cycle(now);
-        power_on_state(m, now);
         if let Some(regs) = registers(&m.profile.model) {
             if let Some(baud) = m.stored(regs.baud).and_then(|c| regs.baud_of(c)) {
                 m.baud = Some(baud);
@@ -246,12 +224,10 @@ mod tests {
         m.set_rate(0.0, "di1", 100.0);
         // Factory mode word 0x0000: pAuto 0, the counter is stopped after power-up.
         m.power_cycle(1.0);
-        power_on_state(&mut m, 1.0);
         assert_eq!(m.channel("di1").unwrap().count(3.0), 0);
         // Derived frame 01 06 07 00 01 00: counter 1 counts up at power-on.
         m.write_one(3.0, 0x0700, 0x0100).unwrap();
         m.power_cycle(4.0);
-        power_on_state(&mut m, 4.0);
         assert_eq!(m.channel("di1").unwrap().count(5.0), 100);
         assert_eq!(m.read(5.0, 0x1100, 1), Ok(vec![0x00A2]));
     }

@@ -6,6 +6,8 @@
 
 mod comm;
 mod config;
+mod datasheet;
+pub mod gateway;
 pub mod line;
 pub mod model;
 mod server;
@@ -72,6 +74,102 @@ pub enum SimError {
     Bus { bus: String, message: String },
 }
 
+/// One simulated module of a device's config, in its datasheet factory state plus what the
+/// config sets.
+fn build_module(
+    profiles: &crate::profile::Profiles,
+    dname: &str,
+    d: &SimDeviceConfig,
+) -> Result<SimModule, String> {
+    let profile = profiles
+        .get(&d.model)
+        .ok_or_else(|| format!("device {dname}: unknown model {}", d.model))?;
+    let mut m = SimModule::new(profile, &d.modes).map_err(|e| format!("device {dname}: {e}"))?;
+    for (cname, c) in &d.channels {
+        if m.channel(cname).is_none() {
+            return Err(format!("device {dname}: no channel {cname} in this mode"));
+        }
+        m.set_count(0.0, cname, c.count);
+        m.set_rate(0.0, cname, c.rate);
+        if let Some(ppr) = c.ppr {
+            m.set_ppr(cname, ppr);
+        }
+    }
+    m.silent = d.silent;
+    m.nonsense = d.nonsense;
+    m.answer_delay = d.answer_delay.unwrap_or_default();
+    comm::install(&mut m, d.unit, d.baud.unwrap_or(9600))
+        .map_err(|e| format!("device {dname}: {e}"))?;
+    m.baud = d.baud;
+    m.silent_on_unknown = d.silent_on_unknown;
+    Ok(m)
+}
+
+/// Serves a bus's modules over TCP, a line emulator or a bare pseudo-terminal.
+async fn serve(
+    bus: &SimBusConfig,
+    service: &server::SimService,
+    cancel: &CancellationToken,
+    seed: u64,
+) -> Result<(Endpoint, Option<line::Line>, Option<Wire>), String> {
+    match (&bus.listen, &bus.link) {
+        (Some(addr), None) => {
+            let addr = server::serve_tcp(*addr, service.clone(), cancel.clone())
+                .await
+                .map_err(|e| format!("cannot listen on {addr}: {e}"))?;
+            Ok((Endpoint::Tcp(addr), None, None))
+        }
+        (None, link) => {
+            let (path, line, wire) = serial(bus, service, cancel, seed)?;
+            let endpoint = match link {
+                Some(link) => {
+                    relink(&path, link)
+                        .map_err(|e| format!("cannot link {}: {e}", link.display()))?;
+                    Endpoint::Serial(link.clone())
+                }
+                None => Endpoint::Serial(path),
+            };
+            Ok((endpoint, line, Some(wire)))
+        }
+        (Some(_), Some(_)) => Err("give either `link` (serial) or `listen` (TCP), not both".into()),
+    }
+}
+
+/// The serial side: the path the gateway opens, the line emulator if the bus has one.
+fn serial(
+    bus: &SimBusConfig,
+    service: &server::SimService,
+    cancel: &CancellationToken,
+    seed: u64,
+) -> Result<(PathBuf, Option<line::Line>, Wire), String> {
+    let c = cancel.child_token();
+    match bus.line {
+        Some(spec) => {
+            let (l, module_path) = line::Line::start(spec, seed)
+                .map_err(|e| format!("cannot start the line emulator: {e}"))?;
+            let port = serialport::new(module_path.display().to_string(), spec.baud)
+                .open_native()
+                .map(server::private)
+                .map_err(|e| format!("cannot open {}: {e}", module_path.display()))?;
+            server::serve_port(port, service.clone(), c.clone());
+            let wire = Wire {
+                cancel: c,
+                _keep: None,
+            };
+            Ok((l.gateway_path.clone(), Some(l), wire))
+        }
+        None => {
+            let (path, slave) = server::serve_pty(service.clone(), c.clone())
+                .map_err(|e| format!("cannot create a pseudo-terminal: {e}"))?;
+            let wire = Wire {
+                cancel: c,
+                _keep: Some(slave),
+            };
+            Ok((path, None, wire))
+        }
+    }
+}
+
 impl Plant {
     /// Builds the modules of `config` and starts serving them.
     pub async fn start(config: &SimConfig) -> Result<Plant, SimError> {
@@ -86,101 +184,16 @@ impl Plant {
             };
             let mut modules = BTreeMap::new();
             for (dname, d) in &bus.devices {
-                let profile = profiles
-                    .get(&d.model)
-                    .ok_or_else(|| bus_err(format!("device {dname}: unknown model {}", d.model)))?;
-                let mut m = SimModule::new(profile, &d.modes)
-                    .map_err(|e| bus_err(format!("device {dname}: {e}")))?;
-                for (cname, c) in &d.channels {
-                    if m.channel(cname).is_none() {
-                        return Err(bus_err(format!(
-                            "device {dname}: no channel {cname} in this mode"
-                        )));
-                    }
-                    m.set_count(0.0, cname, c.count);
-                    m.set_rate(0.0, cname, c.rate);
-                    if let Some(ppr) = c.ppr {
-                        m.set_ppr(cname, ppr);
-                    }
-                }
-                m.silent = d.silent;
-                m.nonsense = d.nonsense;
-                m.answer_delay = d.answer_delay.unwrap_or_default();
-                comm::install(&mut m, d.unit, d.baud.unwrap_or(9600))
-                    .map_err(|e| bus_err(format!("device {dname}: {e}")))?;
-                m.baud = d.baud;
-                m.silent_on_unknown = d.silent_on_unknown;
+                let m = build_module(&profiles, dname, d).map_err(bus_err)?;
                 if modules.insert(d.unit, m).is_some() {
                     return Err(bus_err(format!("unit {} used twice", d.unit)));
                 }
             }
             let modules: Modules = Arc::new(Mutex::new(modules));
             let service = server::SimService::new(modules.clone(), start);
-            let mut line = None;
-            let mut wire = None;
-            let endpoint = match (&bus.listen, &bus.link) {
-                (Some(addr), None) => {
-                    let addr = server::serve_tcp(*addr, service.clone(), cancel.clone())
-                        .await
-                        .map_err(|e| bus_err(format!("cannot listen on {addr}: {e}")))?;
-                    Endpoint::Tcp(addr)
-                }
-                (None, link) => {
-                    let path = match bus.line {
-                        Some(spec) => {
-                            let seed = 0x5EED ^ buses.len() as u64;
-                            let (l, module_path) = line::Line::start(spec, seed).map_err(|e| {
-                                bus_err(format!("cannot start the line emulator: {e}"))
-                            })?;
-                            let port =
-                                serialport::new(module_path.display().to_string(), spec.baud)
-                                    .open_native()
-                                    .map(server::private)
-                                    .map_err(|e| {
-                                        bus_err(format!(
-                                            "cannot open {}: {e}",
-                                            module_path.display()
-                                        ))
-                                    })?;
-                            let c = cancel.child_token();
-                            server::serve_port(port, service.clone(), c.clone());
-                            wire = Some(Wire {
-                                cancel: c,
-                                _keep: None,
-                            });
-                            let p = l.gateway_path.clone();
-                            line = Some(l);
-                            p
-                        }
-                        None => {
-                            let c = cancel.child_token();
-                            let (path, slave) = server::serve_pty(service.clone(), c.clone())
-                                .map_err(|e| {
-                                    bus_err(format!("cannot create a pseudo-terminal: {e}"))
-                                })?;
-                            wire = Some(Wire {
-                                cancel: c,
-                                _keep: Some(slave),
-                            });
-                            path
-                        }
-                    };
-                    match link {
-                        Some(link) => {
-                            relink(&path, link).map_err(|e| {
-                                bus_err(format!("cannot link {}: {e}", link.display()))
-                            })?;
-                            Endpoint::Serial(link.clone())
-                        }
-                        None => Endpoint::Serial(path),
-                    }
-                }
-                (Some(_), Some(_)) => {
-                    return Err(bus_err(
-                        "give either `link` (serial) or `listen` (TCP), not both".into(),
-                    ));
-                }
-            };
+            let seed = 0x5EED ^ buses.len() as u64;
+            let (endpoint, line, wire) =
+                serve(bus, &service, &cancel, seed).await.map_err(bus_err)?;
             buses.push(PlantBus {
                 name: name.clone(),
                 endpoint,

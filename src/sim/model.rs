@@ -1,6 +1,9 @@
 //! A simulated counter module, driven by its profile: counts advance with time at each channel's
-//! pulse rate; frequency, rpm, clear, preset and command registers behave as the datasheets say;
-//! reads of registers the profile does not describe answer exception 02. Pure: time comes in as
+//! pulse rate; frequency, rpm, clear, preset and command registers behave as the datasheets say.
+//! The other documented registers (identification, settings, limits) answer with the
+//! datasheets' factory values, written down in [`super::datasheet`] apart from the profiles;
+//! reads of undocumented registers answer exception 02. A ZH-YX1600 starts as its datasheet
+//! says: mode words 0, counters stopped until a command starts them. Pure: time comes in as
 //! seconds since the plant started.
 
 use std::collections::BTreeMap;
@@ -11,11 +14,7 @@ use tokio_modbus::ExceptionCode;
 use crate::decode::{decode, encode_int};
 use crate::profile::{ChannelKind, ChannelSpec, Profile, ValueType};
 
-/// Command codes of a counter that starts and stops by register (ZH-YX1600): the profile's
-/// `restart` list; the second one, where present, counts down.
-fn counts_down(spec: &ChannelSpec, code: u16) -> bool {
-    spec.clear.restart.get(1) == Some(&code)
-}
+use super::datasheet::{self as ds, ZH_DOWN, ZH_PAUSE, ZH_STOP, ZH_UP};
 
 /// One simulated channel.
 #[derive(Debug, Clone)]
@@ -32,6 +31,8 @@ pub struct SimChannel {
     running: bool,
     /// Command register value, where the channel has one.
     command: u16,
+    /// A quadrature pair whose two mode words disagree: the datasheet says it does not count.
+    dead: bool,
     pub ppr: u16,
     /// The counts that clears and presets replaced, in order: what the module held at the
     /// instant of the write (a test's account of the pulses between a gateway's last read and
@@ -46,8 +47,8 @@ impl SimChannel {
 
     /// The count register's value (unwrapped; the register keeps the low 32 bits).
     pub fn count(&self, now: f64) -> i64 {
-        let p = if self.running { self.pulses(now) } else { 0 };
-        let down = counts_down(&self.spec, self.command);
+        let p = if self.counting() { self.pulses(now) } else { 0 };
+        let down = self.command == ZH_DOWN && self.spec.kind == ChannelKind::Counter;
         self.base + if down { -p } else { p }
     }
 
@@ -70,7 +71,25 @@ impl SimChannel {
     }
 
     fn freq(&self) -> f64 {
-        if self.running { self.rate.abs() } else { 0.0 }
+        if self.counting() {
+            self.rate.abs()
+        } else {
+            0.0
+        }
+    }
+
+    fn counting(&self) -> bool {
+        self.running && !self.dead
+    }
+
+    /// Whether the counter runs (its command register is up or down).
+    pub fn running(&self) -> bool {
+        self.running
+    }
+
+    /// The ZH-YX1600 counter number (0-based) of this channel, from its count register.
+    fn zh_index(&self) -> u16 {
+        (self.spec.count.address - ds::ZH_COUNT) / 2
     }
 }
 
@@ -97,6 +116,8 @@ pub struct SimModule {
     /// one arrived (plant seconds).
     pub writes: u64,
     pub last_write: Option<f64>,
+    /// A ZH-YX1600: counters run by command register, frequency over a window.
+    zh: bool,
     /// The baud rate the module's serial port runs at (see `comm`); `None`: it answers at any
     /// line speed (plants that do not say, so older tests can run their line at 115200).
     pub baud: Option<u32>,
@@ -121,12 +142,7 @@ fn words_of(value: i64, ty: ValueType, order: crate::profile::WordOrder) -> Vec<
 }
 
 fn f32_words(v: f32, order: crate::profile::WordOrder) -> Vec<u16> {
-    let bits = v.to_bits();
-    let (hi, lo) = ((bits >> 16) as u16, bits as u16);
-    match order {
-        crate::profile::WordOrder::HighFirst => vec![hi, lo],
-        crate::profile::WordOrder::LowFirst => vec![lo, hi],
-    }
+    crate::decode::encode_f32(v, order)
 }
 
 impl SimModule {
@@ -135,46 +151,30 @@ impl SimModule {
     pub fn new(profile: Arc<Profile>, modes: &[u16]) -> Result<SimModule, String> {
         let regs = profile.mode_registers();
         let mut plain = BTreeMap::new();
-        let mut full = Vec::new();
+        for (start, values) in ds::factory_registers(&profile.model) {
+            for (i, v) in values.into_iter().enumerate() {
+                plain.insert(start + i as u16, v);
+            }
+        }
+        let zh = profile.model == "zh-yx1600";
+        if zh {
+            // Frequency windows: 0 (1 s) at the factory.
+            for a in ds::ZH_WINDOW..ds::ZH_WINDOW + 32 {
+                plain.insert(a, 0);
+            }
+        }
         for (i, r) in regs.iter().enumerate() {
             let v = modes.get(i).copied().unwrap_or(0);
             plain.insert(r.address, v);
-            full.push(v);
-        }
-        // A quadrature pair's even counter carries the same mode word (ZH-YX1600).
-        for r in &regs {
+            // A quadrature pair's even counter carries the same mode word (ZH-YX1600).
             if r.mask != 0xFFFF {
-                let v = plain[&r.address];
-                plain.entry(r.address + 1).or_insert(v);
+                plain.insert(r.address + 1, v);
             }
         }
-        if let Some((address, words)) = &profile.identify {
-            for (i, w) in words.iter().enumerate() {
-                plain.insert(address + i as u16, *w);
-            }
-        }
-        if let Some(a) = profile.autosave {
-            plain.insert(a, 1);
-        }
-        let specs = profile.channels(&full).map_err(|e| e.to_string())?;
-        let channels = specs
-            .into_iter()
-            .map(|spec| SimChannel {
-                command: spec.clear.restart.first().copied().unwrap_or(0),
-                spec,
-                rate: 0.0,
-                base: 0,
-                since: 0.0,
-                generated_base: 0,
-                running: true,
-                ppr: 1000,
-                overwritten: Vec::new(),
-            })
-            .collect();
-        Ok(SimModule {
+        let mut m = SimModule {
             profile,
-            modes: full,
-            channels,
+            modes: Vec::new(),
+            channels: Vec::new(),
             plain,
             silent: false,
             nonsense: false,
@@ -182,10 +182,55 @@ impl SimModule {
             glitch_zero: Vec::new(),
             writes: 0,
             last_write: None,
+            zh,
             baud: None,
             silent_on_unknown: false,
             reads: 0,
-        })
+        };
+        m.power_up(0.0)?;
+        Ok(m)
+    }
+
+    /// Power-up: the channels of the saved mode words; a ZH-YX1600 counter takes its run state
+    /// from its mode word's power-on bits (factory: stopped), and a quadrature pair counts only
+    /// when both mode words select quadrature.
+    fn power_up(&mut self, now: f64) -> Result<(), String> {
+        let modes: Vec<u16> = self
+            .profile
+            .mode_registers()
+            .iter()
+            .map(|r| self.plain.get(&r.address).copied().unwrap_or(0))
+            .collect();
+        let specs = self.profile.channels(&modes).map_err(|e| e.to_string())?;
+        let old = std::mem::take(&mut self.channels);
+        for spec in specs {
+            let kept = old.iter().find(|c| c.spec == spec);
+            let mut c = SimChannel {
+                rate: kept.map_or(0.0, |c| c.rate),
+                base: kept.map_or(0, |c| c.count(now)),
+                since: now,
+                generated_base: kept.map_or(0, |c| c.generated(now)),
+                running: true,
+                command: 0,
+                dead: false,
+                ppr: kept.map_or(1000, |c| c.ppr),
+                overwritten: kept.map_or_else(Vec::new, |c| c.overwritten.clone()),
+                spec,
+            };
+            if self.zh {
+                let i = c.zh_index();
+                let word = self.plain.get(&(ds::ZH_MODE + i)).copied().unwrap_or(0);
+                c.command = ds::zh_power_on_command(word);
+                c.running = c.command != ZH_STOP;
+                if c.spec.kind == ChannelKind::Encoder {
+                    let partner = self.plain.get(&(ds::ZH_MODE + i + 1)).copied();
+                    c.dead = !partner.is_some_and(ds::zh_quadrature);
+                }
+            }
+            self.channels.push(c);
+        }
+        self.modes = modes;
+        Ok(())
     }
 
     /// Stores a register the module keeps (address, baud rate: see `comm`).
@@ -232,7 +277,8 @@ impl SimModule {
         self.channel_mut(name).map(|c| c.ppr = ppr).is_some()
     }
 
-    /// Power loss and return: counts the module does not keep go back to 0.
+    /// Power loss and return: counts the module does not keep go back to 0; mode words written
+    /// since the last power-up take effect now.
     pub fn power_cycle(&mut self, now: f64) {
         let autosave = self
             .profile
@@ -242,6 +288,26 @@ impl SimModule {
             if !(c.spec.retains_count && autosave) {
                 c.set_count(now, 0);
             }
+        }
+        if let Err(e) = self.power_up(now) {
+            tracing::warn!("simulated module: {e}");
+        }
+    }
+
+    /// Writes a register as the module's own keypad or another master would, bypassing the
+    /// bus (tests: a mode word changed behind the gateway's back).
+    pub fn poke(&mut self, address: u16, value: u16) {
+        self.plain.insert(address, value);
+    }
+
+    /// A ZH-YX1600 frequency window in seconds for counter `index` (0 = 1 s; units of 10 ms).
+    fn zh_window_s(&self, index: u16) -> f64 {
+        let a = ds::ZH_WINDOW + 2 * index;
+        let hi = u32::from(self.plain.get(&a).copied().unwrap_or(0));
+        let lo = u32::from(self.plain.get(&(a + 1)).copied().unwrap_or(0));
+        match (hi << 16) | lo {
+            0 => 1.0,
+            n => f64::from(n) * 0.01,
         }
     }
 
@@ -266,7 +332,12 @@ impl SimModule {
                 };
                 Some(words[usize::from(address - r.address)])
             };
-            let freq = c.freq();
+            // A ZH-YX1600 frequency register holds the pulses counted in the counter's window.
+            let freq = if self.zh {
+                (c.freq() * self.zh_window_s(c.zh_index())).floor()
+            } else {
+                c.freq()
+            };
             let rpm = if c.ppr > 0 {
                 freq * 60.0 / f64::from(c.ppr)
             } else {
@@ -334,19 +405,23 @@ impl SimModule {
             if s.clear.register != address {
                 continue;
             }
-            if !s.clear.restart.is_empty() {
-                // A command register (ZH-YX1600): stop-and-clear, pause, run up, run down.
+            if self.zh {
+                // A command register (ZH-YX1600 section 8.5): stop-and-clear, pause, up, down.
                 c.rebase(now);
                 match value {
-                    v if v == s.clear.code => {
+                    ZH_STOP => {
                         c.base = 0;
                         c.running = false;
                     }
-                    1 => c.running = false,
-                    v if s.clear.restart.contains(&v) => c.running = true,
+                    ZH_PAUSE => c.running = false,
+                    // Quadrature: the phase decides the direction; 0xA3 has no effect.
+                    ZH_DOWN if s.kind == ChannelKind::Encoder => {}
+                    ZH_UP | ZH_DOWN => c.running = true,
                     _ => return Err(ExceptionCode::IllegalDataValue),
                 }
-                c.command = value;
+                if !(value == ZH_DOWN && s.kind == ChannelKind::Encoder) {
+                    c.command = value;
+                }
                 handled = true;
             } else if value == s.clear.code
                 || s.clear_all
@@ -459,6 +534,7 @@ mod tests {
     #[test]
     fn zh_yx1600_clear_is_stop_then_restart() {
         let mut m = module("zh-yx1600", &[]);
+        m.write_one(0.0, 0x1100, 0xA2).unwrap();
         m.set_rate(0.0, "di1", 100.0);
         m.write_one(1.0, 0x1100, 0).unwrap();
         assert_eq!(
@@ -494,6 +570,118 @@ mod tests {
         m.power_cycle(1.0);
         assert_eq!(m.channel("enc0").unwrap().count(1.0), 5);
         assert_eq!(m.channel("a1").unwrap().count(1.0), 0);
+    }
+}
+
+/// The ZH-YX1600 as its datasheet (V5.0, sections 8.2 to 8.5 and 9) says, against literal
+/// addresses and codes.
+#[cfg(test)]
+mod zh_yx1600_datasheet_tests {
+    use super::*;
+    use crate::profile::Profiles;
+
+    fn zh(modes: &[u16]) -> SimModule {
+        SimModule::new(Profiles::builtin().get("zh-yx1600").unwrap(), modes).unwrap()
+    }
+
+    #[test]
+    fn at_factory_defaults_mode_words_are_0_and_counters_stay_stopped_until_0xa2() {
+        let mut m = zh(&[]);
+        assert_eq!(m.read(0.0, 0x0700, 16), Ok(vec![0; 16]));
+        assert_eq!(m.read(0.0, 0x1100, 1), Ok(vec![0x0000]), "command: stopped");
+        m.set_rate(0.0, "di1", 100.0);
+        assert_eq!(
+            m.read(2.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "a stopped counter does not count"
+        );
+        m.write_one(2.0, 0x1100, 0x00A2).unwrap();
+        assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]));
+    }
+
+    #[test]
+    fn command_0xa3_counts_down_into_negative_values() {
+        let mut m = zh(&[]);
+        m.set_rate(0.0, "di1", 100.0);
+        m.write_one(0.0, 0x1100, 0x00A3).unwrap();
+        assert_eq!(m.read(1.0, 0x1160, 2), Ok(vec![0xFFFF, 0xFF9C]), "-100");
+    }
+
+    #[test]
+    fn the_power_on_state_in_the_mode_word_applies_only_after_a_restart() {
+        let mut m = zh(&[]);
+        m.set_rate(0.0, "di1", 100.0);
+        // pAuto (bits 9:8) = 1: count up after power-up.
+        m.write_one(0.0, 0x0700, 0x0100).unwrap();
+        assert_eq!(
+            m.read(1.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "not before a restart"
+        );
+        m.power_cycle(1.0);
+        assert_eq!(m.read(1.0, 0x1100, 1), Ok(vec![0x00A2]));
+        assert_eq!(m.read(2.0, 0x1160, 2), Ok(vec![0, 100]));
+    }
+
+    #[test]
+    fn command_0x0001_pauses_without_clearing_and_0x0000_stops_and_clears() {
+        let mut m = zh(&[]);
+        m.set_rate(0.0, "di1", 100.0);
+        m.write_one(0.0, 0x1100, 0x00A2).unwrap();
+        m.write_one(1.0, 0x1100, 0x0001).unwrap();
+        assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 100]), "paused, kept");
+        m.write_one(3.0, 0x1100, 0x0000).unwrap();
+        assert_eq!(
+            m.read(4.0, 0x1160, 2),
+            Ok(vec![0, 0]),
+            "stopped and cleared"
+        );
+    }
+
+    #[test]
+    fn a_quadrature_pair_counts_only_with_bit_1_on_both_mode_words_and_ignores_0xa3() {
+        let mut m = zh(&[2]);
+        m.set_rate(0.0, "di1", 100.0);
+        m.write_one(0.0, 0x1100, 0x00A2).unwrap();
+        m.write_one(0.0, 0x1100, 0x00A3).unwrap();
+        assert_eq!(
+            m.read(0.0, 0x1100, 1),
+            Ok(vec![0x00A2]),
+            "0xA3 has no effect"
+        );
+        assert_eq!(m.read(1.0, 0x1160, 2), Ok(vec![0, 100]));
+        // Bit 1 only on counter 1: the pair does not count after the next power-up.
+        m.write_one(1.0, 0x0701, 0x0000).unwrap();
+        m.power_cycle(1.0);
+        m.write_one(1.0, 0x1100, 0x00A2).unwrap();
+        assert_eq!(m.read(3.0, 0x1160, 2), Ok(vec![0, 0]));
+    }
+
+    #[test]
+    fn identification_and_settings_answer_their_documented_values() {
+        let mut m = zh(&[]);
+        assert_eq!(m.read(0.0, 0x0055, 3), Ok(vec![0x5958, 0x3136, 0x3030]));
+        assert_eq!(m.read(0.0, 0x0050, 3), Ok(vec![0x0001, 0x0001, 0x0000]));
+        assert_eq!(m.read(0.0, 0x0750, 2), Ok(vec![0x7FFF, 0xFFFF]));
+        assert_eq!(m.read(0.0, 0x0770, 2), Ok(vec![0x8000, 0x0000]));
+        assert_eq!(m.read(0.0, 0x1000, 1), Ok(vec![0]));
+        assert_eq!(m.read(0.0, 0x1110, 2), Ok(vec![0x7FFF, 0xFFFF]));
+        let mut yl = SimModule::new(Profiles::builtin().get("yl67").unwrap(), &[]).unwrap();
+        assert_eq!(yl.read(0.0, 210, 1), Ok(vec![0x0067]));
+        let mut wj = SimModule::new(Profiles::builtin().get("wj157").unwrap(), &[]).unwrap();
+        assert_eq!(wj.read(0.0, 210, 1), Ok(vec![0x0150]));
+    }
+
+    #[test]
+    fn the_frequency_register_holds_the_pulses_of_the_counting_window() {
+        let mut m = zh(&[]);
+        m.set_rate(0.0, "di1", 50.0);
+        m.write_one(0.0, 0x1100, 0x00A2).unwrap();
+        // Window 0: one second.
+        assert_eq!(m.read(1.0, 0x1180, 2), Ok(vec![0, 50]));
+        // 0x1140:0x1141 = 6000: one minute (the datasheet's example).
+        m.write_many(1.0, 0x1140, &[0, 6000]).unwrap();
+        assert_eq!(m.read(1.0, 0x1180, 2), Ok(vec![0, 3000]));
     }
 }
 

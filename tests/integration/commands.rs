@@ -68,6 +68,19 @@ impl Rig {
                 "{d} online"
             );
         }
+        // The ZH-YX1600 starts with its counters stopped (factory state): the gateway starts
+        // them; tests that count writes begin once it has.
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !plant
+            .with_module("line1", 4, |m, _| m.channels.iter().all(|c| c.running()))
+            .unwrap()
+        {
+            assert!(
+                Instant::now() < deadline,
+                "the gateway started the counters"
+            );
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
         Rig {
             _side: side,
             _broker: broker,
@@ -231,6 +244,7 @@ async fn a_thousand_malformed_payloads_get_a_thousand_error_results_and_no_write
         ("yl/enc0/cmd", r#"{"op":"preset"}"#),
         ("yl/enc0/cmd", r#"{"op":"preset","value":"12"}"#),
         ("yl/enc0/cmd", r#"{"op":"preset","value":2147483648}"#),
+        ("yl/enc0/cmd", r#"{"op":"preset","value":-2147483648}"#),
         ("yl/a1/cmd", r#"{"op":"preset","value":-1}"#),
         ("yl/enc9/cmd", r#"{"op":"clear"}"#),
         ("nobody/enc0/cmd", r#"{"op":"clear"}"#),

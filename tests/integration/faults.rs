@@ -246,12 +246,13 @@ async fn an_adapter_unplugged_and_plugged_back_resumes_polling_within_5s() {
     assert!(log.contains("line is answering again"));
 }
 
-/// Seconds of the long fault scenarios (noisy line); `PULSEGATE_SOAK_SECS` overrides.
+/// Seconds of the long fault scenarios (noisy line): 60 by default, so the suite stays short;
+/// `PULSEGATE_SOAK_SECS` runs a longer soak (e.g. 600).
 fn soak() -> Duration {
     let secs = std::env::var("PULSEGATE_SOAK_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(120);
+        .unwrap_or(60);
     Duration::from_secs(secs)
 }
 

@@ -1,6 +1,7 @@
 //! One integration binary: the gateway against the simulator over real pseudo-terminals and a
 //! real Mosquitto broker.
 
+mod clock;
 mod commands;
 mod commission;
 mod config_cases;
@@ -10,6 +11,7 @@ mod faults;
 mod hostile;
 mod metrics;
 mod pipeline;
+mod plants;
 mod protocol;
 mod service;
 mod support;

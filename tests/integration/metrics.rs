@@ -30,13 +30,13 @@ fn http_get(port: u16, path: &str) -> (u16, String) {
 }
 
 /// The value of the sample `series` (name with labels, exactly as exposed).
-fn sample(text: &str, series: &str) -> Option<f64> {
+pub(crate) fn sample(text: &str, series: &str) -> Option<f64> {
     text.lines()
         .find_map(|l| l.strip_prefix(series)?.strip_prefix(' ')?.parse().ok())
 }
 
 /// Scrapes until `pred` holds on the exposition; returns that exposition.
-async fn scrape_until(
+pub(crate) async fn scrape_until(
     port: u16,
     timeout: Duration,
     what: &str,

@@ -2,13 +2,12 @@
 #![allow(dead_code)] // shared helpers: not every test module uses each one
 //! the simulated plant on real pseudo-terminals, and the gateway binary as a child process.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use pulsegate::sim::{Endpoint, Plant, SimConfig};
+use pulsegate::sim::{Plant, SimConfig};
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::mqttbytes::v5::Packet;
 use rumqttc::v5::{AsyncClient, Event, MqttOptions};
@@ -287,10 +286,16 @@ pub fn bin() -> &'static str {
 
 impl Gateway {
     pub fn start(config: &Path) -> Gateway {
+        Self::start_with_env(config, &[])
+    }
+
+    /// Starts the gateway with extra environment variables (e.g. libfaketime's).
+    pub fn start_with_env(config: &Path, env: &[(&str, &str)]) -> Gateway {
         let log = config.with_extension("log");
         let child = Command::new(bin())
             .args(["run", "--config"])
             .arg(config)
+            .envs(env.iter().copied())
             .env("RUST_LOG", "info,pulsegate=debug")
             .env_remove("PULSEGATE__MQTT__PORT")
             .stdout(Stdio::null())
@@ -349,35 +354,17 @@ pub fn gateway_toml(
     devices: &[(&str, &str, u8, &str, &str)],
     extra: &str,
 ) -> String {
-    let mut t = format!(
-        "[gateway]\nid = \"test\"\nstate_dir = {state_dir:?}\nstate_flush = \"500ms\"\n\n[mqtt]\nhost = \"127.0.0.1\"\nport = {broker_port}\n\n"
-    );
-    let mut by_bus: BTreeMap<&str, Vec<_>> = BTreeMap::new();
-    for d in devices {
-        by_bus.entry(d.0).or_default().push(d);
+    let t = pulsegate::sim::gateway::GatewayToml {
+        id: "test",
+        state_dir,
+        gateway: "state_flush = \"500ms\"\n",
+        mqtt_host: "127.0.0.1",
+        mqtt_port: Some(broker_port),
+        mqtt: "",
+        serial: "baud = 115200\ntimeout = \"100ms\"\nbackoff_min = \"500ms\"\nbackoff_max = \"2s\"\n",
+        tcp: "timeout = \"100ms\"\n",
     }
-    for (bus, devs) in by_bus {
-        match &plant.bus(bus).expect("bus in plant").endpoint {
-            Endpoint::Serial(p) => {
-                t += &format!(
-                    "[buses.{bus}]\nport = {p:?}\nbaud = 115200\ntimeout = \"100ms\"\nbackoff_min = \"500ms\"\nbackoff_max = \"2s\"\n"
-                )
-            }
-            Endpoint::Tcp(a) => {
-                t += &format!(
-                    "[buses.{bus}]\nhost = \"{}\"\nport = {}\ntimeout = \"100ms\"\n",
-                    a.ip(),
-                    a.port()
-                )
-            }
-        }
-        for (_, name, unit, model, poll) in devs {
-            t += &format!(
-                "[buses.{bus}.devices.{name}]\nunit = {unit}\nmodel = {model:?}\npoll = {poll:?}\n"
-            );
-        }
-        t += "\n";
-    }
+    .render(plant, devices);
     t + extra
 }
 

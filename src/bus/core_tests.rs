@@ -1,0 +1,185 @@
+//! The protocol-neutral bus core in process, over a scripted driver and tokio's paused clock:
+//! a minute of outage or a command's priority in milliseconds, no port and no simulator. The
+//! real-time tests against the simulator (tests/integration) prove the Modbus driver.
+
+use std::collections::HashMap;
+use std::ops::Range;
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::mpsc::unbounded_channel;
+
+use super::driver::{Driver, Preempt};
+use super::execute::Executed;
+use super::link::LinkError;
+use super::*;
+use crate::plan::Wire;
+use crate::reading::Reading;
+
+/// A driver whose device answers except during `outage` (time since the start); it logs what
+/// the bus asked of it, and each transaction takes 50 ms.
+struct Scripted {
+    start: Instant,
+    outage: Range<Duration>,
+    log: Arc<Mutex<Vec<(Duration, &'static str)>>>,
+}
+
+impl Scripted {
+    fn note(&self, what: &'static str) -> Duration {
+        let at = self.start.elapsed();
+        self.log.lock().unwrap().push((at, what));
+        at
+    }
+}
+
+impl Driver for Scripted {
+    async fn discover(&mut self, _: &mut DeviceRt, _: Preempt<'_>) -> Result<(), PollError> {
+        Ok(())
+    }
+
+    async fn poll(&mut self, _: &mut DeviceRt, _: Preempt<'_>) -> Result<Vec<Reading>, PollError> {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        if self.outage.contains(&self.note("poll")) {
+            return Err(PollError::Link(LinkError::Timeout(Duration::from_millis(
+                100,
+            ))));
+        }
+        Ok(Vec::new())
+    }
+
+    async fn execute(&mut self, _: &mut DeviceRt, _: &Request) -> Executed {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        self.note("execute");
+        Executed {
+            readings: Vec::new(),
+            result: Ok(Some(0)),
+        }
+    }
+
+    fn wire(&self) -> (WireCounters, Duration) {
+        (WireCounters::default(), Duration::ZERO)
+    }
+
+    fn is_line_fault(&self, _: &PollError) -> bool {
+        false
+    }
+
+    fn ready_for_commands(&self, _: &DeviceRt) -> bool {
+        true
+    }
+
+    fn wire_pricing(&self) -> Wire {
+        Wire::tcp()
+    }
+
+    fn close(&mut self) {}
+}
+
+/// A bus of one device polled every second, offline after 3 failures, probed 1 s → 8 s.
+fn config(name: &str) -> crate::config::Config {
+    let dir = std::env::temp_dir().join(format!("pulsegate-core-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let text = format!(
+        "[gateway]\nid = \"t\"\nstate_dir = {dir:?}\nstats_interval = \"1h\"\n\
+         [buses.l]\nhost = \"127.0.0.1\"\nport = 1\noffline_after = 3\nbackoff_min = \"1s\"\n\
+         backoff_max = \"8s\"\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\npoll = \"1s\"\n"
+    );
+    crate::config::Config::from_toml(&text, &dir.join("t.toml"), Some(HashMap::new())).unwrap()
+}
+
+struct Running {
+    log: Arc<Mutex<Vec<(Duration, &'static str)>>>,
+    out: tokio::sync::mpsc::UnboundedReceiver<Output>,
+    commands: UnboundedSender<BusCommand>,
+    stop: CancellationToken,
+    task: tokio::task::JoinHandle<()>,
+}
+
+fn start(name: &str, outage: Range<Duration>) -> Running {
+    let config = config(name);
+    let (out_tx, out) = unbounded_channel();
+    let (commands, rx) = unbounded_channel();
+    let heart = crate::health::Health::default().heart("bus/l");
+    let task = BusTask::new(config.buses[0].clone(), &config.gateway, out_tx, rx, heart);
+    let log = Arc::new(Mutex::new(Vec::new()));
+    let driver = Scripted {
+        start: Instant::now(),
+        outage,
+        log: log.clone(),
+    };
+    let stop = CancellationToken::new();
+    let task = tokio::spawn(task.run_with(driver, stop.clone()));
+    Running {
+        log,
+        out,
+        commands,
+        stop,
+        task,
+    }
+}
+
+fn statuses(out: &mut tokio::sync::mpsc::UnboundedReceiver<Output>) -> Vec<bool> {
+    let mut seen = Vec::new();
+    while let Ok(o) = out.try_recv() {
+        if let Output::DeviceStatus { online, .. } = o {
+            seen.push(online);
+        }
+    }
+    seen
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_sixty_second_outage_takes_the_device_offline_and_back_with_few_probes() {
+    let secs = Duration::from_secs;
+    let mut bus = start("outage", secs(5)..secs(65));
+    tokio::time::sleep(secs(80)).await;
+    bus.stop.cancel();
+    bus.task.await.unwrap();
+    assert_eq!(
+        statuses(&mut bus.out),
+        [true, false, true, false],
+        "online, offline in the outage, online after it, offline at shutdown"
+    );
+    let log = bus.log.lock().unwrap();
+    let during = log
+        .iter()
+        .filter(|(at, _)| (secs(5)..secs(65)).contains(at));
+    let probes = during.count();
+    assert!(probes <= 13, "{probes} transactions in the 60 s outage");
+    let back = log.iter().find(|(at, _)| *at >= secs(65)).unwrap().0;
+    assert!(back <= secs(65 + 8), "asked again {back:?} after the start");
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_command_goes_on_the_line_before_the_next_poll() {
+    let mut bus = start("command", Duration::ZERO..Duration::ZERO);
+    tokio::time::sleep(Duration::from_millis(2300)).await;
+    let (done, result) = oneshot::channel();
+    let now = Instant::now();
+    let request = Request {
+        device: "d".into(),
+        channel: None,
+        op: crate::command::Op::ClearAll,
+        id: None,
+        reply: Default::default(),
+        received: now,
+        expires: now + Duration::from_secs(5),
+    };
+    bus.commands.send(BusCommand { request, done }).unwrap();
+    assert_eq!(result.await.unwrap(), Ok(Some(0)));
+    let sent_at = Duration::from_millis(2300);
+    let next = bus
+        .log
+        .lock()
+        .unwrap()
+        .iter()
+        .find(|(at, _)| *at > sent_at)
+        .copied();
+    assert_eq!(next.map(|(_, what)| what), Some("execute"));
+    assert!(
+        next.unwrap().0 < sent_at + Duration::from_millis(100),
+        "at once, not after a poll"
+    );
+    bus.stop.cancel();
+    bus.task.await.unwrap();
+    assert_eq!(statuses(&mut bus.out), [true, false]);
+}

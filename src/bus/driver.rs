@@ -1,0 +1,155 @@
+//! The protocol seam: what the bus task asks of a protocol. The bus task keeps the schedule,
+//! availability, command priority, stats and state flushing; a driver discovers a device, polls
+//! it and carries out clear/preset on it, and reports what the wire did. Modbus RTU/TCP
+//! ([`Modbus`]) is the one driver today; a new protocol is a new implementation of [`Driver`].
+
+use std::time::Duration;
+
+use tokio::sync::mpsc::{Receiver, UnboundedSender};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+use super::device::{DeviceRt, PollError};
+use super::execute::Executed;
+use super::link::{Link, WireCounters};
+use super::survey::{ScanRequest, Survey};
+use crate::command::Request;
+use crate::plan::Wire;
+use crate::reading::{Output, Reading};
+
+/// Asked between transactions: `true` when a command waits and the poll should give way.
+pub type Preempt<'a> = &'a (dyn Fn() -> bool + Sync);
+
+/// One protocol on one bus.
+#[allow(async_fn_in_trait)] // used by the bus task only, never as a trait object across threads
+pub trait Driver {
+    /// Learns what the device is when due (identity, work modes, the registers a poll needs).
+    async fn discover(
+        &mut self,
+        device: &mut DeviceRt,
+        preempt: Preempt<'_>,
+    ) -> Result<(), PollError>;
+    /// One poll of a device (discovering it first when due): its readings.
+    async fn poll(
+        &mut self,
+        device: &mut DeviceRt,
+        preempt: Preempt<'_>,
+    ) -> Result<Vec<Reading>, PollError>;
+    /// Carries out a clear or preset (the device is discovered and online).
+    async fn execute(&mut self, device: &mut DeviceRt, request: &Request) -> Executed;
+    /// What the wire did so far: transactions, timeouts, errors, and the time it was busy.
+    fn wire(&self) -> (WireCounters, Duration);
+    /// A fault of the line itself (port gone, connection refused), as opposed to one device.
+    fn is_line_fault(&self, e: &PollError) -> bool;
+    /// Whether the device can take a command now (Modbus: its work modes are known).
+    fn ready_for_commands(&self, device: &DeviceRt) -> bool;
+    /// How the planner prices a read on this bus.
+    fn wire_pricing(&self) -> Wire;
+    /// Idle line time before the next poll: a driver may use it (Modbus: scans of unconfigured
+    /// units). `true` when it did something (the bus then looks at its schedule again).
+    async fn idle(&mut self, _idle: Idle<'_>) -> bool {
+        false
+    }
+    /// Closes the port or connection at shutdown.
+    fn close(&mut self);
+}
+
+/// What the bus hands a driver for its idle time.
+pub struct Idle<'a> {
+    /// The next poll: the idle time ends here.
+    pub until: Instant,
+    /// Configured units (a scan skips them).
+    pub units: &'a [u8],
+    pub bus: &'a str,
+    pub out: &'a UnboundedSender<Output>,
+    pub shutdown: &'a CancellationToken,
+}
+
+/// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
+pub struct Modbus {
+    pub link: Link,
+    scan: Option<Survey>,
+    requests: Option<Receiver<ScanRequest>>,
+}
+
+impl Modbus {
+    /// The link of a configured bus (devices with a baud rate of their own get it).
+    pub fn for_bus(bus: &crate::config::Bus) -> Modbus {
+        let mut link = Link::new(bus.link.clone(), bus.guard);
+        for d in &bus.devices {
+            if let Some(baud) = d.baud {
+                link.set_unit_baud(d.unit, baud);
+            }
+        }
+        Modbus {
+            link,
+            scan: None,
+            requests: None,
+        }
+    }
+
+    /// Takes scan requests from `requests` (see [`super::survey`]).
+    pub fn with_scans(mut self, requests: Option<Receiver<ScanRequest>>) -> Modbus {
+        self.requests = requests;
+        self
+    }
+}
+
+impl Driver for Modbus {
+    async fn discover(
+        &mut self,
+        device: &mut DeviceRt,
+        preempt: Preempt<'_>,
+    ) -> Result<(), PollError> {
+        device.discover(&mut self.link, preempt).await
+    }
+
+    async fn poll(
+        &mut self,
+        device: &mut DeviceRt,
+        preempt: Preempt<'_>,
+    ) -> Result<Vec<Reading>, PollError> {
+        device.poll(&mut self.link, preempt).await
+    }
+
+    async fn execute(&mut self, device: &mut DeviceRt, request: &Request) -> Executed {
+        device.execute(&mut self.link, request).await
+    }
+
+    fn wire(&self) -> (WireCounters, Duration) {
+        (self.link.counters, self.link.busy)
+    }
+
+    fn is_line_fault(&self, e: &PollError) -> bool {
+        matches!(e, PollError::Link(l) if l.is_line_fault())
+    }
+
+    fn ready_for_commands(&self, device: &DeviceRt) -> bool {
+        device.discovered()
+    }
+
+    fn wire_pricing(&self) -> Wire {
+        match self.link.timing() {
+            Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
+            None => Wire::tcp(),
+        }
+    }
+
+    async fn idle(&mut self, idle: Idle<'_>) -> bool {
+        super::survey::idle_step(
+            &mut self.scan,
+            &mut self.requests,
+            &mut self.link,
+            idle.until,
+            idle.units,
+            idle.bus,
+            idle.out,
+            idle.shutdown,
+        )
+        .await
+    }
+
+    fn close(&mut self) {
+        self.link.close();
+    }
+}

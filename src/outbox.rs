@@ -1,0 +1,418 @@
+//! The outbox: store-and-forward plus the MQTT send window, as one state machine without I/O.
+//!
+//! Every message is stored first and leaves the store only when the broker acknowledges it.
+//! The MQTT client is never trusted with more than a small window of them: rumqttc forgets what
+//! it holds when it reconnects with a clean session, so after a connection loss the outbox hands
+//! the same messages out again, in order. The MQTT task ([`crate::publish::mqtt`]) is a shell that
+//! feeds events in (`enqueue`, `connected`, `sent`, `acked`, `lost`) and hands the client what
+//! [`Outbox::next`] returns; the store ([`crate::publish::spool::Spool`] on disk, [`MemoryStore`]
+//! in tests) only keeps messages in order within a byte bound.
+//!
+//! The window is a list of the store's oldest sequence numbers, so the bound can be enforced
+//! without touching them: a full store drops the oldest messages *after* the window, never one
+//! the client still holds, and the acknowledgements that follow release exactly the messages
+//! they were for.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use bytes::Bytes;
+use serde::{Deserialize, Serialize};
+
+/// A message to publish: what an output format produces (see [`crate::publish::format`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Message {
+    pub topic: String,
+    /// Any bytes: JSON text today, binary formats tomorrow.
+    pub payload: Bytes,
+    pub qos: u8,
+    pub retain: bool,
+    /// MQTT v5 publish properties.
+    pub properties: Properties,
+    /// Of the moment only (bus health): dropped rather than stored while the broker is away.
+    pub transient: bool,
+}
+
+/// The MQTT v5 publish properties the gateway sets (dropped on MQTT 3.1.1).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Properties {
+    /// Correlation data of the request a command result answers.
+    pub correlation: Option<Bytes>,
+}
+
+impl Message {
+    /// A QoS `qos` message without properties.
+    pub fn new(topic: String, payload: impl Into<Bytes>, qos: u8, retain: bool) -> Message {
+        Message {
+            topic,
+            payload: payload.into(),
+            qos,
+            retain,
+            properties: Properties::default(),
+            transient: false,
+        }
+    }
+}
+
+/// A stored message waiting for the broker.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Entry {
+    /// Store sequence number: strictly increasing, across restarts.
+    pub seq: u64,
+    pub topic: String,
+    /// Shared, so handing it to the MQTT client (and again after a reconnect) copies nothing.
+    #[serde(with = "payload_bytes")]
+    pub payload: Bytes,
+    pub qos: u8,
+    pub retain: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub correlation: Option<Vec<u8>>,
+}
+
+impl Entry {
+    /// What the store accounts for it (bytes plus a fixed overhead).
+    pub fn size(&self) -> u64 {
+        (self.topic.len() + self.payload.len() + 64) as u64
+    }
+}
+
+/// Payloads on disk: UTF-8 payloads as a JSON string (readable, and what earlier versions wrote),
+/// anything else as an array of byte values, so a binary payload comes back unchanged.
+mod payload_bytes {
+    use bytes::Bytes;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(b: &Bytes, s: S) -> Result<S::Ok, S::Error> {
+        match std::str::from_utf8(b) {
+            Ok(text) => s.serialize_str(text),
+            Err(_) => s.collect_seq(b.iter()),
+        }
+    }
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Stored {
+        Text(String),
+        Raw(Vec<u8>),
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Bytes, D::Error> {
+        Ok(match Stored::deserialize(d)? {
+            Stored::Text(t) => Bytes::from(t),
+            Stored::Raw(r) => Bytes::from(r),
+        })
+    }
+}
+
+/// Where the outbox keeps its messages, oldest first.
+pub trait Store {
+    type Error: std::fmt::Display;
+    /// Appends a message; returns its sequence number.
+    fn push(&mut self, message: Message) -> Result<u64, Self::Error>;
+    /// The `i`-th oldest message.
+    fn get(&mut self, i: usize) -> Option<&Entry>;
+    /// Forgets the oldest `n` messages (acknowledged).
+    fn ack_front(&mut self, n: usize);
+    /// While over the byte bound, drops the oldest messages after the first `keep` (those the
+    /// client holds); returns how many were dropped.
+    fn evict(&mut self, keep: usize) -> u64;
+    /// Messages stored.
+    fn len(&self) -> u64;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// The broker went away (`true`) or came back: a store on disk writes new messages out.
+    fn broker_away(&mut self, _away: bool) {}
+}
+
+/// A message handed to the client, waiting for its acknowledgement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Slot {
+    seq: u64,
+    /// Packet id, once the client has sent it (0 for QoS 0).
+    pkid: Option<u16>,
+    acked: bool,
+}
+
+/// What to do next, from [`Outbox::next`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Step {
+    /// Hand this message to the client (then [`Outbox::refused`] if it could not take it).
+    Send(Entry),
+    /// This message can never be sent (it would block everything behind it): it was dropped.
+    Dropped { topic: String, why: String },
+}
+
+/// What [`Outbox::enqueue`] did with a message.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Enqueued {
+    /// Stored with this sequence number; `evicted` older ones were dropped to make room.
+    Stored { seq: u64, evicted: u64 },
+    /// A transient message while the broker is away: not stored.
+    Skipped,
+}
+
+/// The spool and the send window of one gateway.
+#[derive(Debug)]
+pub struct Outbox<S> {
+    store: S,
+    /// The store's oldest messages that the client has, in order.
+    window: VecDeque<Slot>,
+    capacity: usize,
+    connected: bool,
+    /// The broker's maximum packet size (CONNACK), if it announced one.
+    broker_max: Option<u32>,
+    /// The last time the broker acknowledged something, or the window was empty.
+    progress: Instant,
+    /// Publishes outside the store (gateway status) whose send event is still to come.
+    direct: usize,
+    /// Messages dropped because the store was full, since start.
+    pub evicted: u64,
+}
+
+impl<S: Store> Outbox<S> {
+    /// An outbox over `store` that lets the client hold at most `window` messages.
+    pub fn new(store: S, window: usize, now: Instant) -> Outbox<S> {
+        Outbox {
+            store,
+            window: VecDeque::new(),
+            capacity: window.max(1),
+            connected: false,
+            broker_max: None,
+            progress: now,
+            direct: 0,
+            evicted: 0,
+        }
+    }
+
+    pub fn store(&self) -> &S {
+        &self.store
+    }
+
+    pub fn store_mut(&mut self) -> &mut S {
+        &mut self.store
+    }
+
+    pub fn is_connected(&self) -> bool {
+        self.connected
+    }
+
+    /// Messages the client holds.
+    pub fn in_flight(&self) -> usize {
+        self.window.len()
+    }
+
+    /// Stores a message; the bound is kept without dropping what the client holds.
+    pub fn enqueue(&mut self, message: Message) -> Result<Enqueued, S::Error> {
+        if message.transient && !self.connected {
+            return Ok(Enqueued::Skipped);
+        }
+        let seq = self.store.push(message)?;
+        let evicted = self.store.evict(self.window.len());
+        self.evicted += evicted;
+        Ok(Enqueued::Stored { seq, evicted })
+    }
+
+    /// The broker accepted the connection (`max_packet` from its CONNACK).
+    pub fn connected(&mut self, max_packet: Option<u32>, now: Instant) {
+        self.connected = true;
+        self.broker_max = max_packet;
+        self.progress = now;
+        self.store.broker_away(false);
+    }
+
+    /// The connection failed: everything the client held is gone with it and will be handed
+    /// out again, in order, after the next [`Outbox::connected`].
+    pub fn lost(&mut self) {
+        self.connected = false;
+        self.window.clear();
+        self.direct = 0;
+        self.store.broker_away(true);
+    }
+
+    /// A publish outside the store (the gateway's status) was handed to the client: its send
+    /// event is not one of ours.
+    pub fn direct(&mut self) {
+        self.direct += 1;
+    }
+
+    /// The client sent a publish with `pkid` (0 for QoS 0, which needs no acknowledgement).
+    pub fn sent(&mut self, pkid: u16) {
+        if self.direct > 0 {
+            self.direct -= 1;
+            return;
+        }
+        if let Some(slot) = self.window.iter_mut().find(|s| s.pkid.is_none()) {
+            slot.pkid = Some(pkid);
+            slot.acked = pkid == 0;
+        }
+    }
+
+    /// The broker acknowledged `pkid`.
+    pub fn acked(&mut self, pkid: u16, now: Instant) {
+        self.progress = now;
+        if let Some(slot) = self
+            .window
+            .iter_mut()
+            .find(|s| s.pkid == Some(pkid) && !s.acked)
+        {
+            slot.acked = true;
+        }
+    }
+
+    /// The next thing to do, or `None` when the window is full, the store empty or the broker
+    /// away. Releases acknowledged messages from the store first (in order: an acknowledgement
+    /// that overtakes an older one waits for it).
+    pub fn next(&mut self, now: Instant) -> Option<Step> {
+        self.release(now);
+        if !self.connected || self.window.len() >= self.capacity {
+            return None;
+        }
+        let i = self.window.len();
+        let broker_max = self.broker_max;
+        let e = self.store.get(i)?;
+        let corr = e.correlation.as_ref().map_or(0, Vec::len);
+        let unsendable = unsendable(&e.topic, e.payload.len(), corr, broker_max);
+        let seq = e.seq;
+        let step = match unsendable {
+            Some(why) => Step::Dropped {
+                topic: e.topic.chars().take(200).collect(),
+                why,
+            },
+            None => Step::Send(e.clone()),
+        };
+        // An unsendable message counts as acknowledged, so order and the window hold.
+        let acked = matches!(step, Step::Dropped { .. });
+        let pkid = acked.then_some(0);
+        self.window.push_back(Slot { seq, pkid, acked });
+        Some(step)
+    }
+
+    /// The client could not take the message [`Outbox::next`] just returned (its queue is
+    /// full): it is handed out again later.
+    pub fn refused(&mut self) {
+        if self.window.back().is_some_and(|s| s.pkid.is_none()) {
+            self.window.pop_back();
+        }
+    }
+
+    fn release(&mut self, now: Instant) {
+        let n = self.window.iter().take_while(|s| s.acked).count();
+        if n > 0 {
+            let last = self.window[n - 1].seq;
+            self.window.drain(..n);
+            self.store.ack_front(n);
+            debug_assert!(self.store.get(0).is_none_or(|e| e.seq > last));
+        }
+        if self.window.is_empty() {
+            self.progress = now;
+        }
+    }
+
+    /// Messages are in flight and the broker has acknowledged nothing for `limit`: the
+    /// connection is not publishing, whatever the socket says.
+    pub fn stalled(&self, now: Instant, limit: Duration) -> bool {
+        self.connected
+            && self.window.iter().any(|s| !s.acked)
+            && now.saturating_duration_since(self.progress) > limit
+    }
+}
+
+/// Why a stored message can never be sent, if it can't: it would block the outbox forever.
+pub fn unsendable(
+    topic: &str,
+    payload: usize,
+    correlation: usize,
+    broker_max: Option<u32>,
+) -> Option<String> {
+    if !rumqttc::valid_topic(topic) || topic.is_empty() || topic.len() > usize::from(u16::MAX) {
+        return Some("not a topic one can publish to (empty, too long or a wildcard)".into());
+    }
+    // Fixed header (≤ 5), topic, packet id, properties (correlation data), payload.
+    let size =
+        5 + 2 + topic.len() + 2 + 5 + if correlation > 0 { 3 + correlation } else { 0 } + payload;
+    match broker_max {
+        Some(max) if size > max as usize => Some(format!(
+            "{size} bytes, more than the broker's maximum packet size of {max}"
+        )),
+        _ => None,
+    }
+}
+
+/// A store in memory only, bounded in bytes (tests, and a gateway without a spool directory).
+#[derive(Debug, Default)]
+pub struct MemoryStore {
+    entries: VecDeque<Entry>,
+    bytes: u64,
+    max_bytes: u64,
+    next_seq: u64,
+}
+
+impl MemoryStore {
+    pub fn new(max_bytes: u64) -> MemoryStore {
+        MemoryStore {
+            max_bytes,
+            next_seq: 1,
+            ..MemoryStore::default()
+        }
+    }
+
+    /// Sequence numbers stored, oldest first.
+    pub fn seqs(&self) -> Vec<u64> {
+        self.entries.iter().map(|e| e.seq).collect()
+    }
+}
+
+impl Store for MemoryStore {
+    type Error = std::convert::Infallible;
+
+    fn push(&mut self, m: Message) -> Result<u64, Self::Error> {
+        let entry = Entry::of(self.next_seq, m);
+        self.next_seq += 1;
+        self.bytes += entry.size();
+        self.entries.push_back(entry);
+        Ok(self.next_seq - 1)
+    }
+
+    fn get(&mut self, i: usize) -> Option<&Entry> {
+        self.entries.get(i)
+    }
+
+    fn ack_front(&mut self, n: usize) {
+        for e in self.entries.drain(..n.min(self.entries.len())) {
+            self.bytes -= e.size();
+        }
+    }
+
+    fn evict(&mut self, keep: usize) -> u64 {
+        let mut dropped = 0;
+        while self.bytes > self.max_bytes && self.entries.len() > keep {
+            let e = self.entries.remove(keep).expect("index checked");
+            self.bytes -= e.size();
+            dropped += 1;
+        }
+        dropped
+    }
+
+    fn len(&self) -> u64 {
+        self.entries.len() as u64
+    }
+}
+
+impl Entry {
+    /// The stored form of `m` under sequence number `seq`.
+    pub fn of(seq: u64, m: Message) -> Entry {
+        Entry {
+            seq,
+            topic: m.topic,
+            payload: m.payload,
+            qos: m.qos,
+            retain: m.retain,
+            correlation: m.properties.correlation.map(|c| c.to_vec()),
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "outbox_tests.rs"]
+mod tests;

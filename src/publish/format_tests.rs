@@ -1,0 +1,184 @@
+//! The output stage: today's JSON messages, and a second format that lives in this file only.
+
+use std::time::{Duration, SystemTime};
+
+use super::*;
+use crate::counter::Update;
+use crate::outbox::{MemoryStore, Outbox, Step, Store};
+use crate::publish::topics::Topics;
+use crate::reading::Reading;
+
+fn reading(total: i64) -> Reading {
+    Reading {
+        device: "press1".into(),
+        channel: "enc0".into(),
+        ts: SystemTime::UNIX_EPOCH + Duration::from_millis(1_795_300_723_123),
+        count: total,
+        freq_hz: None,
+        rpm: None,
+        update: Update {
+            delta: 1,
+            total,
+            seq: 7,
+            rate_hz: None,
+            event: None,
+        },
+        after_seq: None,
+        kind: crate::profile::ChannelKind::Encoder,
+        units: None,
+    }
+}
+
+const BUS: &str = "[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
+
+fn check(mqtt: &str) -> Result<crate::config::Config, crate::config::ConfigErrors> {
+    let text = format!("[gateway]\nid = \"e1\"\n[mqtt]\ntopic_root = \"pg/e1\"\n{mqtt}\n{BUS}");
+    let env = Some(std::collections::HashMap::new());
+    crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env)
+}
+
+fn config() -> Mqtt {
+    check("retain = true\nqos = 0").expect("config").mqtt
+}
+
+#[test]
+fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
+    let json = build(&config());
+    let m = render(&*json, &Output::Reading(reading(42)));
+    assert_eq!(m.len(), 1);
+    assert_eq!(m[0].topic, "pg/e1/press1/enc0");
+    assert_eq!((m[0].qos, m[0].retain, m[0].transient), (0, true, false));
+    assert_eq!(
+        m[0].payload,
+        crate::publish::payload::reading(&reading(42)).into_bytes()
+    );
+}
+
+#[test]
+fn json_status_is_retained_and_bus_health_is_transient() {
+    let json = build(&config());
+    let status = Output::DeviceStatus {
+        device: "press1".into(),
+        online: false,
+    };
+    let m = render(&*json, &status);
+    assert_eq!(
+        (m[0].topic.as_str(), &m[0].payload[..]),
+        ("pg/e1/press1/status", &b"offline"[..])
+    );
+    assert_eq!((m[0].qos, m[0].retain), (1, true));
+    let stats = crate::bus::stats::BusStats {
+        utilisation: 0.5,
+        transactions: 3,
+        transactions_per_s: 0.1,
+        timeouts: 1,
+        garbled: 0,
+        stale_dropped: 0,
+        io_errors: 0,
+        exceptions: 0,
+        reconnects: 1,
+        devices: Default::default(),
+    };
+    let stats = Output::BusStats {
+        bus: "line1".into(),
+        stats: Box::new(stats),
+    };
+    let m = render(&*json, &stats);
+    assert_eq!(m[0].topic, "pg/e1/bus/line1/stats");
+    assert!(m[0].transient && m[0].qos == 0);
+    let v: serde_json::Value = serde_json::from_slice(&m[0].payload).unwrap();
+    assert_eq!(
+        (v["transactions"].as_u64(), v["utilisation"].as_f64()),
+        (Some(3), Some(0.5))
+    );
+}
+
+#[test]
+fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
+    let json = build(&config());
+    let result = Output::CommandResult {
+        topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
+        correlation: Some(bytes::Bytes::from_static(b"c-1")),
+        payload: serde_json::json!({"ok": true}),
+    };
+    let m = render(&*json, &result);
+    assert_eq!(m.len(), 2);
+    assert_eq!(m[0].properties.correlation, None);
+    assert_eq!(m[1].properties.correlation.as_deref(), Some(&b"c-1"[..]));
+    assert_eq!(&m[1].payload[..], br#"{"ok":true}"#);
+}
+
+#[test]
+fn ready_messages_pass_through_and_subscriptions_are_not_messages() {
+    let json = build(&config());
+    let ha = Output::Message {
+        topic: "homeassistant/sensor/x/config".into(),
+        payload: "{}".into(),
+        retain: true,
+    };
+    assert_eq!(
+        render(&*json, &ha)[0].topic,
+        "homeassistant/sensor/x/config"
+    );
+    assert!(render(&*json, &Output::Subscribe("a/#".into())).is_empty());
+}
+
+/// A toy second format: each reading's total as 8 big-endian bytes on `<reading topic>/total`.
+/// Everything it needs is the output stage's: the [`Format`] trait, [`Topics`], [`Message`].
+struct PackedTotals {
+    topics: Topics,
+}
+
+impl Format for PackedTotals {
+    fn messages(&self, event: &Output) -> Vec<Message> {
+        match event {
+            Output::Reading(r) => {
+                let topic = format!("{}/total", self.topics.reading(&r.device, &r.channel));
+                let payload = r.update.total.to_be_bytes().to_vec();
+                vec![Message::new(topic, payload, 1, false)]
+            }
+            _ => Vec::new(),
+        }
+    }
+}
+
+#[test]
+fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchanged() {
+    let packed = PackedTotals {
+        topics: Topics::new("pg/e1"),
+    };
+    let now = std::time::Instant::now();
+    let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
+    outbox.connected(None, now);
+    for m in render(&packed, &Output::Reading(reading(-2))) {
+        outbox.enqueue(m).unwrap();
+    }
+    assert_eq!(outbox.store().len(), 1);
+    let Some(Step::Send(e)) = outbox.next(now) else {
+        panic!("nothing to send")
+    };
+    assert_eq!(e.topic, "pg/e1/press1/enc0/total");
+    assert_eq!(
+        &e.payload[..],
+        &[0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xfe]
+    );
+}
+
+#[test]
+fn an_unknown_format_is_a_config_error_naming_the_choices() {
+    let err = check("format = \"xml\"").unwrap_err().to_string();
+    assert!(err.contains("mqtt.format") && err.contains("json"), "{err}");
+}
+
+#[test]
+fn every_format_name_the_config_takes_is_built() {
+    for name in NAMES {
+        let mut c = config();
+        c.format = (*name).to_string();
+        let built = build(&c);
+        assert!(
+            !render(&*built, &Output::Reading(reading(1))).is_empty(),
+            "{name}"
+        );
+    }
+}
