@@ -178,9 +178,7 @@ fn gateway_config(
     );
     let prefix = match endpoint {
         Endpoint::Serial(p) => {
-            t += &format!(
-                "[buses.b]\nport = {p:?}\nbaud = {RTU_BAUD}\ntimeout = \"100ms\"\n"
-            );
+            t += &format!("[buses.b]\nport = {p:?}\nbaud = {RTU_BAUD}\ntimeout = \"100ms\"\n");
             'r'
         }
         Endpoint::Tcp(a) => {
@@ -225,11 +223,19 @@ fn mbpoll(endpoint: &Endpoint, units: u8, cpu: usize) -> Child {
     c.args(["-c", &cpu.to_string(), "mbpoll"]);
     let count = COUNT_REGISTER.to_string();
     let addresses = format!("1:{units}");
-    c.args(["-0", "-r", &count, "-c", "8", "-t", "4", "-l", "10", "-o", "0.1"]);
+    c.args([
+        "-0", "-r", &count, "-c", "8", "-t", "4", "-l", "10", "-o", "0.1",
+    ]);
     c.args(["-a", &addresses]);
     match endpoint {
         Endpoint::Tcp(a) => {
-            c.args(["-m", "tcp", "-p", &a.port().to_string(), &a.ip().to_string()]);
+            c.args([
+                "-m",
+                "tcp",
+                "-p",
+                &a.port().to_string(),
+                &a.ip().to_string(),
+            ]);
         }
         Endpoint::Serial(p) => {
             c.args(["-m", "rtu", "-b", &RTU_BAUD.to_string(), "-P", "none"]);
@@ -361,14 +367,37 @@ pub async fn run(figures: &mut Vec<Figure>) {
         gateway_config(&dir, "tcp-ch", &tcp, TCP_UNITS, broker, false, "1ms"),
         gateway_config(&dir, "tcp-dev", &tcp, TCP_UNITS, broker, true, "1ms"),
         gateway_config(&dir, "line-ch", &line, RTU_UNITS, broker, false, "1ms"),
-        gateway_config(&dir, "trickle-ch", &trickle, RTU_UNITS, broker, false, "1ms"),
-        gateway_config(&dir, "trickle-dev", &trickle, RTU_UNITS, broker, true, "1ms"),
+        gateway_config(
+            &dir,
+            "trickle-ch",
+            &trickle,
+            RTU_UNITS,
+            broker,
+            false,
+            "1ms",
+        ),
+        gateway_config(
+            &dir,
+            "trickle-dev",
+            &trickle,
+            RTU_UNITS,
+            broker,
+            true,
+            "1ms",
+        ),
     ];
     let warmup = Duration::from_secs(3);
     let short = Duration::from_secs(1);
     let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
     for _ in 0..rounds {
-        let m = measure(mbpoll(&tcp, TCP_UNITS, cpu), &plant, "hall", short, tcp_window).await;
+        let m = measure(
+            mbpoll(&tcp, TCP_UNITS, cpu),
+            &plant,
+            "hall",
+            short,
+            tcp_window,
+        )
+        .await;
         for (i, config) in configs[..2].iter().enumerate() {
             let g = measure(gateway(config, cpu), &plant, "hall", warmup, tcp_window).await;
             results[i].push((g, m));
@@ -388,13 +417,39 @@ pub async fn run(figures: &mut Vec<Figure>) {
         );
         let g = measure(gateway(&paced, cpu), &plant, "hall", warmup, tcp_window).await;
         results[2].push((g, m));
-        let m = measure(mbpoll(&line, RTU_UNITS, cpu), &plant, "line", short, rtu_window).await;
-        let g = measure(gateway(&configs[2], cpu), &plant, "line", warmup, rtu_window).await;
+        let m = measure(
+            mbpoll(&line, RTU_UNITS, cpu),
+            &plant,
+            "line",
+            short,
+            rtu_window,
+        )
+        .await;
+        let g = measure(
+            gateway(&configs[2], cpu),
+            &plant,
+            "line",
+            warmup,
+            rtu_window,
+        )
+        .await;
         results[3].push((g, m));
-        let m = measure(mbpoll(&trickle, RTU_UNITS, cpu), &plant, "trickle", short, rtu_window);
+        let m = measure(
+            mbpoll(&trickle, RTU_UNITS, cpu),
+            &plant,
+            "trickle",
+            short,
+            rtu_window,
+        );
         let m = m.await;
         for i in 0..2 {
-            let g = measure(gateway(&configs[3 + i], cpu), &plant, "trickle", warmup, rtu_window);
+            let g = measure(
+                gateway(&configs[3 + i], cpu),
+                &plant,
+                "trickle",
+                warmup,
+                rtu_window,
+            );
             results[4 + i].push((g.await, m));
         }
     }

@@ -447,7 +447,9 @@ impl Link {
 /// function is one the gateway uses.
 fn answer_len_for(frame: &[u8]) -> Option<usize> {
     match frame {
-        [_, 0x03 | 0x04, _, _, hi, lo, ..] => Some(5 + 2 * usize::from(u16::from_be_bytes([*hi, *lo]))),
+        [_, 0x03 | 0x04, _, _, hi, lo, ..] => {
+            Some(5 + 2 * usize::from(u16::from_be_bytes([*hi, *lo])))
+        }
         [_, 0x06 | 0x10, ..] => Some(8),
         _ => None,
     }

@@ -59,7 +59,11 @@ impl RtuPort {
         let _ = port.set_exclusive(true);
         set_nonblocking(port.as_raw_fd())?;
         let parity = u32::from(port.parity()? != serialport::Parity::None);
-        let stop = if port.stop_bits()? == serialport::StopBits::Two { 2 } else { 1 };
+        let stop = if port.stop_bits()? == serialport::StopBits::Two {
+            2
+        } else {
+            1
+        };
         let baud = port.baud_rate()?;
         let mut rtu = RtuPort {
             watch: Watch::Quiet(port),
@@ -207,11 +211,7 @@ impl AsyncRead for RtuPort {
             let read = ready.try_io(|fd| {
                 // SAFETY: reads at most `unfilled.len()` bytes into initialised memory.
                 let n = unsafe {
-                    libc::read(
-                        fd.as_raw_fd(),
-                        unfilled.as_mut_ptr().cast(),
-                        unfilled.len(),
-                    )
+                    libc::read(fd.as_raw_fd(), unfilled.as_mut_ptr().cast(), unfilled.len())
                 };
                 if n < 0 {
                     Err(io::Error::last_os_error())
@@ -244,13 +244,7 @@ impl AsyncWrite for RtuPort {
         data: &[u8],
     ) -> Poll<io::Result<usize>> {
         // SAFETY: writes at most `data.len()` bytes from `data` to a descriptor we own.
-        let n = unsafe {
-            libc::write(
-                self.tty().as_raw_fd(),
-                data.as_ptr().cast(),
-                data.len(),
-            )
-        };
+        let n = unsafe { libc::write(self.tty().as_raw_fd(), data.as_ptr().cast(), data.len()) };
         if n >= 0 {
             return Poll::Ready(Ok(n as usize));
         }
@@ -335,7 +329,8 @@ mod tests {
         let (mut master, slave) = TTYPort::pair().unwrap();
         let mut port = RtuPort::open(&serialport::new(slave.name().unwrap(), 9600)).unwrap();
         drop(slave);
-        port.quiet_until(Instant::now() + Duration::from_millis(1)).unwrap();
+        port.quiet_until(Instant::now() + Duration::from_millis(1))
+            .unwrap();
         let feeder = std::thread::spawn(move || {
             std::thread::sleep(std::time::Duration::from_millis(20));
             master.write_all(&[0x07]).unwrap();

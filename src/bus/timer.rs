@@ -103,9 +103,8 @@ impl FineTimer {
             },
         };
         // SAFETY: a valid timerfd and a fully initialised itimerspec; the old value is not asked.
-        let r = unsafe {
-            libc::timerfd_settime(self.0.as_raw_fd(), 0, &spec, std::ptr::null_mut())
-        };
+        let r =
+            unsafe { libc::timerfd_settime(self.0.as_raw_fd(), 0, &spec, std::ptr::null_mut()) };
         if r < 0 {
             return Err(io::Error::last_os_error());
         }
