@@ -6,6 +6,7 @@
 use std::time::Duration;
 
 use tokio::sync::mpsc::UnboundedSender;
+use tokio::time::Instant;
 
 use super::device::{DeviceRt, PollError};
 use super::schedule::Backoff;
@@ -32,6 +33,21 @@ pub struct Availability {
     last_error: Option<String>,
     backoff: Backoff,
     offline_after: u32,
+    log: LogBudget,
+}
+
+/// How often a device that stays online may write an error line: a noisy line answers garbled
+/// or not at all several times a minute, and each would otherwise be a journal line (and its
+/// recovery another). State changes (offline, back online) are always logged.
+pub const ERROR_LOG_EVERY: Duration = Duration::from_secs(60);
+
+/// The log budget of one device: one error line per [`ERROR_LOG_EVERY`], the rest counted.
+#[derive(Debug, Clone, Default)]
+struct LogBudget {
+    next: Option<Instant>,
+    suppressed: u32,
+    /// The last error was logged, so its recovery is worth a line too.
+    logged: bool,
 }
 
 /// What a failed poll means: its transitions and, when the device is offline, how long to wait
@@ -51,7 +67,27 @@ impl Availability {
             last_error: None,
             backoff: Backoff::new(min, max),
             offline_after: offline_after.max(1),
+            log: LogBudget::default(),
         }
+    }
+
+    /// Whether an error line may be written at `now`: `Some(n)` with the number of errors not
+    /// logged since the last line, `None` to count this one silently.
+    pub fn may_log_error(&mut self, now: Instant) -> Option<u32> {
+        let budget = &mut self.log;
+        if budget.next.is_some_and(|next| now < next) {
+            budget.suppressed = budget.suppressed.saturating_add(1);
+            budget.logged = false;
+            return None;
+        }
+        budget.next = Some(now + ERROR_LOG_EVERY);
+        budget.logged = true;
+        Some(std::mem::take(&mut budget.suppressed))
+    }
+
+    /// Whether a recovery is worth a line: only after an error that was logged.
+    pub fn may_log_recovery(&mut self) -> bool {
+        std::mem::take(&mut self.log.logged)
     }
 
     /// `Some(true)` online, `Some(false)` offline, `None` not yet seen (or out of service).
@@ -143,7 +179,9 @@ pub(super) fn answered(d: &mut DeviceRt, bus: &str, out: &UnboundedSender<Output
     for t in d.availability.answered() {
         match t {
             Transition::Recovered => {
-                tracing::info!(bus, device = %d.name, "device answering again");
+                if d.availability.may_log_recovery() {
+                    tracing::info!(bus, device = %d.name, "device answering again");
+                }
             }
             Transition::Online { back } => {
                 if back {
@@ -174,7 +212,14 @@ pub(super) fn failed(
     for t in verdict.transitions {
         match t {
             Transition::Error(message) => {
-                tracing::warn!(bus, device = %d.name, unit = d.unit, "{message}");
+                match d.availability.may_log_error(Instant::now()) {
+                    Some(0) => tracing::warn!(bus, device = %d.name, unit = d.unit, "{message}"),
+                    Some(more) => tracing::warn!(
+                        bus, device = %d.name, unit = d.unit,
+                        "{message} ({more} more errors since the last line, not logged one by one)"
+                    ),
+                    None => {}
+                }
                 // A module that starts refusing registers it answered before may be another
                 // module, or have restarted in another work mode: identity and modes are read
                 // again (once per new refusal, so a device that keeps refusing costs no extra

@@ -152,3 +152,41 @@ async fn a_sixty_second_outage_costs_few_probes_and_ends_within_the_longest_back
         "a minute went by on the clock"
     );
 }
+
+#[test]
+fn a_noisy_device_writes_one_error_line_a_minute_and_counts_the_rest() {
+    let mut a = fresh();
+    let t0 = Instant::now();
+    assert_eq!(a.may_log_error(t0), Some(0), "the first error is logged");
+    for i in 1..=5 {
+        assert_eq!(
+            a.may_log_error(t0 + S * i),
+            None,
+            "error {i} within the minute"
+        );
+    }
+    assert_eq!(
+        a.may_log_error(t0 + ERROR_LOG_EVERY),
+        Some(5),
+        "the next line says how many were not logged"
+    );
+    assert_eq!(a.may_log_error(t0 + ERROR_LOG_EVERY + S), None);
+}
+
+#[test]
+fn a_recovery_is_worth_a_line_only_after_a_logged_error() {
+    let mut a = fresh();
+    let t0 = Instant::now();
+    assert!(!a.may_log_recovery(), "no error, no recovery to tell");
+    a.may_log_error(t0);
+    assert!(
+        a.may_log_recovery(),
+        "the error was logged: so is its recovery"
+    );
+    assert!(!a.may_log_recovery(), "once");
+    a.may_log_error(t0 + S);
+    assert!(
+        !a.may_log_recovery(),
+        "an error within the minute was not logged: neither is its recovery"
+    );
+}
