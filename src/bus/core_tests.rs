@@ -94,8 +94,27 @@ struct Running {
     task: tokio::task::JoinHandle<()>,
 }
 
+/// A bus of `n` devices polled every millisecond: saturated, every device always overdue.
+fn saturated(name: &str, n: u8) -> crate::config::Config {
+    let dir = std::env::temp_dir().join(format!("pulsegate-core-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut text = format!(
+        "[gateway]\nid = \"t\"\nstate_dir = {dir:?}\nstats_interval = \"1h\"\n\
+         [buses.l]\nhost = \"127.0.0.1\"\nport = 1\n"
+    );
+    for unit in 1..=n {
+        text += &format!(
+            "[buses.l.devices.d{unit}]\nunit = {unit}\nmodel = \"yl67\"\npoll = \"1ms\"\n"
+        );
+    }
+    crate::config::Config::from_toml(&text, &dir.join("t.toml"), Some(HashMap::new())).unwrap()
+}
+
 fn start(name: &str, outage: Range<Duration>) -> Running {
-    let config = config(name);
+    start_with(config(name), outage)
+}
+
+fn start_with(config: crate::config::Config, outage: Range<Duration>) -> Running {
     let (out_tx, out) = unbounded_channel();
     let (commands, rx) = unbounded_channel();
     let heart = crate::health::Health::default().heart("bus/l");
@@ -182,4 +201,59 @@ async fn a_command_goes_on_the_line_before_the_next_poll() {
     bus.stop.cancel();
     bus.task.await.unwrap();
     assert_eq!(statuses(&mut bus.out), [true, false]);
+}
+
+fn clear_all(
+    device: &str,
+) -> (
+    BusCommand,
+    oneshot::Receiver<Result<Option<i64>, CommandError>>,
+) {
+    let (done, result) = oneshot::channel();
+    let now = Instant::now();
+    let request = Request {
+        device: device.into(),
+        channel: None,
+        op: crate::command::Op::ClearAll,
+        id: None,
+        reply: Default::default(),
+        received: now,
+        expires: now + Duration::from_secs(30),
+    };
+    (BusCommand { request, done }, result)
+}
+
+#[tokio::test(start_paused = true)]
+async fn on_a_saturated_bus_commands_and_polls_take_turns() {
+    // Eight devices always overdue, 50 ms a transaction: a whole round of polls is 400 ms.
+    let bus = start_with(saturated("turns", 8), Duration::ZERO..Duration::ZERO);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let mut waits = Vec::new();
+    let burst_from = Instant::now();
+    for _ in 0..10 {
+        let (command, result) = clear_all("d1");
+        let sent = Instant::now();
+        bus.commands.send(command).unwrap();
+        assert_eq!(result.await.unwrap(), Ok(Some(0)));
+        waits.push(sent.elapsed());
+        // The next command comes a little later, as an operator's or a script's would.
+        tokio::time::sleep(Duration::from_millis(137)).await;
+    }
+    let burst = burst_from.elapsed();
+    let log = bus.log.lock().unwrap().clone();
+    bus.stop.cancel();
+    let from = Duration::from_secs(2);
+    let polls = log
+        .iter()
+        .filter(|(at, what)| *at >= from && *at <= from + burst && *what == "poll")
+        .count();
+    // A command waits for the poll in flight and the polls it owes for the last command's line
+    // time: about two transactions, never a whole round of the overdue devices.
+    let longest = waits.iter().max().unwrap();
+    assert!(
+        *longest <= Duration::from_millis(200),
+        "a command waited {longest:?}: {waits:?}"
+    );
+    // And the commands never starve polling: the polls go on between them.
+    assert!(polls >= 20, "{polls} polls during 10 commands in {burst:?}");
 }

@@ -191,17 +191,26 @@ impl BusTask {
         while let Ok(c) = self.commands.try_recv() {
             core.pending.push(c);
         }
-        core.poll_owed = core.owed.is_some_and(|at| core.slots[i].due <= at);
+        // After a command, polls that are due go first for as long as the command held the
+        // line: commands and polls share a busy line at least half and half, so a burst of
+        // commands slows polling at most by half, and a lone command waits for one poll at most
+        // (not for every device that is overdue on a saturated line).
+        let now = Instant::now();
+        core.poll_owed = core
+            .owed
+            .is_some_and(|until| now < until && core.slots[i].due <= now);
         core.durable.collect(&core.devices, &self.out).await;
         if !core.poll_owed {
             core.owed = None;
+            let started = Instant::now();
             if let Some((from, readings)) =
                 run_one_command(&mut core.pending, &mut core.devices, &mut core.driver).await
             {
+                let held = started.elapsed();
                 let outputs = self.emitter.emit(&mut core.devices[from], readings);
                 core.durable
                     .publish(outputs, from, &core.devices, &self.out);
-                core.owed = Some(Instant::now());
+                core.owed = Some(Instant::now() + held);
                 return Next::Loop;
             }
             let idle = driver::Idle {
@@ -358,8 +367,8 @@ struct Core<D> {
     counters_at_stats: WireCounters,
     line_down: bool,
     pending: Vec<BusCommand>,
-    /// Polls due when the last command ended: they go before the next command, so a burst
-    /// of commands slows commands, never polling (each poll waits for at most one command).
+    /// Until when due polls go ahead of commands (as long again as the last command held the
+    /// line): a burst of commands slows polling at most by half, never starves it.
     owed: Option<Instant>,
     poll_owed: bool,
 }
