@@ -223,6 +223,28 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
 }
 
 /// Waits until the gateway's log has said `needle` `n` times.
+/// Puts a module of `model` (in work `modes`) at unit 1 of line1 in place of the meter, and
+/// waits for the gateway to say `wrong_model` for it. Returns when the module was swapped.
+async fn swap_in_and_expect_wrong_model(s: &Setup, model: &str, modes: &[u16]) -> Instant {
+    let profiles = pulsegate::profile::Profiles::builtin();
+    let module = pulsegate::sim::SimModule::new(profiles.get(model).unwrap(), modes).unwrap();
+    s.plant
+        .bus("line1")
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(1, module);
+    let swapped = Instant::now();
+    s.sub
+        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
+            m.at > swapped && m.payload == "wrong_model"
+        })
+        .await
+        .expect("wrong_model after the reset");
+    swapped
+}
+
 async fn wait_log(gateway: &Gateway, needle: &str, n: usize) {
     let t = Instant::now();
     while gateway.log_text().matches(needle).count() < n {
@@ -508,22 +530,7 @@ async fn a_module_swapped_for_another_model_while_offline_is_refused_when_it_ans
         })
         .await
         .expect("offline while out");
-    let profiles = pulsegate::profile::Profiles::builtin();
-    let wj = pulsegate::sim::SimModule::new(profiles.get("wj157").unwrap(), &[1]).unwrap();
-    s.plant
-        .bus("line1")
-        .unwrap()
-        .modules
-        .lock()
-        .unwrap()
-        .insert(1, wj);
-    let swapped = Instant::now();
-    s.sub
-        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
-            m.at > swapped && m.payload == "wrong_model"
-        })
-        .await
-        .expect("wrong_model after the reset");
+    let swapped = swap_in_and_expect_wrong_model(&s, "wj157", &[1]).await;
     tokio::time::sleep(Duration::from_millis(500)).await;
     let after: Vec<Value> = s
         .sub
@@ -587,22 +594,7 @@ async fn after_a_reset_the_identity_is_read_again_and_a_swapped_in_wrong_model_i
     reading_after(&s.sub, "pulsegate/test/meter/a0", Instant::now()).await;
     // A YL67 in DI mode answers every register the WJ157's counts use (32..35, 108, 144..147)
     // and its A0 reads 0: to the counters it looks like a module that restarted.
-    let profiles = pulsegate::profile::Profiles::builtin();
-    let yl = pulsegate::sim::SimModule::new(profiles.get("yl67").unwrap(), &[1, 1, 1, 1]).unwrap();
-    s.plant
-        .bus("line1")
-        .unwrap()
-        .modules
-        .lock()
-        .unwrap()
-        .insert(1, yl);
-    let swapped = Instant::now();
-    s.sub
-        .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {
-            m.at > swapped && m.payload == "wrong_model"
-        })
-        .await
-        .expect("wrong_model after the reset");
+    swap_in_and_expect_wrong_model(&s, "yl67", &[1, 1, 1, 1]).await;
     let _ = (&s.broker, &s.dir);
 }
 
