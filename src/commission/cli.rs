@@ -31,9 +31,9 @@ pub struct LineArgs {
     timeout: Option<humantime::Duration>,
 }
 
-/// One module on the line.
+/// One unit on the line: where, at what speed, which id.
 #[derive(clap::Args, Debug, Clone)]
-pub struct ModuleArgs {
+pub struct UnitArgs {
     #[command(flatten)]
     line: LineArgs,
     /// Baud rate to talk at.
@@ -42,6 +42,13 @@ pub struct ModuleArgs {
     /// Unit id of the module.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=247))]
     unit: u8,
+}
+
+/// One module on the line, of a known (or identified) model.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ModuleArgs {
+    #[command(flatten)]
+    at: UnitArgs,
     /// Model name, or "auto" to identify it from its identification registers.
     #[arg(long, default_value = "auto")]
     model: String,
@@ -124,11 +131,7 @@ pub enum Commission {
     /// Read or write raw holding registers (model unknown).
     Raw {
         #[command(flatten)]
-        line: LineArgs,
-        #[arg(long, default_value_t = 9600)]
-        baud: u32,
-        #[arg(long, value_parser = clap::value_parser!(u8).range(1..=247))]
-        unit: u8,
+        at: UnitArgs,
         #[command(subcommand)]
         op: RawOp,
     },
@@ -232,12 +235,7 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
             let wanted = wanted(new_unit, new_baud, power_on, &ppr, &set)?;
             setup(&module, &wanted, yes, &profiles).await
         }
-        Commission::Raw {
-            line,
-            baud,
-            unit,
-            op,
-        } => raw(&line, baud, unit, op, &profiles).await,
+        Commission::Raw { at, op } => raw(&at.line, at.baud, at.unit, op, &profiles).await,
     }
 }
 
@@ -367,13 +365,15 @@ async fn read(
     watch: Option<humantime::Duration>,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
-    let target = target(&m.line)?;
-    let mut link = target.open(m.baud)?;
+    let target = target(&m.at.line)?;
+    let mut link = target.open(m.at.baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
-    let mut rt = super::read::poller(&target, m.baud, m.unit, &profile, &link);
+        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
+            .await?;
+    let mut rt = super::read::poller(&target, m.at.baud, m.at.unit, &profile, &link);
     let Some(every) = watch.map(Duration::from) else {
-        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, m.baud).await?;
+        let value =
+            super::read::read_once(&mut rt, &mut link, &profile, &target, m.at.baud).await?;
         if json {
             println!("{value}");
         } else {
@@ -385,7 +385,8 @@ async fn read(
     let tty = std::io::stdout().is_terminal();
     let mut previous = None;
     while !cancel.is_cancelled() {
-        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, m.baud).await?;
+        let value =
+            super::read::read_once(&mut rt, &mut link, &profile, &target, m.at.baud).await?;
         if json {
             println!("{value}");
         } else {
@@ -410,17 +411,18 @@ async fn write_count(
     op: Op,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
-    let target = target(&m.line)?;
-    let mut link = target.open(m.baud)?;
+    let target = target(&m.at.line)?;
+    let mut link = target.open(m.at.baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
+        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
+            .await?;
     if !profile.all_channels().iter().any(|c| c.name == channel) {
         return Err(CommissionError::BadInput(format!(
             "model {} has no channel {channel}",
             profile.model
         )));
     }
-    let mut rt = super::read::poller(&target, m.baud, m.unit, &profile, &link);
+    let mut rt = super::read::poller(&target, m.at.baud, m.at.unit, &profile, &link);
     let got = super::read::write_count(&mut rt, &mut link, &target, channel, op).await?;
     let what = if matches!(op, Op::Clear) {
         "cleared"
@@ -428,8 +430,8 @@ async fn write_count(
         "preset"
     };
     match got {
-        Some(v) => println!("unit {} {channel}: {what}; reads back {v}", m.unit),
-        None => println!("unit {} {channel}: {what}", m.unit),
+        Some(v) => println!("unit {} {channel}: {what}; reads back {v}", m.at.unit),
+        None => println!("unit {} {channel}: {what}", m.at.unit),
     }
     Ok(())
 }
@@ -503,17 +505,18 @@ async fn setup(
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
     use super::setup::*;
-    let target = target(&m.line)?;
-    let mut link = target.open(m.baud)?;
+    let target = target(&m.at.line)?;
+    let mut link = target.open(m.at.baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.unit, &m.model, m.baud).await?;
-    let answer = m
-        .line
-        .timeout
-        .map(Into::into)
-        .unwrap_or(profile.answer_timeout);
+        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
+            .await?;
+    let answer =
+        m.at.line
+            .timeout
+            .map(Into::into)
+            .unwrap_or(profile.answer_timeout);
     let timeout = super::line::timeout_for(answer, &link, 1);
-    let modes = super::scan::read_modes(&mut link, m.unit, &profile, timeout)
+    let modes = super::scan::read_modes(&mut link, m.at.unit, &profile, timeout)
         .await
         .map_err(CommissionError::Failed)?;
     let channels = profile
@@ -522,7 +525,7 @@ async fn setup(
     let changes = plan_changes(&profile, &channels, wanted)?;
     if let Some(c) = changes.iter().find(|c| c.setting.name == "unit") {
         let new = c.field as u8;
-        if new != m.unit {
+        if new != m.at.unit {
             let id_timeout = super::line::timeout_for(answer, &link, 3);
             if let Ok(Some(_)) =
                 super::identify::identify(&mut link, profiles, new, id_timeout, true).await
@@ -533,8 +536,8 @@ async fn setup(
             }
         }
     }
-    let words = current_words(&mut link, &target, m.unit, &changes, answer).await?;
-    let mut plan = format!("unit {} ({}):\n", m.unit, profile.model);
+    let words = current_words(&mut link, &target, m.at.unit, &changes, answer).await?;
+    let mut plan = format!("unit {} ({}):\n", m.at.unit, profile.model);
     let mut lines: Vec<(String, usize)> = Vec::new();
     for (c, w) in changes.iter().zip(&words) {
         let from_to = format!(
@@ -570,14 +573,14 @@ async fn setup(
             "not confirmed; nothing written".into(),
         ));
     }
-    write_changes(&mut link, &target, m.unit, &changes, &words, answer).await?;
+    write_changes(&mut link, &target, m.at.unit, &changes, &words, answer).await?;
     drop(link);
-    let (unit, baud) = read_back(&target, &changes, m.unit, m.baud, &profile).await?;
+    let (unit, baud) = read_back(&target, &changes, m.at.unit, m.at.baud, &profile).await?;
     println!("written and read back at unit {unit}, {baud} baud:");
     let mut seen = std::collections::BTreeSet::new();
     for c in &changes {
         if seen.insert(c.setting.name.clone()) {
-            println!("  {}", explain(c, m.unit));
+            println!("  {}", explain(c, m.at.unit));
         }
     }
     Ok(())
