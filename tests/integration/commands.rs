@@ -330,11 +330,8 @@ async fn a_retained_clear_does_nothing_at_start(protocol: Protocol) {
     tokio::time::sleep(Duration::from_millis(300)).await;
     let devices = [("line1", "yl", 1, "yl67", "200ms")];
     let gw = side.start_gateway(&plant, &dir, &devices, "");
-    assert!(
-        sub.wait_for("pulsegate/test/yl/enc0", Duration::from_secs(3), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/yl/enc0", Duration::from_secs(3))
+        .await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert_eq!(
         plant.with_module("line1", 1, |m, _| m.writes).unwrap(),

@@ -503,11 +503,7 @@ model = "zh-yx1600"
     );
     let press = "pulsegate/test/press/enc0";
     let doors = "pulsegate/test/doors/di1";
-    assert!(
-        sub.wait_for(press, Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any(press, Duration::from_secs(5)).await;
     let base_from = std::time::Instant::now();
     tokio::time::sleep(Duration::from_secs(4)).await;
     let base_to = std::time::Instant::now();

@@ -492,11 +492,7 @@ async fn on_change_a_still_channel_beats_a_moving_one_is_paced_and_no_pulse_is_l
     );
     let _gw = Gateway::start(&write_config(&dir, &text));
     let (still, moving) = ("pulsegate/test/io/di1", "pulsegate/test/io/di2");
-    assert!(
-        sub.wait_for(moving, Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any(moving, Duration::from_secs(5)).await;
     tokio::time::sleep(Duration::from_millis(1500)).await;
     plant.with_module("line1", 1, |m, now| m.set_rate(now, "di2", 40.0));
     tokio::time::sleep(Duration::from_secs(3)).await;
@@ -571,11 +567,8 @@ async fn a_device_can_publish_all_its_channels_in_one_message() {
     for ch in ["a0", "b0", "enc1", "enc2", "enc3"] {
         assert!(v[ch]["total"].is_i64(), "{ch} missing in {}", m.payload);
     }
-    assert!(
-        sub.wait_for("pulsegate/test/doors/di3", Duration::from_secs(3), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/doors/di3", Duration::from_secs(3))
+        .await;
     assert!(
         sub.on("pulsegate/test/meter/a0").is_empty(),
         "no per-channel messages"

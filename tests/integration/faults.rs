@@ -159,11 +159,8 @@ async fn sigterm_finishes_saves_state_says_offline_and_exits_0_within_5s() {
         &[("line1", "d", 1, "yl67", "100ms")],
         "",
     );
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(3), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(3))
+        .await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     let _ = std::fs::remove_file(dir.join("bus-line1.json"));
     let (status, took) = gw.terminate();

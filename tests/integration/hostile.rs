@@ -37,11 +37,7 @@ async fn a_wildcard_response_topic_a_long_id_and_a_large_payload_do_not_silence_
         "",
     );
     let reading = "pulsegate/test/d/enc0";
-    assert!(
-        sub.wait_for(reading, Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any(reading, Duration::from_secs(5)).await;
     let cmd = "pulsegate/test/d/enc0/cmd";
     let result = "pulsegate/test/d/enc0/cmd/result";
     let props = PublishProperties {
@@ -136,11 +132,8 @@ async fn an_unsendable_message_in_the_spool_does_not_block_the_ones_behind_it() 
         "the message behind it is sent:\n{}",
         gw.log_text()
     );
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
+        .await;
     assert!(gw.log_text().contains("it can never be sent"));
 }
 
@@ -156,11 +149,8 @@ async fn a_second_gateway_with_the_same_id_is_detected_and_logged() {
     let sub = Subscriber::start(broker.port, "#").await;
     let devices = [("line1", "d", 1, "yl67", "100ms")];
     let a = start_gateway(&plant_a, broker.port, &dir_a, &devices, "");
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
+        .await;
     // A restart of the same gateway (its own previous boot) is not a second gateway.
     drop(a);
     let a = start_gateway(&plant_a, broker.port, &dir_a, &devices, "");
@@ -406,11 +396,8 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
         &[("line1", "d", 1, "yl67", "100ms")],
         "",
     );
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
+        .await;
     let results = Subscriber::start(broker.port, "pulsegate/test/ghost/+/cmd/result").await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     let rss_before = rss_kb(gw.pid());
@@ -620,11 +607,8 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
     drop(gw);
     std::fs::remove_file(&moved[0]).unwrap();
     let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
+        .await;
 }
 
 /// Runs the gateway binary with `args`, as an unprivileged user when the tests run as root
@@ -906,11 +890,7 @@ async fn clears_while_counting_at_1_khz_lose_no_pulse_between_the_write_and_the_
         &[("line1", "m", 1, "yl67", "100ms")],
         "",
     );
-    assert!(
-        sub.wait_for(topic, Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any(topic, Duration::from_secs(5)).await;
     for i in 0..10 {
         let id = format!("c{i}");
         sub.client
@@ -1001,11 +981,8 @@ async fn messages_larger_than_the_broker_takes_are_dropped_not_retried_forever()
         "state_flush = \"500ms\"\nstats_interval = \"1s\"",
     );
     let gw = Gateway::start(&write_config(&dir, &text));
-    assert!(
-        sub.wait_for("pulsegate/test/d/enc0", Duration::from_secs(5), |_| true)
-            .await
-            .is_some()
-    );
+    sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
+        .await;
     tokio::time::sleep(Duration::from_secs(3)).await;
     let since = Instant::now();
     tokio::time::sleep(Duration::from_secs(2)).await;

@@ -268,6 +268,15 @@ impl Subscriber {
         }
     }
 
+    /// Asserts that something arrives on `topic` within `timeout` (the gateway is up and
+    /// publishing).
+    pub async fn expect_any(&self, topic: &str, timeout: Duration) {
+        assert!(
+            self.wait_for(topic, timeout, |_| true).await.is_some(),
+            "nothing on {topic} within {timeout:?}"
+        );
+    }
+
     pub fn clear(&self) {
         self.messages.lock().unwrap().clear();
     }
