@@ -33,6 +33,8 @@ pub struct Availability {
     last_error: Option<String>,
     backoff: Backoff,
     offline_after: u32,
+    /// The last failure was an answer (garbled, an exception): the device is on the line.
+    heard: bool,
     log: LogBudget,
 }
 
@@ -67,6 +69,7 @@ impl Availability {
             last_error: None,
             backoff: Backoff::new(min, max),
             offline_after: offline_after.max(1),
+            heard: false,
             log: LogBudget::default(),
         }
     }
@@ -95,6 +98,15 @@ impl Availability {
         self.online
     }
 
+    /// Whether a read lost to noise is worth asking again at once. Yes for a device online or
+    /// not yet seen, and for an offline one whose last failure was an answer (a garbled frame
+    /// proves it is on the line): on a noisy line such a device must get several whole requests
+    /// through in one poll to come back, and without retries it may never. No for an offline
+    /// device that stays silent: a dead one would cost the others a timeout per retry.
+    pub fn worth_retrying(&self) -> bool {
+        self.online != Some(false) || self.heard
+    }
+
     /// The last error, until the device answers again.
     pub fn last_error(&self) -> Option<&str> {
         self.last_error.as_deref()
@@ -104,6 +116,7 @@ impl Availability {
     pub fn answered(&mut self) -> Vec<Transition> {
         let mut out = Vec::new();
         self.failures = 0;
+        self.heard = true;
         self.backoff.reset();
         if self.last_error.take().is_some() && self.online == Some(true) {
             out.push(Transition::Recovered);
@@ -127,6 +140,7 @@ impl Availability {
             self.last_error = Some(message.clone());
             transitions.push(Transition::Error(message));
         }
+        self.heard = answered;
         if answered {
             self.failures = 0;
             return Verdict {

@@ -58,6 +58,28 @@ fn an_answer_between_failures_starts_the_count_again() {
 }
 
 #[test]
+fn noise_is_retried_unless_the_device_is_offline_and_silent() {
+    let mut a = fresh();
+    assert!(a.worth_retrying(), "not yet seen: may be there");
+    a.answered();
+    assert!(a.worth_retrying(), "online");
+    for _ in 0..3 {
+        timeout(&mut a);
+    }
+    assert_eq!(a.online(), Some(false));
+    assert!(!a.worth_retrying(), "offline and silent: one try per probe");
+    a.failed(
+        "garbled answer (12 bytes, no valid frame)".into(),
+        true,
+        false,
+    );
+    assert_eq!(a.online(), Some(false), "a garbled answer is no poll");
+    assert!(a.worth_retrying(), "but it shows the device is on the line");
+    timeout(&mut a);
+    assert!(!a.worth_retrying(), "silent again");
+}
+
+#[test]
 fn an_exception_answer_is_no_step_towards_offline() {
     let mut a = fresh();
     a.answered();

@@ -119,8 +119,11 @@ impl At {
     }
 }
 
-/// Times a read of an online device is asked again after noise (timeout, garbled, mismatch).
-const NOISE_RETRIES: u32 = 2;
+/// Times a read is asked again after noise (timeout, garbled, mismatch), when the device's
+/// availability says it is worth it ([`Availability::worth_retrying`]).
+///
+/// [`Availability::worth_retrying`]: super::availability::Availability::worth_retrying
+pub(super) const NOISE_RETRIES: u32 = 2;
 
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
@@ -629,12 +632,14 @@ impl DeviceRt {
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
             let answer = match link.read(self.unit, b.start, b.len, timeout).await {
-                // A device that is online and lost one request or answer to noise is asked
-                // again: on a noisy line a corrupted request gets no answer at all, and three
-                // of those in a row must not make a healthy device offline. An offline device
+                // A device that lost one request or answer to noise is asked again: on a noisy
+                // line a corrupted request gets no answer at all, and three of those in a row
+                // must not make a healthy device offline. An offline device that stays silent
                 // is not asked twice (a dead one costs the others one timeout per probe).
                 Err(e)
-                    if e.is_noise() && self.online() == Some(true) && retries < NOISE_RETRIES =>
+                    if e.is_noise()
+                        && self.availability.worth_retrying()
+                        && retries < NOISE_RETRIES =>
                 {
                     retries += 1;
                     continue;

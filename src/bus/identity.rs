@@ -141,7 +141,20 @@ impl DeviceRt {
     ) -> Result<Result<Vec<u16>, ExceptionCode>, PollError> {
         let len = len as u16;
         let timeout = self.timeout_for(link, len);
-        Ok(link.read(self.unit, address, len, timeout).await?)
+        let mut tries = 0;
+        loop {
+            match link.read(self.unit, address, len, timeout).await {
+                // Lost to noise: asked again as a poll's read is (see `NOISE_RETRIES`).
+                Err(e)
+                    if e.is_noise()
+                        && self.availability.worth_retrying()
+                        && tries < super::device::NOISE_RETRIES =>
+                {
+                    tries += 1
+                }
+                other => return Ok(other?),
+            }
+        }
     }
 }
 

@@ -40,6 +40,10 @@ pub use crate::outbox::unsendable;
 /// Messages handed to rumqttc before their acknowledgement.
 const WINDOW: usize = 100;
 
+/// rumqttc's own in-flight limit: the outbox's window plus room for the messages that bypass it
+/// (command results, subscriptions), so rumqttc never has to hold one back.
+const INFLIGHT: u16 = WINDOW as u16 + 64;
+
 /// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
 /// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
@@ -163,6 +167,7 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
         port: config.port,
         keep_alive: config.keep_alive,
         max_incoming: MAX_PACKET,
+        inflight: INFLIGHT,
         will: (topics.gateway_status(), "offline"),
         login,
         transport,
@@ -523,6 +528,7 @@ mod tests {
             port: 1,
             keep_alive: Duration::from_secs(30),
             max_incoming: MAX_PACKET,
+            inflight: INFLIGHT,
             will: ("pg/t/status".into(), "offline"),
             login: None,
             transport: None,

@@ -39,6 +39,10 @@ pub struct Settings<'a> {
     pub keep_alive: std::time::Duration,
     /// The largest packet the gateway takes (announced to a v5 broker).
     pub max_incoming: u32,
+    /// The most QoS 1 messages unacknowledged at once. rumqttc's v5 client otherwise takes the
+    /// protocol's 65535 and builds its in-flight table at that size up front (~14 MB resident,
+    /// half the gateway's memory at 1000 devices); the outbox never has more than its window out.
+    pub inflight: u16,
     /// Last will: topic and payload (QoS 1, retained).
     pub will: (String, &'static str),
     pub login: Option<(String, String)>,
@@ -52,6 +56,7 @@ impl Options {
                 let mut o = v5::MqttOptions::new(s.client_id, s.host, s.port);
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(Some(s.max_incoming));
+                o.set_outgoing_inflight_upper_limit(s.inflight);
                 o.set_last_will(v5::mqttbytes::v5::LastWill::new(
                     s.will.0,
                     s.will.1,
@@ -71,6 +76,7 @@ impl Options {
                 let mut o = rumqttc::MqttOptions::new(s.client_id, s.host, s.port);
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(s.max_incoming as usize, V311_MAX_OUT as usize);
+                o.set_inflight(s.inflight);
                 o.set_last_will(rumqttc::LastWill::new(
                     s.will.0,
                     s.will.1,
@@ -322,5 +328,38 @@ fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
     match e {
         rumqttc::ConnectionError::RequestsDone => Failure::RequestsDone,
         other => Failure::Other(other.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(protocol: MqttProtocol) -> Settings<'static> {
+        Settings {
+            protocol,
+            client_id: "t",
+            host: "127.0.0.1",
+            port: 1,
+            keep_alive: std::time::Duration::from_secs(30),
+            max_incoming: 65536,
+            inflight: 164,
+            will: ("pg/t/status".into(), "offline"),
+            login: None,
+            transport: None,
+        }
+    }
+
+    /// Without the limit rumqttc's v5 client sizes its in-flight table for 65535 messages.
+    #[test]
+    fn rumqttc_is_told_how_many_messages_may_be_in_flight() {
+        match Options::new(settings(MqttProtocol::V5)) {
+            Options::V5(o) => assert_eq!(o.get_outgoing_inflight_upper_limit(), Some(164)),
+            Options::V311(_) => panic!("asked for v5"),
+        }
+        match Options::new(settings(MqttProtocol::V311)) {
+            Options::V311(o) => assert_eq!(o.inflight(), 164),
+            Options::V5(_) => panic!("asked for 3.1.1"),
+        }
     }
 }
