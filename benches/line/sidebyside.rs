@@ -67,12 +67,21 @@ fn allowed_cpus() -> String {
 struct Cpu {
     sched_ns: u64,
     stat_ns: u64,
+    /// Context switches (voluntary and not) of every thread: wake-ups, roughly.
+    switches: u64,
 }
 
 fn cpu_of(pid: u32) -> Cpu {
     let mut sched_ns = 0;
+    let mut switches = 0;
     if let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) {
         for t in tasks.flatten() {
+            let status = std::fs::read_to_string(t.path().join("status")).unwrap_or_default();
+            switches += status
+                .lines()
+                .filter(|l| l.contains("ctxt_switches:"))
+                .filter_map(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+                .sum::<u64>();
             let s = std::fs::read_to_string(t.path().join("schedstat")).unwrap_or_default();
             sched_ns += s
                 .split_whitespace()
@@ -82,7 +91,11 @@ fn cpu_of(pid: u32) -> Cpu {
         }
     }
     let stat_ns = super::cpu_of(&pid.to_string()).as_nanos() as u64;
-    Cpu { sched_ns, stat_ns }
+    Cpu {
+        sched_ns,
+        stat_ns,
+        switches,
+    }
 }
 
 /// FC03 answers given by the modules of `bus` so far.
@@ -110,6 +123,9 @@ impl Sample {
     fn stat_us_per_tx(&self) -> f64 {
         self.cpu.stat_ns as f64 / 1000.0 / self.tx.max(1) as f64
     }
+    fn switches_per_tx(&self) -> f64 {
+        self.cpu.switches as f64 / self.tx.max(1) as f64
+    }
 }
 
 /// Runs `child` for `warmup`, then measures it over `window`; stops it (SIGTERM) after.
@@ -133,6 +149,7 @@ async fn measure(
         cpu: Cpu {
             sched_ns: c1.sched_ns.saturating_sub(c0.sched_ns),
             stat_ns: c1.stat_ns.saturating_sub(c0.stat_ns),
+            switches: c1.switches.saturating_sub(c0.switches),
         },
         tx: r1 - r0,
     }
@@ -272,14 +289,16 @@ fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) 
         .collect();
     for (i, (g, m)) in rounds.iter().enumerate() {
         println!(
-            "  {what}, round {}: pulsegate {:.1} us/tx ({} tx; /proc/PID/stat {:.1}), mbpoll {:.1} us/tx ({} tx; stat {:.1}), ratio {:.3}",
+            "  {what}, round {}: pulsegate {:.1} us/tx ({} tx; /proc/PID/stat {:.1}; {:.1} switches/tx), mbpoll {:.1} us/tx ({} tx; stat {:.1}; {:.1} switches/tx), ratio {:.3}",
             i + 1,
             g.us_per_tx(),
             g.tx,
             g.stat_us_per_tx(),
+            g.switches_per_tx(),
             m.us_per_tx(),
             m.tx,
             m.stat_us_per_tx(),
+            m.switches_per_tx(),
             ratios[i]
         );
     }
@@ -389,34 +408,25 @@ pub async fn run(figures: &mut Vec<Figure>) {
     let warmup = Duration::from_secs(3);
     let short = Duration::from_secs(1);
     let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
+    // BENCH_SIDE=rtu (or tcp) measures one side only, when working on it.
+    let side = std::env::var("BENCH_SIDE").unwrap_or_default();
     for _ in 0..rounds {
-        let m = measure(
-            mbpoll(&tcp, TCP_UNITS, cpu),
-            &plant,
-            "hall",
-            short,
-            tcp_window,
-        )
-        .await;
-        for (i, config) in configs[..2].iter().enumerate() {
-            let g = measure(gateway(config, cpu), &plant, "hall", warmup, tcp_window).await;
-            results[i].push((g, m));
+        if side != "rtu" {
+            tcp_rounds(
+                &plant,
+                &dir,
+                &configs,
+                &tcp,
+                broker,
+                cpu,
+                tcp_window,
+                &mut results,
+            )
+            .await;
         }
-        // The gateway polling at the rate mbpoll managed: every transaction pays its own
-        // wake-ups, as mbpoll's do.
-        let rate = m.tx as f64 / tcp_window.as_secs_f64();
-        let poll_ms = (f64::from(TCP_UNITS) * YL67_READS_A_POLL / rate.max(1.0) * 1000.0) as u64;
-        let paced = gateway_config(
-            &dir,
-            "tcp-paced",
-            &tcp,
-            TCP_UNITS,
-            broker,
-            false,
-            &format!("{poll_ms}ms"),
-        );
-        let g = measure(gateway(&paced, cpu), &plant, "hall", warmup, tcp_window).await;
-        results[2].push((g, m));
+        if side == "tcp" {
+            continue;
+        }
         let m = measure(
             mbpoll(&line, RTU_UNITS, cpu),
             &plant,
@@ -454,9 +464,55 @@ pub async fn run(figures: &mut Vec<Figure>) {
         }
     }
     for (what, rounds) in SCENARIOS.iter().zip(&results) {
+        if rounds.is_empty() {
+            continue;
+        }
         summary(what, rounds, figures, 1.0);
     }
     drop(plant);
     drop(mosquitto);
     pin(std::process::id(), &before);
+}
+
+/// One round of the TCP comparisons (results 0..3).
+#[allow(clippy::too_many_arguments)]
+async fn tcp_rounds(
+    plant: &Plant,
+    dir: &Path,
+    configs: &[std::path::PathBuf],
+    tcp: &Endpoint,
+    broker: u16,
+    cpu: usize,
+    tcp_window: Duration,
+    results: &mut [Rounds],
+) {
+    let warmup = Duration::from_secs(3);
+    let short = Duration::from_secs(1);
+    let m = measure(
+        mbpoll(tcp, TCP_UNITS, cpu),
+        plant,
+        "hall",
+        short,
+        tcp_window,
+    )
+    .await;
+    for (i, config) in configs[..2].iter().enumerate() {
+        let g = measure(gateway(config, cpu), plant, "hall", warmup, tcp_window).await;
+        results[i].push((g, m));
+    }
+    // The gateway polling at the rate mbpoll managed: every transaction pays its own
+    // wake-ups, as mbpoll's do.
+    let rate = m.tx as f64 / tcp_window.as_secs_f64();
+    let poll_ms = (f64::from(TCP_UNITS) * YL67_READS_A_POLL / rate.max(1.0) * 1000.0) as u64;
+    let paced = gateway_config(
+        dir,
+        "tcp-paced",
+        tcp,
+        TCP_UNITS,
+        broker,
+        false,
+        &format!("{poll_ms}ms"),
+    );
+    let g = measure(gateway(&paced, cpu), plant, "hall", warmup, tcp_window).await;
+    results[2].push((g, m));
 }
