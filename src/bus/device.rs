@@ -649,7 +649,8 @@ impl DeviceRt {
             retries = 0;
             match answer {
                 Ok(words) => {
-                    self.record_latency(started.elapsed(), link, b.len);
+                    let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
+                    self.record_latency(latency, link, b.len);
                     out.push((b, words, At::now()));
                     i += 1;
                 }

@@ -107,6 +107,8 @@ pub struct Link {
     guard: Duration,
     /// Times the silent interval on the runtime's thread (RTU; made at the first wait).
     timer: Option<super::timer::FineTimer>,
+    /// The last transaction's time from its request to its answer's last byte.
+    answer_time: Option<Duration>,
 }
 
 impl Link {
@@ -127,6 +129,7 @@ impl Link {
             speed: None,
             guard,
             timer: None,
+            answer_time: None,
         }
     }
 
@@ -270,6 +273,12 @@ impl Link {
         }
     }
 
+    /// The last transaction's latency: from its request to the last byte of its answer (read
+    /// a little later, see `FlushingPort`).
+    pub fn answer_time(&self) -> Option<Duration> {
+        self.answer_time
+    }
+
     async fn call_once(
         &mut self,
         unit: u8,
@@ -290,19 +299,24 @@ impl Link {
         let bytes_before = self.bytes_in.load(Ordering::Relaxed);
         // The timeout on the fine timer too: a runtime timer registered per transaction wakes
         // the runtime's driver once more each time (to take the new, earlier deadline).
+        // The port reads an answer's end only after the silent interval that follows it
+        // (see `FlushingPort`): an answer complete on the wire just in time is not late.
+        let after = self.timing.map_or(Duration::ZERO, |t| t.silent_interval());
         let result = tokio::select! {
             biased;
             answer = ctx.call(req) => Ok(answer),
-            () = deadline(self.timer.as_ref(), started + timeout) => Err(()),
+            () = deadline(self.timer.as_ref(), started + timeout + after) => Err(()),
         };
         let now = Instant::now();
-        self.busy += now - started;
         let last_byte = self
             .last_byte
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .take();
-        self.last_io = Some(last_byte.unwrap_or(now).min(now));
+        let end = last_byte.unwrap_or(now).min(now);
+        self.busy += end - started;
+        self.answer_time = Some(end - started);
+        self.last_io = Some(end);
         match result {
             Err(_elapsed) => {
                 // A late answer may still arrive: rebuild so it cannot be read as the next one.
@@ -393,6 +407,7 @@ impl Link {
                     port,
                     self.bytes_in.clone(),
                     self.last_byte.clone(),
+                    self.guard,
                 )));
             }
             LinkConfig::Tcp { host, port } => {
@@ -512,6 +527,12 @@ struct FlushingPort {
     expected: Option<usize>,
     bytes_in: Arc<AtomicU64>,
     last_byte: Arc<Mutex<Option<Instant>>>,
+    /// Extra quiet time after the silent interval (the bus's `guard`).
+    guard: Duration,
+    /// When the answer's last byte leaves the wire, as its first bytes tell: they come at the
+    /// line's rate once started (a gap of 1.5 characters ends an RTU frame), so the end is at
+    /// most the rest's line time after the first bytes were read.
+    wire_end: Option<Instant>,
 }
 
 impl FlushingPort {
@@ -519,6 +540,7 @@ impl FlushingPort {
         port: SharedPort,
         bytes_in: Arc<AtomicU64>,
         last_byte: Arc<Mutex<Option<Instant>>>,
+        guard: Duration,
     ) -> FlushingPort {
         FlushingPort {
             port,
@@ -528,7 +550,19 @@ impl FlushingPort {
             expected: None,
             bytes_in,
             last_byte,
+            guard,
+            wire_end: None,
         }
+    }
+
+    /// Whether the answer's bytes are all in (as far as its header tells).
+    fn complete(&self) -> bool {
+        let total = if self.got >= self.head.len() {
+            expected_len(&self.head)
+        } else {
+            self.expected
+        };
+        total.is_some_and(|t| self.got >= t)
     }
 
     /// Notes `bytes` of the answer; while more are to come, the port stays quiet for the time
@@ -548,11 +582,18 @@ impl FlushingPort {
         let Some(rest) = total.map(|t| t.saturating_sub(self.got)).filter(|r| *r > 0) else {
             return Ok(()); // complete, or of a length nobody can tell: watched
         };
-        self.port.with(|s| {
-            // A quarter character of slack for the adapter's delivery.
-            let t = Instant::now() + s.line_time(rest) + s.line_time(1) / 4;
-            s.quiet_until(t)
-        })
+        let guard = self.guard;
+        let (end, result) = self.port.with(|s| {
+            let end = Instant::now() + s.line_time(rest);
+            // Read the rest once the silent interval after it is over too: the next request
+            // may then go out at once, in the same wake-up (rather than one wake-up for the
+            // bytes and another for the silence). A quarter character of slack for the
+            // adapter's delivery.
+            let t = end + s.timing(guard).silent_interval() + s.line_time(1) / 4;
+            (end, s.quiet_until(t))
+        });
+        self.wire_end = Some(end);
+        result
     }
 }
 
@@ -569,8 +610,16 @@ impl AsyncRead for FlushingPort {
         let n = buf.filled().len() - before;
         if n > 0 {
             this.bytes_in.fetch_add(n as u64, Ordering::Relaxed);
-            *this.last_byte.lock().unwrap_or_else(|e| e.into_inner()) = Some(Instant::now());
+            let now = Instant::now();
+            let foretold = this.wire_end.take();
             this.answer_bytes(&buf.filled()[before..])?;
+            // The silent interval counts from the last byte on the wire: when the first bytes
+            // foretold it, from then (the bytes were read later, after the quiet wait).
+            let last = match foretold {
+                Some(end) if this.complete() => end.min(now),
+                _ => now,
+            };
+            *this.last_byte.lock().unwrap_or_else(|e| e.into_inner()) = Some(last);
         }
         poll
     }
@@ -585,6 +634,7 @@ impl AsyncWrite for FlushingPort {
         let this = self.get_mut();
         if std::mem::take(&mut this.at_request_start) {
             this.got = 0;
+            this.wire_end = None;
             this.expected = answer_len_for(data);
             this.port.with(|s| {
                 s.clear_input().map_err(io::Error::other)?;
@@ -628,5 +678,86 @@ mod speed_tests {
         assert!(link.read(1, 210, 1, short).await.is_err());
         assert_eq!(slave.baud_rate().unwrap(), 9600);
         assert_eq!(link.timing_for(5).unwrap().baud, 19200);
+    }
+}
+
+#[cfg(test)]
+mod silence_tests {
+    use super::*;
+    use serialport::SerialPort;
+    use std::io::{Read, Write};
+
+    fn crc16(frame: &[u8]) -> [u8; 2] {
+        let mut crc: u16 = 0xFFFF;
+        for b in frame {
+            crc ^= u16::from(*b);
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xA001
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        crc.to_le_bytes()
+    }
+
+    /// A module on a pty: reads one 8-byte request, then sends a 21-byte answer (8 registers)
+    /// one character a millisecond, as a UART hands them over at 9600 baud.
+    fn trickling_module(
+        mut master: serialport::TTYPort,
+    ) -> std::thread::JoinHandle<serialport::TTYPort> {
+        std::thread::spawn(move || {
+            let mut request = [0u8; 8];
+            master
+                .set_timeout(std::time::Duration::from_secs(2))
+                .unwrap();
+            master.read_exact(&mut request).unwrap();
+            let mut answer = vec![request[0], 0x03, 16];
+            answer.extend((1..=16u8).map(|b| b * 3));
+            let crc = crc16(&answer);
+            answer.extend(crc);
+            for b in answer {
+                std::thread::sleep(std::time::Duration::from_millis(1));
+                master.write_all(&[b]).unwrap();
+            }
+            master
+        })
+    }
+
+    /// The answer's end is read only after the silent interval that must follow it: when the
+    /// read returns, the next request may go at once (one wake-up for both, not two), and the
+    /// latency recorded is the time to the answer's last byte, not to the read.
+    #[tokio::test]
+    async fn a_trickled_answer_is_read_after_its_silent_interval_and_the_next_request_need_not_wait()
+     {
+        let (master, slave) = serialport::TTYPort::pair().unwrap();
+        let path = PathBuf::from(slave.name().unwrap());
+        let module = trickling_module(master);
+        let config = LinkConfig::Rtu {
+            port: path,
+            baud: 9600,
+            parity: Parity::None,
+            stop_bits: 1,
+        };
+        let mut link = Link::new(config, Duration::ZERO);
+        let started = Instant::now();
+        let words = link
+            .read(1, 16, 8, Duration::from_millis(500))
+            .await
+            .expect("answered")
+            .expect("no exception");
+        let read_at = Instant::now();
+        let _master = module.join().unwrap();
+        assert_eq!(words[0], u16::from_be_bytes([3, 6]));
+        let silent = link.timing().unwrap().silent_interval();
+        let last = link.last_io.expect("a transaction happened");
+        assert!(
+            last + silent <= read_at,
+            "the silent interval after the answer is over when it is read ({:?} short)",
+            (last + silent) - read_at
+        );
+        let latency = link.answer_time().unwrap();
+        assert!(latency + silent <= read_at - started, "{latency:?}");
     }
 }

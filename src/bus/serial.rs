@@ -11,7 +11,9 @@
 //!   length takes at the baud rate, and read at once on a timer. (`VMIN` alone is not enough:
 //!   the kernel still wakes an epoll waiter at every byte to ask the line discipline again.)
 //!   If the bytes are not all there by then, the port is watched again: nothing is lost, the
-//!   answer costs a wake-up more.
+//!   answer costs a wake-up more. The quiet wait also covers the silent interval that must
+//!   follow the answer (see `link::FlushingPort`), so the next request goes out in the same
+//!   wake-up that reads the answer's end.
 
 use std::io;
 use std::os::fd::AsRawFd;
@@ -105,6 +107,15 @@ impl RtuPort {
     }
 
     /// Time on the wire of `chars` characters.
+    /// The line's timing at the rate the port is set to now (a unit may have its own).
+    pub fn timing(&self, guard: Duration) -> crate::plan::LineTiming {
+        crate::plan::LineTiming {
+            baud: self.baud,
+            bits_per_char: self.bits_per_char,
+            guard,
+        }
+    }
+
     pub fn line_time(&self, chars: usize) -> Duration {
         Duration::from_nanos(
             chars as u64 * u64::from(self.bits_per_char) * 1_000_000_000 / u64::from(self.baud),
