@@ -27,12 +27,12 @@ use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver};
 use tokio_util::sync::CancellationToken;
 
-use super::format::{Format, render};
+use super::format::{Format, Stage};
 use super::poller::{Polled, Poller, Routes};
 use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
 use super::spool::Spool;
 use super::topics::Topics;
-use crate::config::Mqtt;
+use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
 use crate::health::Heart;
 use crate::outbox::{Message, Outbox, Step};
@@ -183,14 +183,17 @@ pub struct Task {
     pub health: Arc<crate::health::Health>,
     pub boot: crate::boot::Boot,
     pub metrics: crate::metrics::Metrics,
+    /// The output stage's formats ([`super::format::chosen`]).
+    pub formats: Vec<Box<dyn Format>>,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
-/// the gateway offline and disconnects.
+/// the gateway offline and disconnects. Reloaded configs go to the formats.
 pub async fn run(
-    task: Task,
+    mut task: Task,
     mut output: UnboundedReceiver<Output>,
     incoming: Sender<Incoming>,
+    reloads: UnboundedReceiver<Config>,
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&task.config.topic_root);
@@ -202,8 +205,11 @@ pub async fn run(
         return;
     };
     let (client, eventloop) = options.connect(WINDOW + 64);
+    let stage = Stage::new(std::mem::take(&mut task.formats));
+    let mut to_task = vec![topics.gateway_marker()];
+    to_task.extend(stage.subscriptions());
     let routes = Routes {
-        to_task: vec![topics.gateway_marker()],
+        to_task,
         router: incoming,
     };
     let link = Connection {
@@ -214,7 +220,8 @@ pub async fn run(
         boot: task.boot.clone(),
     };
     let mut publisher = Publisher {
-        format: super::format::build(&task.config),
+        stage,
+        reloads,
         stall_after: task.config.keep_alive.max(Duration::from_secs(10)),
         task: &task,
         shell: Shell::new(spool, client, topics),
@@ -223,6 +230,7 @@ pub async fn run(
         poller: Poller::start(eventloop, Duration::ZERO, routes.clone()),
         routes,
     };
+    publisher.start();
     publisher.serve(&mut output).await;
     let _ = shutdown; // The buses end the loop by closing `output` once they have finished.
     publisher.finish().await;
@@ -277,7 +285,8 @@ async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
 /// health beat every second (and the stall check), the spool flushed every `flush_every`.
 struct Publisher<'t> {
     task: &'t Task,
-    format: Box<dyn Format>,
+    stage: Stage,
+    reloads: UnboundedReceiver<Config>,
     shell: Shell,
     link: Connection,
     watch: Watch,
@@ -289,6 +298,14 @@ struct Publisher<'t> {
 }
 
 impl Publisher<'_> {
+    /// The formats' subscriptions (renewed at every connection) and what they publish first.
+    fn start(&mut self) {
+        self.shell.extra_filters = self.stage.subscriptions();
+        for m in self.stage.start() {
+            self.shell.enqueue(m);
+        }
+    }
+
     /// Until the bus output closes.
     async fn serve(&mut self, output: &mut UnboundedReceiver<Output>) {
         let mut flush = tokio::time::interval(self.task.flush_every);
@@ -301,6 +318,11 @@ impl Publisher<'_> {
                     None => return,
                 },
                 Some(polled) = self.poller.events.recv() => self.polled(polled),
+                Some(config) = self.reloads.recv() => {
+                    for m in self.stage.reload(&config) {
+                        self.shell.enqueue(m);
+                    }
+                }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
             }
@@ -324,7 +346,7 @@ impl Publisher<'_> {
             Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
             _ => {}
         }
-        for m in render(&*self.format, &out) {
+        for m in self.stage.render(&out) {
             self.shell.enqueue(m);
         }
     }
@@ -349,10 +371,23 @@ impl Publisher<'_> {
                 s.outbox.acked(pkid, Instant::now());
                 s.pump();
             }
-            Ok(Event::Received(p)) => self.watch.marker(&p.payload, &self.link),
+            Ok(Event::Received(p)) => self.received(&p.topic, &p.payload),
             // Our DISCONNECT went out, or the client was dropped: the gateway is stopping.
             Ok(Event::Disconnected | Event::Other) | Err(Failure::RequestsDone) => {}
             Err(e) => self.reconnect(&e),
+        }
+    }
+
+    /// A message on the boot marker or a format's subscription (the poller sends the rest to
+    /// the router).
+    fn received(&mut self, topic: &[u8], payload: &[u8]) {
+        let topic = String::from_utf8_lossy(topic);
+        if topic == self.shell.topics.gateway_marker() {
+            self.watch.marker(payload, &self.link);
+            return;
+        }
+        for m in self.stage.received(&topic, payload) {
+            self.shell.enqueue(m);
         }
     }
 
@@ -580,6 +615,7 @@ mod tests {
             health,
             boot: crate::boot::Boot::default(),
             metrics: crate::metrics::Metrics::disabled(),
+            formats: Vec::new(),
             config: config.mqtt,
         }
     }
@@ -598,7 +634,8 @@ mod tests {
         let (router, _) = tokio::sync::mpsc::channel(1);
         let p = Publisher {
             task,
-            format: super::super::format::build(&task.config),
+            stage: Stage::new(vec![super::super::format::build(&task.config)]),
+            reloads: tokio::sync::mpsc::unbounded_channel().1,
             shell,
             link,
             watch: Watch::new(),
