@@ -2,10 +2,11 @@
 //! moves what it reports to the MQTT task ([`super::mqtt`]) over a bounded channel. It owns
 //! nothing of the shell (outbox, client): the MQTT task alone does, so nothing is shared.
 //!
-//! Why a task of its own: rumqttc's `EventLoop::poll` is not cancel-safe (a write cut off by a
-//! `select!` loses a packet rumqttc already counted in flight), so it is never raced against the
-//! bus output or the timers; and a publish must never be awaited where the event loop is polled
-//! (that can deadlock rumqttc). Commands go straight to the router, waiting when it is behind
+//! Why a task of its own: rumqttc does not promise that `EventLoop::poll` is cancel-safe, and it
+//! is not (cut off while feeding a packet to the socket, it drops a packet its state already
+//! counts in flight), so it is never raced against the bus output or the timers, only dropped
+//! with the connection it drives; and a publish must never be awaited where the event loop is
+//! polled (that can deadlock rumqttc). Commands go straight to the router, waiting when it is behind
 //! (the connection then stops reading and TCP pushes back on the sender).
 
 use std::time::Duration;
