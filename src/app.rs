@@ -49,7 +49,7 @@ pub async fn run_with_reloads(
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
-    let (out_rx, incoming_rx, discovery) = discovery_stage(&config, out_rx, incoming_rx);
+    let (mqtt_reloads, mqtt_reloads_rx) = unbounded_channel();
     let scans = router.scans();
     *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
@@ -73,11 +73,13 @@ pub async fn run_with_reloads(
         health: mqtt_health,
         boot,
         metrics: mqtt_metrics,
+        formats: crate::publish::format::chosen(&config),
     };
     let mqtt = tokio::spawn(crate::publish::mqtt::run(
         task,
         out_rx,
         incoming_tx,
+        mqtt_reloads_rx,
         mqtt_shutdown,
     ));
 
@@ -90,9 +92,8 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
-                if let Some(d) = &discovery {
-                    let _ = d.send(new.clone());
-                }
+                // The output stage (Home Assistant discovery describes the config).
+                let _ = mqtt_reloads.send(new.clone());
                 apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
                 *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
@@ -139,35 +140,6 @@ async fn start_metrics(
             None
         }
     }
-}
-
-/// With `[homeassistant] discovery`, puts the discovery stage between the buses and MQTT (and
-/// between MQTT and the command router); returns what MQTT and the router read from then, and
-/// where reloaded configs go.
-fn discovery_stage(
-    config: &Config,
-    out_rx: UnboundedReceiver<Output>,
-    incoming_rx: tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
-) -> (
-    UnboundedReceiver<Output>,
-    tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
-    Option<UnboundedSender<Config>>,
-) {
-    if !config.homeassistant.discovery {
-        return (out_rx, incoming_rx, None);
-    }
-    let (to_mqtt, mqtt_rx) = unbounded_channel();
-    let (to_router, router_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
-    let (reload_tx, reload_rx) = unbounded_channel();
-    tokio::spawn(crate::publish::discovery::run(
-        config.clone(),
-        out_rx,
-        to_mqtt,
-        incoming_rx,
-        to_router,
-        reload_rx,
-    ));
-    (mqtt_rx, router_rx, Some(reload_tx))
 }
 
 /// Runs the gateway until `shutdown` (no reloads).

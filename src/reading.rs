@@ -36,7 +36,8 @@ pub enum Output {
         device: Arc<str>,
         readings: Vec<Reading>,
     },
-    /// A ready message (Home Assistant discovery).
+    /// A ready message, published as it is (QoS 1). Nothing in the gateway sends one today:
+    /// Home Assistant discovery is a format ([`crate::publish::discovery`]).
     Message {
         topic: String,
         payload: String,

@@ -1,17 +1,18 @@
-//! Home Assistant discovery as a state machine: what the gateway has announced, what the broker
-//! holds, and what to publish when readings, Home Assistant or a reload say so. Pure: events
-//! in, retained messages out; [`run`] is the thin task around it.
+//! Home Assistant discovery, a [`Format`] chosen by `[homeassistant] discovery`: a state machine
+//! of what the gateway has announced, what the broker holds, and what to publish when readings,
+//! Home Assistant or a reload say so. Pure: events in, retained config messages out. It runs in
+//! the output stage before the payload format, so an entity is announced before its first
+//! reading; it subscribes to Home Assistant's status and this gateway's configs on the broker.
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
 
-use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender};
-
+use super::format::Format;
 use super::homeassistant::{
     Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
     module_topics, possible_topics,
 };
 use crate::config::Config;
-use crate::dispatch::Incoming;
+use crate::outbox::Message;
 use crate::profile::ChannelKind;
 use crate::reading::{Output, Reading};
 
@@ -23,13 +24,14 @@ pub struct Announce {
 }
 
 impl Announce {
-    fn output(self) -> Output {
-        Output::Message {
-            topic: self.topic,
-            payload: self.payload,
-            retain: true,
-        }
+    /// Retained, at least once.
+    fn message(self) -> Message {
+        Message::new(self.topic, self.payload, 1, true)
     }
+}
+
+fn messages(list: impl IntoIterator<Item = Announce>) -> Vec<Message> {
+    list.into_iter().map(Announce::message).collect()
 }
 
 /// A channel by its place on the wire and what it counts: bus, unit, channel name, kind.
@@ -253,54 +255,44 @@ impl Discovery {
     }
 }
 
-/// Sits between the buses and MQTT: passes every output on, announcing entities before the
-/// first reading of each channel; takes Home Assistant's status and our retained configs out of
-/// the incoming messages and passes the rest (commands) to the router. Ends when the buses
-/// close their output.
-pub async fn run(
-    config: Config,
-    mut from_buses: UnboundedReceiver<Output>,
-    to_mqtt: UnboundedSender<Output>,
-    mut incoming: tokio::sync::mpsc::Receiver<Incoming>,
-    to_router: tokio::sync::mpsc::Sender<Incoming>,
-    mut reloads: UnboundedReceiver<Config>,
-) {
-    let mut d = Discovery::new(&config);
-    let send = |list: Vec<Announce>| {
-        for a in list {
-            let _ = to_mqtt.send(a.output());
-        }
-    };
-    let _ = to_mqtt.send(Output::Subscribe(d.site().ha_status()));
-    let _ = to_mqtt.send(Output::Subscribe(d.site().config_filter()));
-    send(d.start());
-    let config_prefix = format!("{}/", d.site().prefix);
-    loop {
-        tokio::select! {
-            out = from_buses.recv() => {
-                let Some(out) = out else { break };
-                match &out {
-                    Output::Reading(r) => send(d.reading(r)),
-                    Output::DeviceReadings { readings, .. } => {
-                        for r in readings {
-                            send(d.reading(r));
-                        }
-                    }
-                    _ => {}
+impl Format for Discovery {
+    /// The first reading of each channel announces its entities (none for other events).
+    fn messages(&mut self, event: &Output) -> Vec<Message> {
+        match event {
+            Output::Reading(r) => messages(self.reading(r)),
+            Output::DeviceReadings { readings, .. } => {
+                let mut out = Vec::new();
+                for r in readings {
+                    out.extend(messages(self.reading(r)));
                 }
-                let _ = to_mqtt.send(out);
+                out
             }
-            Some(msg) = incoming.recv() => {
-                if msg.topic == d.site().ha_status() {
-                    send(d.ha_status(&msg.payload));
-                } else if msg.topic.starts_with(&config_prefix) && msg.topic.ends_with("/config") {
-                    send(d.config_seen(&msg.topic, &msg.payload).into_iter().collect());
-                } else {
-                    // Bounded: when the router is behind, MQTT waits (TCP pushes back).
-                    let _ = to_router.send(msg).await;
-                }
-            }
-            Some(new) = reloads.recv() => send(d.reload(&new)),
+            _ => Vec::new(),
         }
+    }
+
+    /// Home Assistant's status (it says `online` after it starts) and this gateway's configs.
+    fn subscriptions(&self) -> Vec<String> {
+        vec![self.site.ha_status(), self.site.config_filter()]
+    }
+
+    /// The gateway device and each module's device-wide entities.
+    fn start(&mut self) -> Vec<Message> {
+        messages(Discovery::start(self))
+    }
+
+    fn received(&mut self, topic: &str, payload: &[u8]) -> Vec<Message> {
+        if topic == self.site.ha_status() {
+            messages(self.ha_status(payload))
+        } else if topic.starts_with(&format!("{}/", self.site.prefix)) && topic.ends_with("/config")
+        {
+            messages(self.config_seen(topic, payload))
+        } else {
+            Vec::new()
+        }
+    }
+
+    fn reload(&mut self, config: &Config) -> Vec<Message> {
+        messages(Discovery::reload(self, config))
     }
 }

@@ -7,10 +7,11 @@ use std::time::SystemTime;
 use serde_json::Value;
 
 use super::discovery::Discovery;
+use super::format::{Stage, chosen};
 use crate::config::Config;
 use crate::counter::Update;
 use crate::profile::ChannelKind;
-use crate::reading::Reading;
+use crate::reading::{Output, Reading};
 
 const CONFIG: &str = r#"
 [gateway]
@@ -317,4 +318,79 @@ fn a_disabled_device_or_channel_has_no_entities_and_its_configs_are_cleared() {
     assert!(d.config_seen(kept, b"{}").is_none());
     assert!(d.reading(&reading("press", "enc0")).is_empty());
     assert!(d.reading(&reading("meter", "a0")).is_empty());
+}
+
+/// Discovery is a format: chosen by `[homeassistant] discovery`, it runs in the output stage
+/// before the payload format.
+#[test]
+fn discovery_is_a_format_chosen_by_its_config_key_that_announces_before_the_first_reading() {
+    let mut stage = Stage::new(chosen(&config(CONFIG)));
+    assert_eq!(
+        stage.subscriptions(),
+        ["homeassistant/status", "homeassistant/+/edge/+/config"]
+    );
+    let start = stage.start();
+    let gateway = "homeassistant/sensor/edge/gateway_status/config";
+    assert!(
+        start
+            .iter()
+            .any(|m| m.topic == gateway && m.retain && m.qos == 1)
+    );
+    let out = stage.render(&Output::Reading(reading("meter", "a0")));
+    let (last, configs) = out.split_last().unwrap();
+    assert_eq!(last.topic, "pulsegate/edge/meter/a0", "the reading last");
+    assert!(
+        configs
+            .iter()
+            .any(|m| m.topic == "homeassistant/sensor/edge/line1_u3_a0_total/config")
+    );
+    assert!(
+        configs
+            .iter()
+            .all(|m| m.topic.starts_with("homeassistant/") && m.retain)
+    );
+    let again = stage.render(&Output::Reading(reading("meter", "a0")));
+    assert_eq!(again.len(), 1, "announced once");
+    // Without the key the payload format runs alone.
+    let off = CONFIG.replace("discovery = true", "discovery = false");
+    let mut plain = Stage::new(chosen(&config(&off)));
+    assert!(plain.subscriptions().is_empty() && plain.start().is_empty());
+    assert_eq!(
+        plain.render(&Output::Reading(reading("meter", "a0"))).len(),
+        1
+    );
+}
+
+#[test]
+fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
+    let mut stage = Stage::new(chosen(&config(CONFIG)));
+    let mut announced = stage.start().len();
+    announced += stage.render(&Output::Reading(reading("press", "a0"))).len() - 1;
+    let again = stage.received("homeassistant/status", b"online");
+    assert_eq!(
+        again.len(),
+        announced,
+        "Home Assistant back: everything again"
+    );
+    assert!(
+        stage
+            .received("homeassistant/status", b"offline")
+            .is_empty()
+    );
+    assert!(stage.received("pulsegate/edge/meter/cmd", b"{}").is_empty());
+    let stale = stage.received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}");
+    assert_eq!(stale.len(), 1);
+    assert!(stale[0].payload.is_empty() && stale[0].retain, "cleared");
+    let without_press = CONFIG.replace(
+        "[buses.line1.devices.press]\nunit = 4\nmodel = \"yl67\"\ncommands = false\n",
+        "",
+    );
+    assert_ne!(without_press, CONFIG);
+    let reloaded = stage.reload(&config(&without_press));
+    let press_total = "homeassistant/sensor/edge/line1_u4_a0_total/config";
+    assert!(
+        reloaded
+            .iter()
+            .any(|m| m.topic == press_total && m.payload.is_empty())
+    );
 }

@@ -43,8 +43,8 @@ fn config() -> Mqtt {
 
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
-    let json = build(&config());
-    let m = render(&*json, &Output::Reading(reading(42)));
+    let mut json = build(&config());
+    let m = render(&mut *json, &Output::Reading(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
     assert_eq!((m[0].qos, m[0].retain, m[0].transient), (0, true, false));
@@ -56,12 +56,12 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
 
 #[test]
 fn json_status_is_retained_and_bus_health_is_transient() {
-    let json = build(&config());
+    let mut json = build(&config());
     let status = Output::DeviceStatus {
         device: "press1".into(),
         online: false,
     };
-    let m = render(&*json, &status);
+    let m = render(&mut *json, &status);
     assert_eq!(
         (m[0].topic.as_str(), &m[0].payload[..]),
         ("pg/e1/press1/status", &b"offline"[..])
@@ -83,7 +83,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         bus: "line1".into(),
         stats: Box::new(stats),
     };
-    let m = render(&*json, &stats);
+    let m = render(&mut *json, &stats);
     assert_eq!(m[0].topic, "pg/e1/bus/line1/stats");
     assert!(m[0].transient && m[0].qos == 0);
     let v: serde_json::Value = serde_json::from_slice(&m[0].payload).unwrap();
@@ -95,13 +95,13 @@ fn json_status_is_retained_and_bus_health_is_transient() {
 
 #[test]
 fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
-    let json = build(&config());
+    let mut json = build(&config());
     let result = Output::CommandResult {
         topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
         correlation: Some(bytes::Bytes::from_static(b"c-1")),
         payload: serde_json::json!({"ok": true}),
     };
-    let m = render(&*json, &result);
+    let m = render(&mut *json, &result);
     assert_eq!(m.len(), 2);
     assert_eq!(m[0].properties.correlation, None);
     assert_eq!(m[1].properties.correlation.as_deref(), Some(&b"c-1"[..]));
@@ -110,17 +110,17 @@ fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
 
 #[test]
 fn ready_messages_pass_through_and_subscriptions_are_not_messages() {
-    let json = build(&config());
+    let mut json = build(&config());
     let ha = Output::Message {
         topic: "homeassistant/sensor/x/config".into(),
         payload: "{}".into(),
         retain: true,
     };
     assert_eq!(
-        render(&*json, &ha)[0].topic,
+        render(&mut *json, &ha)[0].topic,
         "homeassistant/sensor/x/config"
     );
-    assert!(render(&*json, &Output::Subscribe("a/#".into())).is_empty());
+    assert!(render(&mut *json, &Output::Subscribe("a/#".into())).is_empty());
 }
 
 /// A toy second format: each reading's total as 8 big-endian bytes on `<reading topic>/total`.
@@ -130,7 +130,7 @@ struct PackedTotals {
 }
 
 impl Format for PackedTotals {
-    fn messages(&self, event: &Output) -> Vec<Message> {
+    fn messages(&mut self, event: &Output) -> Vec<Message> {
         match event {
             Output::Reading(r) => {
                 let topic = format!("{}/total", self.topics.reading(&r.device, &r.channel));
@@ -144,13 +144,13 @@ impl Format for PackedTotals {
 
 #[test]
 fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchanged() {
-    let packed = PackedTotals {
+    let mut packed = PackedTotals {
         topics: Topics::new("pg/e1"),
     };
     let now = std::time::Instant::now();
     let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
     outbox.connected(None, now);
-    for m in render(&packed, &Output::Reading(reading(-2))) {
+    for m in render(&mut packed, &Output::Reading(reading(-2))) {
         outbox.enqueue(m).unwrap();
     }
     assert_eq!(outbox.store().len(), 1);
@@ -175,9 +175,9 @@ fn every_format_name_the_config_takes_is_built() {
     for name in NAMES {
         let mut c = config();
         c.format = (*name).to_string();
-        let built = build(&c);
+        let mut built = build(&c);
         assert!(
-            !render(&*built, &Output::Reading(reading(1))).is_empty(),
+            !render(&mut *built, &Output::Reading(reading(1))).is_empty(),
             "{name}"
         );
     }

@@ -29,7 +29,7 @@ impl Json {
 }
 
 impl Format for Json {
-    fn messages(&self, event: &Output) -> Vec<Message> {
+    fn messages(&mut self, event: &Output) -> Vec<Message> {
         let t = &self.topics;
         match event {
             Output::Reading(r) => {

@@ -8,6 +8,7 @@ pub mod json;
 pub mod mqtt;
 pub mod payload;
 pub mod policy;
+pub mod poller;
 pub mod session;
 pub mod spool;
 pub mod tls;

@@ -13,23 +13,26 @@
 //! nothing of rumqttc's state survives it. "Connected" means publishing: when messages in flight
 //! get no acknowledgement for a while, the connection is counted down and rebuilt.
 //!
-//! Two tasks: the event loop only drives the connection (it never awaits a publish: that can
-//! deadlock rumqttc); the publisher turns bus output into messages for the outbox. The buses hand
-//! output over an unbounded channel: they never wait on MQTT.
+//! One task owns the shell (outbox and client) and `select!`s over the bus output, the
+//! connection's reports and its timers; the connection itself is polled by a task of its own
+//! ([`super::poller`]) that only moves rumqttc's events over a bounded channel, so nothing is
+//! shared and nothing is locked. The buses hand output over an unbounded channel: they never
+//! wait on MQTT.
 
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver};
 use tokio_util::sync::CancellationToken;
 
-use super::format::{Format, render};
-use super::session::{Client, Event, EventLoop, Failure, Options, Received, Settings};
+use super::format::{Format, Stage};
+use super::poller::{Polled, Poller, Routes};
+use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
 use super::spool::Spool;
 use super::topics::Topics;
-use crate::config::Mqtt;
+use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
 use crate::health::Heart;
 use crate::outbox::{Message, Outbox, Step};
@@ -49,7 +52,7 @@ const INFLIGHT: u16 = WINDOW as u16 + 64;
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
 pub const MAX_PACKET: u32 = 64 * 1024;
 
-/// The outbox and the client it feeds, shared by the publisher and the event loop.
+/// The outbox and the client it feeds, owned by the MQTT task.
 struct Shell {
     outbox: Outbox<Spool>,
     client: Client,
@@ -143,10 +146,6 @@ impl Shell {
     }
 }
 
-fn lock(shell: &Mutex<Shell>) -> MutexGuard<'_, Shell> {
-    shell.lock().unwrap_or_else(|e| e.into_inner())
-}
-
 /// The client options of this gateway: a fresh client is built from them after every failure.
 /// TLS that cannot be set up is an error: the gateway never falls back to plaintext.
 pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::tls::TlsError> {
@@ -184,14 +183,17 @@ pub struct Task {
     pub health: Arc<crate::health::Health>,
     pub boot: crate::boot::Boot,
     pub metrics: crate::metrics::Metrics,
+    /// The output stage's formats ([`super::format::chosen`]).
+    pub formats: Vec<Box<dyn Format>>,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
-/// the gateway offline and disconnects.
+/// the gateway offline and disconnects. Reloaded configs go to the formats.
 pub async fn run(
-    task: Task,
+    mut task: Task,
     mut output: UnboundedReceiver<Output>,
     incoming: Sender<Incoming>,
+    reloads: UnboundedReceiver<Config>,
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&task.config.topic_root);
@@ -203,9 +205,13 @@ pub async fn run(
         return;
     };
     let (client, eventloop) = options.connect(WINDOW + 64);
-    let shell = Arc::new(Mutex::new(Shell::new(spool, client, topics)));
-    let loop_stop = CancellationToken::new();
-    let rebuild = Arc::new(tokio::sync::Notify::new());
+    let stage = Stage::new(std::mem::take(&mut task.formats));
+    let mut to_task = vec![topics.gateway_marker()];
+    to_task.extend(stage.subscriptions());
+    let routes = Routes {
+        to_task,
+        router: incoming,
+    };
     let link = Connection {
         options,
         broker: format!("{}:{}", task.config.host, task.config.port),
@@ -213,24 +219,21 @@ pub async fn run(
         commands: task.config.commands,
         boot: task.boot.clone(),
     };
-    let events = tokio::spawn(drive(
-        eventloop,
+    let mut publisher = Publisher {
+        stage,
+        reloads,
+        stall_after: task.config.keep_alive.max(Duration::from_secs(10)),
+        task: &task,
+        shell: Shell::new(spool, client, topics),
         link,
-        shell.clone(),
-        incoming,
-        loop_stop.clone(),
-        rebuild.clone(),
-    ));
-    let format = super::format::build(&task.config);
-    publish(&task, &*format, &shell, &rebuild, &mut output).await;
+        watch: Watch::new(),
+        poller: Poller::start(eventloop, Duration::ZERO, routes.clone()),
+        routes,
+    };
+    publisher.start();
+    publisher.serve(&mut output).await;
     let _ = shutdown; // The buses end the loop by closing `output` once they have finished.
-    finish(&shell).await;
-    if tokio::time::timeout(Duration::from_secs(1), events)
-        .await
-        .is_err()
-    {
-        loop_stop.cancel();
-    }
+    publisher.finish().await;
 }
 
 /// The client options and the spool, or `None` (logged) when the gateway cannot publish.
@@ -277,91 +280,167 @@ async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
     }
 }
 
-/// The publisher: bus output through the output stage into the outbox, a health beat every
-/// second, the spool flushed every `flush_every`; until the output closes.
-async fn publish(
-    task: &Task,
-    format: &dyn Format,
-    shell: &Mutex<Shell>,
-    rebuild: &tokio::sync::Notify,
-    output: &mut UnboundedReceiver<Output>,
-) {
-    let stall_after = task.config.keep_alive.max(Duration::from_secs(10));
-    let mut flush = tokio::time::interval(task.flush_every);
-    let mut beat = tokio::time::interval(Duration::from_secs(1));
-    loop {
-        task.heart.beat();
-        tokio::select! {
-            out = output.recv() => match out {
-                Some(out) => handle(task, format, shell, out),
-                None => return,
-            },
-            _ = beat.tick() => {
-                let mut s = lock(shell);
-                let now = Instant::now();
-                if s.outbox.stalled(now, stall_after) {
-                    tracing::warn!(in_flight = s.outbox.in_flight(), "MQTT broker acknowledged nothing for {}s: reconnecting with a fresh client", stall_after.as_secs());
-                    s.outbox.lost();
-                    rebuild.notify_one();
+/// The MQTT task: the one owner of the shell. Bus output goes through the output stage into
+/// the outbox; the connection's reports (connected, sent, acked, failed) move the outbox; a
+/// health beat every second (and the stall check), the spool flushed every `flush_every`.
+struct Publisher<'t> {
+    task: &'t Task,
+    stage: Stage,
+    reloads: UnboundedReceiver<Config>,
+    shell: Shell,
+    link: Connection,
+    watch: Watch,
+    /// The connection being polled; replaced (the old one dropped) after every failure.
+    poller: Poller,
+    routes: Routes,
+    /// In-flight messages without an acknowledgement for this long: the connection is stalled.
+    stall_after: Duration,
+}
+
+impl Publisher<'_> {
+    /// The formats' subscriptions (renewed at every connection) and what they publish first.
+    fn start(&mut self) {
+        self.shell.extra_filters = self.stage.subscriptions();
+        for m in self.stage.start() {
+            self.shell.enqueue(m);
+        }
+    }
+
+    /// Until the bus output closes.
+    async fn serve(&mut self, output: &mut UnboundedReceiver<Output>) {
+        let mut flush = tokio::time::interval(self.task.flush_every);
+        let mut beat = tokio::time::interval(Duration::from_secs(1));
+        loop {
+            self.task.heart.beat();
+            tokio::select! {
+                out = output.recv() => match out {
+                    Some(out) => self.handle(out),
+                    None => return,
+                },
+                Some(polled) = self.poller.events.recv() => self.polled(polled),
+                Some(config) = self.reloads.recv() => {
+                    for m in self.stage.reload(&config) {
+                        self.shell.enqueue(m);
+                    }
                 }
-                let up = s.outbox.is_connected();
-                task.heart.set_up(up);
-                let spool = s.outbox.store();
-                task.metrics.mqtt(up, spool.len(), spool.total_bytes(), spool.dropped);
-            }
-            _ = flush.tick() => {
-                let mut s = lock(shell);
-                // While the broker is away, memory is written out so a crash loses little.
-                let up = s.outbox.is_connected();
-                let spool = s.outbox.store_mut();
-                if let Err(e) = if up { spool.flush() } else { spool.spill() } {
-                    tracing::error!("{e}");
-                }
+                _ = beat.tick() => self.beat(Instant::now()),
+                _ = flush.tick() => self.flush(),
             }
         }
     }
-}
 
-/// One event from the buses or the router: its side effects on health and metrics, then its
-/// messages into the outbox.
-fn handle(task: &Task, format: &dyn Format, shell: &Mutex<Shell>, out: Output) {
-    match &out {
-        Output::Subscribe(filter) => {
-            let mut s = lock(shell);
-            if s.outbox.is_connected() {
-                s.subscribe(filter);
+    /// One event from the buses or the router: its side effects on health and metrics, then
+    /// its messages into the outbox.
+    fn handle(&mut self, out: Output) {
+        let task = self.task;
+        match &out {
+            Output::Subscribe(filter) => {
+                if self.shell.outbox.is_connected() {
+                    self.shell.subscribe(filter);
+                }
+                self.shell.extra_filters.push(filter.clone());
+                return;
             }
-            s.extra_filters.push(filter.clone());
+            Output::DeviceStatus { device, online } => task.health.device(device, *online),
+            Output::DeviceProblem { device, .. } => task.health.device(device, false),
+            Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
+            _ => {}
+        }
+        for m in self.stage.render(&out) {
+            self.shell.enqueue(m);
+        }
+    }
+
+    /// What the connection reported.
+    fn polled(&mut self, polled: Polled) {
+        let s = &mut self.shell;
+        match polled {
+            Ok(Event::ConnAck { max_packet }) => {
+                if self.watch.up != Some(true) {
+                    tracing::info!(broker = %self.link.broker, "connected to MQTT broker");
+                }
+                self.watch.up = Some(true);
+                s.on_connack(max_packet, &self.link);
+            }
+            Ok(Event::Sent(pkid)) => {
+                s.outbox.sent(pkid);
+                s.pump();
+            }
+            Ok(Event::Acked(pkid)) => {
+                self.watch.pause = Duration::from_secs(1);
+                s.outbox.acked(pkid, Instant::now());
+                s.pump();
+            }
+            Ok(Event::Received(p)) => self.received(&p.topic, &p.payload),
+            // Our DISCONNECT went out, or the client was dropped: the gateway is stopping.
+            Ok(Event::Disconnected | Event::Other) | Err(Failure::RequestsDone) => {}
+            Err(e) => self.reconnect(&e),
+        }
+    }
+
+    /// A message on the boot marker or a format's subscription (the poller sends the rest to
+    /// the router).
+    fn received(&mut self, topic: &[u8], payload: &[u8]) {
+        let topic = String::from_utf8_lossy(topic);
+        if topic == self.shell.topics.gateway_marker() {
+            self.watch.marker(payload, &self.link);
             return;
         }
-        Output::DeviceStatus { device, online } => task.health.device(device, *online),
-        Output::DeviceProblem { device, .. } => task.health.device(device, false),
-        Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
-        _ => {}
-    }
-    let messages = render(format, &out);
-    let mut s = lock(shell);
-    for m in messages {
-        s.enqueue(m);
-    }
-}
-
-/// Gives the broker a moment to take what is in flight, keeps the rest for next time, publishes
-/// the gateway offline and waits (off the runtime thread) for the spool's last writes.
-async fn finish(shell: &Mutex<Shell>) {
-    let deadline = tokio::time::Instant::now() + Duration::from_millis(1500);
-    while tokio::time::Instant::now() < deadline {
-        let drained = {
-            let s = lock(shell);
-            !s.outbox.is_connected() || s.outbox.store().is_empty()
-        };
-        if drained {
-            break;
+        for m in self.stage.received(&topic, payload) {
+            self.shell.enqueue(m);
         }
-        tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let synced = {
-        let mut s = lock(shell);
+
+    /// The connection failed or stalled: everything rumqttc held goes with it, a fresh client
+    /// connects after the back-off (the outbox sends again, in order, what was not acked).
+    fn reconnect(&mut self, why: &Failure) {
+        self.watch.failed(why, &self.link);
+        let eventloop = self.shell.on_lost(&self.link.options);
+        self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
+    }
+
+    /// Every second: a connection that takes messages but acknowledges none is rebuilt (what
+    /// rumqttc does after a packet-id collision); health and metrics.
+    fn beat(&mut self, now: Instant) {
+        let outbox = &self.shell.outbox;
+        if outbox.stalled(now, self.stall_after) {
+            tracing::warn!(
+                in_flight = outbox.in_flight(),
+                "MQTT broker acknowledged nothing for {}s: reconnecting with a fresh client",
+                self.stall_after.as_secs()
+            );
+            self.reconnect(&Failure::Other(
+                "no acknowledgement: connection stalled".into(),
+            ));
+        }
+        let up = self.shell.outbox.is_connected();
+        self.task.heart.set_up(up);
+        let spool = self.shell.outbox.store();
+        let metrics = &self.task.metrics;
+        metrics.mqtt(up, spool.len(), spool.total_bytes(), spool.dropped);
+    }
+
+    /// While the broker is away, memory is written out so a crash loses little.
+    fn flush(&mut self) {
+        let up = self.shell.outbox.is_connected();
+        let spool = self.shell.outbox.store_mut();
+        if let Err(e) = if up { spool.flush() } else { spool.spill() } {
+            tracing::error!("{e}");
+        }
+    }
+
+    /// Gives the broker a moment to take what is in flight, keeps the rest for next time,
+    /// publishes the gateway offline, lets the connection write that and our DISCONNECT, and
+    /// waits (off the runtime thread) for the spool's last writes.
+    async fn finish(&mut self) {
+        let deadline = tokio::time::Instant::now() + Duration::from_millis(1500);
+        while self.shell.outbox.is_connected() && !self.shell.outbox.store().is_empty() {
+            tokio::select! {
+                Some(polled) = self.poller.events.recv() => self.polled(polled),
+                () = tokio::time::sleep_until(deadline) => break,
+            }
+        }
+        let s = &mut self.shell;
         if let Err(e) = s.outbox.store_mut().spill() {
             tracing::error!("{e}");
         }
@@ -374,13 +453,16 @@ async fn finish(shell: &Mutex<Shell>) {
             s.publish_direct(status, "offline");
             let _ = s.client.disconnect();
         }
-        s.outbox.store().barrier()
-    };
-    // The spool's last writes reach the disk before the process ends.
-    let _ = tokio::task::spawn_blocking(move || synced.recv_timeout(Duration::from_secs(3))).await;
+        let synced = s.outbox.store().barrier();
+        // The spool's last writes reach the disk before the process ends.
+        let synced = tokio::task::spawn_blocking(move || {
+            let _ = synced.recv_timeout(Duration::from_secs(3));
+        });
+        let _ = tokio::join!(self.poller.finish(Duration::from_secs(1)), synced);
+    }
 }
 
-/// What the event loop needs to build a fresh client.
+/// What a fresh client is built from, and what it announces.
 struct Connection {
     options: Options,
     broker: String,
@@ -400,107 +482,41 @@ struct Watch {
     pause: Duration,
 }
 
-/// Drives the connection; logs once per state change; after any failure builds a fresh client
-/// (rumqttc keeps collision state and queued requests across its own reconnects). Forwards
-/// command messages, waiting when the router is behind (TCP then pushes back on the sender).
-async fn drive(
-    mut eventloop: EventLoop,
-    link: Connection,
-    shell: Arc<Mutex<Shell>>,
-    incoming: Sender<Incoming>,
-    stop: CancellationToken,
-    rebuild: Arc<tokio::sync::Notify>,
-) {
-    let mut watch = Watch {
-        up: None,
-        takeovers: 0,
-        takeover_log: crate::admission::LogBudget::new(1),
-        pause: Duration::from_secs(1),
-    };
-    loop {
-        let event = tokio::select! {
-            e = eventloop.poll() => e,
-            () = rebuild.notified() => Err(Failure::Other("no acknowledgement: connection stalled".into())),
-            () = stop.cancelled() => return,
-        };
-        match event {
-            Ok(Event::ConnAck { max_packet }) => {
-                if watch.up != Some(true) {
-                    tracing::info!(broker = %link.broker, "connected to MQTT broker");
-                }
-                watch.up = Some(true);
-                lock(&shell).on_connack(max_packet, &link);
-            }
-            Ok(Event::Sent(pkid)) => {
-                let mut s = lock(&shell);
-                s.outbox.sent(pkid);
-                s.pump();
-            }
-            Ok(Event::Acked(pkid)) => {
-                watch.pause = Duration::from_secs(1);
-                let mut s = lock(&shell);
-                s.outbox.acked(pkid, Instant::now());
-                s.pump();
-            }
-            Ok(Event::Received(p)) => received(p, &link, &shell, &incoming, &mut watch).await,
-            Ok(Event::Disconnected) => return,
-            Ok(Event::Other) => {}
-            Err(Failure::RequestsDone) => return,
-            Err(e) => {
-                failed(&e, &link, &mut watch);
-                eventloop = lock(&shell).on_lost(&link.options);
-                tokio::select! {
-                    () = tokio::time::sleep(watch.pause) => {}
-                    () = stop.cancelled() => return,
-                }
-            }
+impl Watch {
+    fn new() -> Watch {
+        Watch {
+            up: None,
+            takeovers: 0,
+            takeover_log: crate::admission::LogBudget::new(1),
+            pause: Duration::from_secs(1),
         }
     }
-}
 
-/// A message that arrived: another gateway's boot marker is logged, the rest goes to the router.
-async fn received(
-    p: Received,
-    link: &Connection,
-    shell: &Mutex<Shell>,
-    incoming: &Sender<Incoming>,
-    watch: &mut Watch,
-) {
-    if *p.topic == *lock(shell).topics.gateway_marker().as_bytes() {
-        if let Some(other) = link.boot.foreign(&p.payload) {
-            let (log, _) = watch.takeover_log.allow(Instant::now());
+    /// A boot marker arrived: another gateway's is logged (within budget).
+    fn marker(&mut self, payload: &[u8], link: &Connection) {
+        if let Some(other) = link.boot.foreign(payload) {
+            let (log, _) = self.takeover_log.allow(Instant::now());
             if log {
                 tracing::error!(other = %other, "another gateway publishes under this topic root (its boot marker is not ours): two gateways share gateway.id or mqtt.topic_root, so both receive each other's commands and, with one client id, take each other's MQTT session; give each gateway its own id");
             }
         }
-        return;
     }
-    let msg = Incoming {
-        topic: String::from_utf8_lossy(&p.topic).into_owned(),
-        payload: p.payload,
-        retain: p.retain,
-        response_topic: p.response_topic,
-        correlation: p.correlation,
-    };
-    if incoming.send(msg).await.is_err() {
-        tracing::debug!("command router gone");
-    }
-}
 
-/// A connection failure: logged once per state change (takeovers each time, within budget);
-/// a takeover backs off so two gateways do not fight over the id every second.
-fn failed(e: &Failure, link: &Connection, watch: &mut Watch) {
-    if matches!(e, Failure::TakenOver) {
-        watch.takeovers += 1;
-        let (log, _) = watch.takeover_log.allow(Instant::now());
-        if log {
-            tracing::error!(client_id = %link.client_id, takeovers = watch.takeovers, "the broker dropped this connection because another client connected with the same client id: is a second gateway using mqtt.client_id {:?}? Both would receive each other's commands", link.client_id);
+    /// A connection failure: logged once per state change (takeovers each time, within
+    /// budget); a takeover backs off so two gateways do not fight over the id every second.
+    fn failed(&mut self, e: &Failure, link: &Connection) {
+        if matches!(e, Failure::TakenOver) {
+            self.takeovers += 1;
+            let (log, _) = self.takeover_log.allow(Instant::now());
+            if log {
+                tracing::error!(client_id = %link.client_id, takeovers = self.takeovers, "the broker dropped this connection because another client connected with the same client id: is a second gateway using mqtt.client_id {:?}? Both would receive each other's commands", link.client_id);
+            }
+            self.pause = (self.pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
+        } else if self.up != Some(false) {
+            tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
         }
-        watch.pause = (watch.pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
-    } else if watch.up != Some(false) {
-        tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
+        self.up = Some(false);
     }
-    watch.up = Some(false);
 }
 
 #[cfg(test)]
@@ -584,5 +600,115 @@ mod tests {
         assert!(unsendable("t", 2000, 0, Some(1024)).is_some());
         assert!(unsendable("t", 200, 900, Some(1024)).is_some());
         assert!(unsendable("t", 200, 0, Some(1024)).is_none());
+    }
+
+    fn task(name: &str) -> Task {
+        let text = "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
+        let env = Some(std::collections::HashMap::new());
+        let config = crate::config::Config::from_toml(text, std::path::Path::new("x.toml"), env)
+            .expect("config");
+        let health = Arc::new(crate::health::Health::default());
+        Task {
+            spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
+            flush_every: Duration::from_secs(1),
+            heart: health.heart("mqtt"),
+            health,
+            boot: crate::boot::Boot::default(),
+            metrics: crate::metrics::Metrics::disabled(),
+            formats: Vec::new(),
+            config: config.mqtt,
+        }
+    }
+
+    /// The task's state over a connected shell, its connection scripted by the test.
+    fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, EventLoop) {
+        let (shell, eventloop) = shell(name);
+        let (poller, reports) = Poller::scripted();
+        let link = Connection {
+            options: client_options(&task.config, &shell.topics).unwrap(),
+            broker: "127.0.0.1:1".into(),
+            client_id: "t".into(),
+            commands: true,
+            boot: task.boot.clone(),
+        };
+        let (router, _) = tokio::sync::mpsc::channel(1);
+        let p = Publisher {
+            task,
+            stage: Stage::new(vec![super::super::format::build(&task.config)]),
+            reloads: tokio::sync::mpsc::unbounded_channel().1,
+            shell,
+            link,
+            watch: Watch::new(),
+            poller,
+            routes: Routes {
+                to_task: Vec::new(),
+                router,
+            },
+            stall_after: Duration::from_secs(10),
+        };
+        (p, reports, eventloop)
+    }
+
+    /// With two tasks sharing the shell, an acknowledgement of the stalled connection could
+    /// still arrive after the outbox had given its messages up. Now the reports come on the
+    /// connection's own channel, which goes with it.
+    #[tokio::test]
+    async fn a_stalled_connection_is_rebuilt_and_its_late_acknowledgements_release_nothing() {
+        let task = task("rebuild");
+        let (mut p, old, _requests) = publisher(&task, "rebuild");
+        let status = Output::DeviceStatus {
+            device: "d".into(),
+            online: true,
+        };
+        p.handle(status);
+        p.polled(Ok(Event::Sent(1)));
+        assert_eq!(p.shell.outbox.in_flight(), 1);
+        p.beat(Instant::now() + Duration::from_secs(11));
+        assert!(!p.shell.outbox.is_connected(), "stalled: counted as lost");
+        assert_eq!(p.shell.outbox.store().len(), 1, "kept to be sent again");
+        assert!(
+            old.try_send(Ok(Event::Acked(1))).is_err(),
+            "the old connection's reports go nowhere"
+        );
+        // The fresh connection: the boot marker and the online status (packet ids 1 and 2)
+        // go first, then the message again; its acknowledgement releases it.
+        p.polled(Ok(Event::ConnAck { max_packet: None }));
+        assert_eq!(p.shell.outbox.in_flight(), 1);
+        for pkid in 1..=3 {
+            p.polled(Ok(Event::Sent(pkid)));
+        }
+        p.polled(Ok(Event::Acked(1)));
+        assert_eq!(
+            p.shell.outbox.store().len(),
+            1,
+            "packet 1 was the boot marker"
+        );
+        p.polled(Ok(Event::Acked(3)));
+        assert!(p.shell.outbox.store().is_empty());
+        assert_eq!(p.watch.up, Some(true));
+    }
+
+    #[tokio::test]
+    async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs_off_longer() {
+        let task = task("failed");
+        let (mut p, _old, _requests) = publisher(&task, "failed");
+        p.polled(Err(Failure::Other("connection refused".into())));
+        assert!(!p.shell.outbox.is_connected());
+        assert_eq!(
+            (p.watch.up, p.watch.pause),
+            (Some(false), Duration::from_secs(1))
+        );
+        p.polled(Err(Failure::TakenOver));
+        assert_eq!(p.watch.pause, Duration::from_secs(5));
+        p.polled(Ok(Event::Acked(9)));
+        assert_eq!(
+            p.watch.pause,
+            Duration::from_secs(1),
+            "an acknowledgement resets it"
+        );
+        // The client dropped (the gateway stopping) is no failure: nothing is rebuilt.
+        p.polled(Ok(Event::ConnAck { max_packet: None }));
+        p.polled(Err(Failure::RequestsDone));
+        assert!(p.shell.outbox.is_connected());
     }
 }
