@@ -33,7 +33,8 @@ pub struct Availability {
     last_error: Option<String>,
     backoff: Backoff,
     offline_after: u32,
-    /// The last failure was an answer (garbled, an exception): the device is on the line.
+    /// Something came back since the device was last offline (an answer, garbled or not): it is
+    /// on the line and answers in time.
     heard: bool,
     log: LogBudget,
 }
@@ -98,13 +99,15 @@ impl Availability {
         self.online
     }
 
-    /// Whether a read lost to noise is worth asking again at once. Yes for a device online or
-    /// not yet seen, and for an offline one whose last failure was an answer (a garbled frame
-    /// proves it is on the line): on a noisy line such a device must get several whole requests
-    /// through in one poll to come back, and without retries it may never. No for an offline
-    /// device that stays silent: a dead one would cost the others a timeout per retry.
-    pub fn worth_retrying(&self) -> bool {
-        self.online != Some(false) || self.heard
+    /// Whether a read lost to noise is worth asking again at once. `answered`: bytes came back
+    /// (a garbled frame). Yes when the device is online, answered now, or has answered since it
+    /// was last offline (garbled or not): it is on the line and answers in time, and on a noisy
+    /// line a device must get several whole requests through in one poll to come online, which
+    /// without retries it may never do. No for a device that has only been silent: it may be
+    /// dead or answer too late, and a retry would cost the others a timeout (and could take a
+    /// late answer to the first request for the retry's).
+    pub fn worth_retrying(&self, answered: bool) -> bool {
+        answered || self.heard || self.online == Some(true)
     }
 
     /// The last error, until the device answers again.
@@ -140,9 +143,9 @@ impl Availability {
             self.last_error = Some(message.clone());
             transitions.push(Transition::Error(message));
         }
-        self.heard = answered;
         if answered {
             self.failures = 0;
+            self.heard = true;
             return Verdict {
                 transitions,
                 wait: None,
@@ -157,6 +160,7 @@ impl Availability {
         }
         if self.online != Some(false) {
             self.online = Some(false);
+            self.heard = false;
             transitions.push(Transition::Offline {
                 failures: self.failures,
             });

@@ -58,25 +58,43 @@ fn an_answer_between_failures_starts_the_count_again() {
 }
 
 #[test]
-fn noise_is_retried_unless_the_device_is_offline_and_silent() {
+fn noise_is_asked_again_of_a_device_that_answers_and_silence_not_of_one_only_ever_silent() {
     let mut a = fresh();
-    assert!(a.worth_retrying(), "not yet seen: may be there");
-    a.answered();
-    assert!(a.worth_retrying(), "online");
-    for _ in 0..3 {
-        timeout(&mut a);
-    }
-    assert_eq!(a.online(), Some(false));
-    assert!(!a.worth_retrying(), "offline and silent: one try per probe");
+    assert!(a.worth_retrying(true), "not yet seen but answering garbled");
+    assert!(
+        !a.worth_retrying(false),
+        "not yet seen and silent: may be dead or late"
+    );
     a.failed(
         "garbled answer (12 bytes, no valid frame)".into(),
         true,
         false,
     );
+    assert!(
+        a.worth_retrying(false),
+        "it answered before: a lost request this time"
+    );
+    a.answered();
+    assert!(a.worth_retrying(false), "online: a lost request or answer");
+    for _ in 0..3 {
+        timeout(&mut a);
+    }
+    assert_eq!(a.online(), Some(false));
+    assert!(
+        !a.worth_retrying(false),
+        "offline and silent since: one try per probe"
+    );
+    assert!(
+        a.worth_retrying(true),
+        "offline but answering garbled: it is there"
+    );
+    a.failed(
+        "garbled answer (3 bytes, no valid frame)".into(),
+        true,
+        false,
+    );
     assert_eq!(a.online(), Some(false), "a garbled answer is no poll");
-    assert!(a.worth_retrying(), "but it shows the device is on the line");
-    timeout(&mut a);
-    assert!(!a.worth_retrying(), "silent again");
+    assert!(a.worth_retrying(false), "heard again");
 }
 
 #[test]

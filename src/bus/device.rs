@@ -638,7 +638,7 @@ impl DeviceRt {
                 // is not asked twice (a dead one costs the others one timeout per probe).
                 Err(e)
                     if e.is_noise()
-                        && self.availability.worth_retrying()
+                        && self.availability.worth_retrying(e.device_answered())
                         && retries < NOISE_RETRIES =>
                 {
                     retries += 1;

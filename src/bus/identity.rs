@@ -147,7 +147,7 @@ impl DeviceRt {
                 // Lost to noise: asked again as a poll's read is (see `NOISE_RETRIES`).
                 Err(e)
                     if e.is_noise()
-                        && self.availability.worth_retrying()
+                        && self.availability.worth_retrying(e.device_answered())
                         && tries < super::device::NOISE_RETRIES =>
                 {
                     tries += 1
