@@ -36,16 +36,6 @@ pub enum Output {
         device: Arc<str>,
         readings: Vec<Reading>,
     },
-    /// A ready message, published as it is (QoS 1). Nothing in the gateway sends one today:
-    /// Home Assistant discovery is a format ([`crate::publish::discovery`]).
-    Message {
-        topic: String,
-        payload: String,
-        retain: bool,
-    },
-    /// A topic filter the MQTT task subscribes to (now and after every reconnect); what
-    /// arrives on it goes to the incoming channel with the commands.
-    Subscribe(String),
     /// A device became available (first good read) or stopped answering.
     DeviceStatus {
         device: Arc<str>,

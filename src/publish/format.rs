@@ -72,24 +72,9 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     formats
 }
 
-/// One format's messages for one event: ready messages as they are, events through `format`.
-/// Subscriptions are not messages (the MQTT task takes them).
+/// One format's messages for one event.
 pub fn render(format: &mut dyn Format, event: &Output) -> Vec<Message> {
-    match event {
-        Output::Message { .. } | Output::Subscribe(_) => ready(event),
-        other => format.messages(other),
-    }
-}
-
-fn ready(event: &Output) -> Vec<Message> {
-    match event {
-        Output::Message {
-            topic,
-            payload,
-            retain,
-        } => vec![Message::new(topic.clone(), payload.clone(), 1, *retain)],
-        _ => Vec::new(),
-    }
+    format.messages(event)
 }
 
 /// The formats in use, run one after the other on every event.
@@ -102,11 +87,8 @@ impl Stage {
         Stage { formats }
     }
 
-    /// Every format's messages for `event`, in the formats' order (a ready message once).
+    /// Every format's messages for `event`, in the formats' order.
     pub fn render(&mut self, event: &Output) -> Vec<Message> {
-        if matches!(event, Output::Message { .. } | Output::Subscribe(_)) {
-            return ready(event);
-        }
         self.each(|f| f.messages(event))
     }
 

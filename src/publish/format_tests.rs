@@ -108,21 +108,6 @@ fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
     assert_eq!(&m[1].payload[..], br#"{"ok":true}"#);
 }
 
-#[test]
-fn ready_messages_pass_through_and_subscriptions_are_not_messages() {
-    let mut json = build(&config());
-    let ha = Output::Message {
-        topic: "homeassistant/sensor/x/config".into(),
-        payload: "{}".into(),
-        retain: true,
-    };
-    assert_eq!(
-        render(&mut *json, &ha)[0].topic,
-        "homeassistant/sensor/x/config"
-    );
-    assert!(render(&mut *json, &Output::Subscribe("a/#".into())).is_empty());
-}
-
 /// A toy second format: each reading's total as 8 big-endian bytes on `<reading topic>/total`.
 /// Everything it needs is the output stage's: the [`Format`] trait, [`Topics`], [`Message`].
 struct PackedTotals {

@@ -77,7 +77,6 @@ impl Format for Json {
                 }
                 out
             }
-            Output::Message { .. } | Output::Subscribe(_) => Vec::new(),
         }
     }
 }

@@ -57,7 +57,7 @@ struct Shell {
     outbox: Outbox<Spool>,
     client: Client,
     topics: Topics,
-    /// Filters asked for with [`Output::Subscribe`], renewed at every connection.
+    /// The formats' own filters (Home Assistant's status, say), renewed at every connection.
     extra_filters: Vec<String>,
 }
 
@@ -334,13 +334,6 @@ impl Publisher<'_> {
     fn handle(&mut self, out: Output) {
         let task = self.task;
         match &out {
-            Output::Subscribe(filter) => {
-                if self.shell.outbox.is_connected() {
-                    self.shell.subscribe(filter);
-                }
-                self.shell.extra_filters.push(filter.clone());
-                return;
-            }
             Output::DeviceStatus { device, online } => task.health.device(device, *online),
             Output::DeviceProblem { device, .. } => task.health.device(device, false),
             Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
