@@ -9,6 +9,7 @@ use tokio::sync::mpsc::UnboundedSender;
 use tokio::time::Instant;
 
 use super::device::{DeviceRt, PollError};
+use super::driver::DeviceState;
 use super::schedule::Backoff;
 use crate::reading::Output;
 
@@ -193,7 +194,7 @@ impl Availability {
 }
 
 /// The device answered a whole poll.
-pub(super) fn answered(d: &mut DeviceRt, bus: &str, out: &UnboundedSender<Output>) {
+pub(super) fn answered<P>(d: &mut DeviceRt<P>, bus: &str, out: &UnboundedSender<Output>) {
     for t in d.availability.answered() {
         match t {
             Transition::Recovered => {
@@ -217,8 +218,8 @@ pub(super) fn answered(d: &mut DeviceRt, bus: &str, out: &UnboundedSender<Output
 
 /// A poll failed. Returns how long to wait before probing the device again when it is (now)
 /// offline; `None` to keep its schedule.
-pub(super) fn failed(
-    d: &mut DeviceRt,
+pub(super) fn failed<P: DeviceState>(
+    d: &mut DeviceRt<P>,
     e: &PollError,
     line_fault: bool,
     bus: &str,
@@ -231,26 +232,21 @@ pub(super) fn failed(
         match t {
             Transition::Error(message) => {
                 match d.availability.may_log_error(Instant::now()) {
-                    Some(0) => tracing::warn!(bus, device = %d.name, unit = d.unit, "{message}"),
+                    Some(0) => {
+                        tracing::warn!(bus, device = %d.name, unit = d.config.unit, "{message}")
+                    }
                     Some(more) => tracing::warn!(
-                        bus, device = %d.name, unit = d.unit,
+                        bus, device = %d.name, unit = d.config.unit,
                         "{message} ({more} more errors since the last line, not logged one by one)"
                     ),
                     None => {}
                 }
-                // A module that starts refusing registers it answered before may be another
-                // module, or have restarted in another work mode: identity and modes are read
-                // again (once per new refusal, so a device that keeps refusing costs no extra
-                // reads).
-                if matches!(e, PollError::Refused { .. }) && d.discovered() {
-                    d.module_restarted();
-                }
+                d.proto.poll_failed(e);
             }
             Transition::Offline { failures } => {
                 tracing::warn!(bus, device = %d.name, failures, "device offline");
                 d.mark_gap();
-                // Whatever answers at this address next may be another module.
-                d.identify_due = true;
+                d.proto.went_offline();
                 let _ = out.send(Output::DeviceStatus {
                     device: d.name.clone(),
                     online: false,
@@ -264,11 +260,16 @@ pub(super) fn failed(
 
 /// The module is not the configured model: out of service with status `wrong_model` (logged and
 /// published once per change); its counters' next deltas cover the time out of service.
-pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &UnboundedSender<Output>) {
+pub(super) fn wrong_model<P>(
+    d: &mut DeviceRt<P>,
+    why: String,
+    bus: &str,
+    out: &UnboundedSender<Output>,
+) {
     if d.wrong_model.as_deref() == Some(why.as_str()) {
         return;
     }
-    tracing::error!(bus, device = %d.name, unit = d.unit, "module taken out of service: {why}");
+    tracing::error!(bus, device = %d.name, unit = d.config.unit, "module taken out of service: {why}");
     d.wrong_model = Some(why);
     d.metrics.wrong_model(true);
     d.availability.out_of_service();
@@ -281,7 +282,7 @@ pub(super) fn wrong_model(d: &mut DeviceRt, why: String, bus: &str, out: &Unboun
 
 /// A quadrature pair's mode words disagree (or agree again): status `mode_mismatch` while they
 /// do, `online` again after.
-pub(super) fn mode_mismatch(d: &mut DeviceRt, out: &UnboundedSender<Output>) {
+pub(super) fn mode_mismatch<P>(d: &mut DeviceRt<P>, out: &UnboundedSender<Output>) {
     let Some(now) = d.take_mismatch_change() else {
         return;
     };

@@ -12,7 +12,6 @@ use super::driver::{Driver, Preempt};
 use super::execute::Executed;
 use super::link::LinkError;
 use super::*;
-use crate::plan::Wire;
 use crate::reading::Reading;
 
 /// A driver whose device answers except during `outage` (time since the start); it logs what
@@ -31,12 +30,31 @@ impl Scripted {
     }
 }
 
+/// The scripted protocol keeps nothing per device.
+struct Nothing;
+
+impl DeviceState for Nothing {}
+
 impl Driver for Scripted {
-    async fn discover(&mut self, _: &mut DeviceRt, _: Preempt<'_>) -> Result<(), PollError> {
+    type Device = Nothing;
+
+    fn device(&self, _: &Bus, _: &crate::config::Device, _: &BusState) -> Nothing {
+        Nothing
+    }
+
+    async fn discover(
+        &mut self,
+        _: &mut DeviceRt<Nothing>,
+        _: Preempt<'_>,
+    ) -> Result<(), PollError> {
         Ok(())
     }
 
-    async fn poll(&mut self, _: &mut DeviceRt, _: Preempt<'_>) -> Result<Vec<Reading>, PollError> {
+    async fn poll(
+        &mut self,
+        _: &mut DeviceRt<Nothing>,
+        _: Preempt<'_>,
+    ) -> Result<Vec<Reading>, PollError> {
         tokio::time::sleep(Duration::from_millis(50)).await;
         if self.outage.contains(&self.note("poll")) {
             return Err(PollError::Link(LinkError::Timeout(Duration::from_millis(
@@ -46,7 +64,7 @@ impl Driver for Scripted {
         Ok(Vec::new())
     }
 
-    async fn execute(&mut self, _: &mut DeviceRt, _: &Request) -> Executed {
+    async fn execute(&mut self, _: &mut DeviceRt<Nothing>, _: &Request) -> Executed {
         tokio::time::sleep(Duration::from_millis(50)).await;
         self.note("execute");
         Executed {
@@ -63,12 +81,8 @@ impl Driver for Scripted {
         false
     }
 
-    fn ready_for_commands(&self, _: &DeviceRt) -> bool {
+    fn ready_for_commands(&self, _: &DeviceRt<Nothing>) -> bool {
         true
-    }
-
-    fn wire_pricing(&self) -> Wire {
-        Wire::tcp()
     }
 
     fn close(&mut self) {}

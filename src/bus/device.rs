@@ -8,6 +8,7 @@ use std::time::{Duration, SystemTime};
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
+use super::driver::DeviceState;
 use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
 use super::run::RunState;
@@ -142,53 +143,142 @@ impl Snapshot {
     }
 }
 
-/// The state of one device on its bus.
-pub struct DeviceRt {
+/// The state of one device on its bus, as the bus core keeps it: channels and their counters,
+/// availability, latencies, status. What a protocol keeps of the device (Modbus: unit, register
+/// plan, holes, identity) is `proto`, the driver's [`Driver::Device`]; the core never looks
+/// inside it.
+///
+/// [`Driver::Device`]: super::driver::Driver::Device
+pub struct DeviceRt<P> {
     pub name: Arc<str>,
-    pub unit: u8,
     pub config: Device,
     pub(super) profile: Arc<Profile>,
-    /// Answer timeout before line time is added.
-    answer_timeout: Duration,
-    wire: Wire,
-    modes: Option<Vec<u16>>,
     pub(super) channels: Vec<ChannelRt>,
-    fast: Vec<Register>,
-    /// Register ranges the device refused (exception 02): never bridged again.
-    pub holes: Vec<Range<u16>>,
     saved: BTreeMap<String, CounterState>,
-    last_slow: Option<Instant>,
-    slow_every: Duration,
     /// Online, offline, not yet seen; failures and backoff (a state machine of its own).
     pub availability: super::availability::Availability,
     /// Poll latencies (seconds), most recent last, for p50/p99.
     pub latencies: std::collections::VecDeque<f64>,
-    /// The last plan: registers, holes known, wire prices, and the reads.
-    #[allow(clippy::type_complexity)]
-    /// The plan of the last read asked for (the count poll asks for the same every time).
-    plan_memo: Option<crate::plan::PollPlan>,
-    /// Measured turnaround (seconds, moving average), RTU only.
-    turnaround: Option<f64>,
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
-    /// The module's identity is to be checked before the next poll (at discovery, after a
-    /// reset).
-    pub(super) identify_due: bool,
-    /// Identification of every known model, to name what a wrong module is.
-    pub(super) known: Arc<[Identity]>,
     /// Why the device is out of service, when its module is the wrong model.
     pub wrong_model: Option<String>,
-    unidentified_warned: bool,
     /// Quadrature pairs whose two mode words disagree, described; and its last change, not
     /// yet published.
     pub mode_mismatch: Option<String>,
     mismatch_changed: Option<Option<String>>,
     /// This device's Prometheus handles.
     pub metrics: DeviceMetrics,
+    /// What the protocol keeps of this device.
+    pub proto: P,
 }
 
-impl DeviceRt {
+/// What a Modbus driver keeps of one device: its unit, the register plan and what shapes it
+/// (holes, wire prices, measured turnaround), the work modes, and the identity check.
+pub struct ModbusDevice {
+    pub unit: u8,
+    /// Where the holes are saved in the state file.
+    holes_key: String,
+    /// Answer timeout before line time is added.
+    answer_timeout: Duration,
+    wire: Wire,
+    modes: Option<Vec<u16>>,
+    fast: Vec<Register>,
+    /// Register ranges the device refused (exception 02): never bridged again.
+    pub holes: Vec<Range<u16>>,
+    last_slow: Option<Instant>,
+    slow_every: Duration,
+    /// The plan of the last read asked for (the count poll asks for the same every time).
+    plan_memo: Option<crate::plan::PollPlan>,
+    /// Measured turnaround (seconds, moving average), RTU only.
+    turnaround: Option<f64>,
+    /// The module's identity is to be checked before the next poll (at discovery, after a
+    /// reset).
+    pub(super) identify_due: bool,
+    /// Identification of every known model, to name what a wrong module is.
+    pub(super) known: Arc<[Identity]>,
+    unidentified_warned: bool,
+}
+
+impl ModbusDevice {
+    pub fn new(bus: &Bus, config: &Device, wire: Wire, holes: Vec<Range<u16>>) -> ModbusDevice {
+        ModbusDevice {
+            unit: config.unit,
+            holes_key: device_key(config.unit, &config.model),
+            answer_timeout: config.answer_timeout(bus),
+            wire,
+            modes: None,
+            fast: Vec::new(),
+            holes,
+            last_slow: None,
+            slow_every: bus.slow_poll,
+            plan_memo: None,
+            turnaround: None,
+            identify_due: true,
+            known: Arc::from(Vec::new()),
+            unidentified_warned: false,
+        }
+    }
+
+    /// Knows every model in `known`, to name what a wrong module is.
+    pub fn with_known(mut self, known: Arc<[Identity]>) -> ModbusDevice {
+        self.known = known;
+        self
+    }
+
+    /// The key under which this device's holes are saved.
+    pub fn holes_key(&self) -> String {
+        self.holes_key.clone()
+    }
+
+    /// Whether the channels are known (the work modes were read).
+    pub fn discovered(&self) -> bool {
+        self.modes.is_some()
+    }
+
+    /// The module restarted (or was reset by someone else): it may be another module now, and
+    /// mode words written before take effect at a restart. Both are read again next poll.
+    pub(super) fn module_restarted(&mut self) {
+        self.identify_due = true;
+        self.last_slow = None;
+    }
+}
+
+impl DeviceState for ModbusDevice {
+    fn poll_failed(&mut self, e: &PollError) {
+        // A module that starts refusing registers it answered before may be another module, or
+        // have restarted in another work mode: identity and modes are read again (once per new
+        // refusal, so a device that keeps refusing costs no extra reads).
+        if matches!(e, PollError::Refused { .. }) && self.discovered() {
+            self.module_restarted();
+        }
+    }
+
+    fn went_offline(&mut self) {
+        // Whatever answers at this address next may be another module.
+        self.identify_due = true;
+    }
+
+    fn turnaround(&self) -> Option<f64> {
+        self.turnaround
+    }
+
+    fn save(&self, state: &mut crate::state::BusState) {
+        if !self.holes.is_empty() {
+            state.holes.insert(
+                self.holes_key(),
+                self.holes.iter().map(|h| (h.start, h.end)).collect(),
+            );
+        }
+    }
+
+    fn state_key(&self) -> Option<String> {
+        Some(self.holes_key())
+    }
+}
+
+impl<P> DeviceRt<P> {
     /// A reading of `channel` was not published: its sequence number goes back, so `seq`
     /// counts published readings only.
     pub(super) fn withdraw_seq(&mut self, channel: &str) {
@@ -197,61 +287,50 @@ impl DeviceRt {
         }
     }
 
+    /// A device of `config` on `bus`, with the counter states `saved` of its channels and
+    /// what its protocol keeps of it.
     pub fn new(
         bus: &Bus,
         config: &Device,
-        wire: Wire,
         saved: &BTreeMap<String, CounterState>,
-        holes: Vec<Range<u16>>,
-    ) -> DeviceRt {
+        proto: P,
+    ) -> DeviceRt<P> {
         let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
             name: Arc::from(config.name.as_str()),
-            unit: config.unit,
             profile: config.profile.clone(),
-            answer_timeout: config.answer_timeout(bus),
-            wire,
-            modes: None,
             channels: Vec::new(),
-            fast: Vec::new(),
-            holes,
             saved: saved
                 .iter()
                 .filter(|(k, _)| k.starts_with(&prefix))
                 .map(|(k, v)| (k.clone(), v.clone()))
                 .collect(),
-            last_slow: None,
-            slow_every: bus.slow_poll,
             availability: super::availability::Availability::new(
                 bus.offline_after,
                 bus.backoff_min,
                 bus.backoff_max,
             ),
             latencies: std::collections::VecDeque::new(),
-            plan_memo: None,
-            turnaround: None,
             achieved_interval: None,
             last_good_poll: None,
-            identify_due: true,
-            known: Arc::from(Vec::new()),
             wrong_model: None,
-            unidentified_warned: false,
             mode_mismatch: None,
             mismatch_changed: None,
             metrics: DeviceMetrics::disabled(),
             config: config.clone(),
+            proto,
         }
     }
 
     /// Records into the gateway's metrics (without: nothing is recorded).
-    pub fn with_metrics(mut self, metrics: DeviceMetrics) -> DeviceRt {
+    pub fn with_metrics(mut self, metrics: DeviceMetrics) -> DeviceRt<P> {
         self.metrics = metrics;
         self
     }
 
-    /// The key under which this device's holes are saved.
-    pub fn holes_key(&self) -> String {
-        device_key(self.unit, &self.config.model)
+    /// The state file's key of `channel` (the file's format: unit, model, channel).
+    pub(super) fn state_key(&self, channel: &str) -> String {
+        channel_key(self.config.unit, &self.config.model, channel)
     }
 
     /// Counter state of every channel, keyed for the state file (channels not discovered yet
@@ -259,17 +338,9 @@ impl DeviceRt {
     pub fn counter_states(&self) -> BTreeMap<String, CounterState> {
         let mut out = self.saved.clone();
         for ch in &self.channels {
-            out.insert(
-                channel_key(self.unit, &self.config.model, &ch.name),
-                ch.counter.state.clone(),
-            );
+            out.insert(self.state_key(&ch.name), ch.counter.state.clone());
         }
         out
-    }
-
-    /// Whether the channels are known (the work modes were read).
-    pub fn discovered(&self) -> bool {
-        self.modes.is_some()
     }
 
     /// `Some(true)` online, `Some(false)` offline, `None` not yet seen.
@@ -284,6 +355,38 @@ impl DeviceRt {
         }
     }
 
+    /// A good poll: the achieved poll interval (moving average), for the bus stats.
+    pub(super) fn note_good_poll(&mut self) {
+        let now = Instant::now();
+        if let Some(last) = self.last_good_poll.replace(now) {
+            let gap = (now - last).as_secs_f64();
+            self.achieved_interval =
+                Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
+        }
+    }
+
+    /// Records the mode-word mismatch found now (logged once per change).
+    pub(super) fn set_mismatch(&mut self, now: Option<String>) {
+        if self.mode_mismatch == now {
+            return;
+        }
+        match &now {
+            Some(why) => {
+                tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
+            }
+            None => tracing::info!(device = %self.name, "mode words agree again"),
+        }
+        self.mode_mismatch = now.clone();
+        self.mismatch_changed = Some(now);
+    }
+
+    /// The mode-word mismatch, when it changed since the last call.
+    pub(super) fn take_mismatch_change(&mut self) -> Option<Option<String>> {
+        self.mismatch_changed.take()
+    }
+}
+
+impl DeviceRt<ModbusDevice> {
     /// One poll: discovery and slow registers when due, then counts and frequencies.
     /// `preempt` is asked between transactions: when it says yes, the poll gives way.
     pub async fn poll(
@@ -292,9 +395,9 @@ impl DeviceRt {
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Vec<Reading>, PollError> {
         self.discover(link, preempt).await?;
-        let fast = std::mem::take(&mut self.fast);
+        let fast = std::mem::take(&mut self.proto.fast);
         let snapshot = self.read_registers(link, &fast, preempt).await;
-        self.fast = fast;
+        self.proto.fast = fast;
         let snapshot = snapshot?;
         let order = self.profile.word_order;
         let mut readings = Vec::with_capacity(self.channels.len());
@@ -355,9 +458,8 @@ impl DeviceRt {
             self.resume_paused(link, i).await;
         }
         if restarted {
-            self.module_restarted();
+            self.proto.module_restarted();
         }
-        self.note_good_poll();
         Ok(readings)
     }
 
@@ -368,13 +470,14 @@ impl DeviceRt {
         link: &mut Link,
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<(), PollError> {
-        if self.identify_due {
+        if self.proto.identify_due {
             self.check_identity(link).await?;
         }
         let slow_due = self
+            .proto
             .last_slow
-            .is_none_or(|t| t.elapsed() >= self.slow_every);
-        if self.modes.is_none() {
+            .is_none_or(|t| t.elapsed() >= self.proto.slow_every);
+        if self.proto.modes.is_none() {
             // Without the work modes there are no channels: discovery must succeed.
             self.read_slow(link, preempt).await?;
         } else if slow_due {
@@ -384,7 +487,7 @@ impl DeviceRt {
                 Err(PollError::Preempted) => return Err(PollError::Preempted),
                 Err(e) => {
                     tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
-                    self.last_slow = Some(Instant::now());
+                    self.proto.last_slow = Some(Instant::now());
                 }
                 Ok(()) => {}
             }
@@ -392,55 +495,18 @@ impl DeviceRt {
         Ok(())
     }
 
-    /// The achieved poll interval (moving average), for the bus stats.
-    fn note_good_poll(&mut self) {
-        let now = Instant::now();
-        if let Some(last) = self.last_good_poll.replace(now) {
-            let gap = (now - last).as_secs_f64();
-            self.achieved_interval =
-                Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
-        }
-    }
-
-    /// The module restarted (or was reset by someone else): it may be another module now, and
-    /// mode words written before take effect at a restart. Both are read again next poll.
-    pub(super) fn module_restarted(&mut self) {
-        self.identify_due = true;
-        self.last_slow = None;
-    }
-
-    /// Records the mode-word mismatch found now (logged once per change).
-    fn set_mismatch(&mut self, now: Option<String>) {
-        if self.mode_mismatch == now {
-            return;
-        }
-        match &now {
-            Some(why) => {
-                tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
-            }
-            None => tracing::info!(device = %self.name, "mode words agree again"),
-        }
-        self.mode_mismatch = now.clone();
-        self.mismatch_changed = Some(now);
-    }
-
-    /// The mode-word mismatch, when it changed since the last call.
-    pub(super) fn take_mismatch_change(&mut self) -> Option<Option<String>> {
-        self.mismatch_changed.take()
-    }
-
     /// Checks the module's identity (due at discovery and after a reset).
     async fn check_identity(&mut self, link: &mut Link) -> Result<(), PollError> {
         match self.identify(link).await? {
             Verdict::Confirmed => {}
             Verdict::Unidentified => {
-                if !std::mem::replace(&mut self.unidentified_warned, true) {
+                if !std::mem::replace(&mut self.proto.unidentified_warned, true) {
                     tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
                 }
             }
             Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
         }
-        self.identify_due = false;
+        self.proto.identify_due = false;
         if let Some(was) = self.wrong_model.take() {
             tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
             self.metrics.wrong_model(false);
@@ -503,12 +569,12 @@ impl DeviceRt {
         specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
         let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
         self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
-        if self.modes.as_ref() != Some(&modes) {
-            if self.modes.is_some() {
+        if self.proto.modes.as_ref() != Some(&modes) {
+            if self.proto.modes.is_some() {
                 tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
             }
             self.build_channels(specs);
-            self.modes = Some(modes);
+            self.proto.modes = Some(modes);
         }
         let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
         if !ppr_regs.is_empty() {
@@ -527,7 +593,7 @@ impl DeviceRt {
         self.read_windows(link, preempt).await?;
         self.set_power_on(link).await;
         self.replan_with_turnaround(link);
-        self.last_slow = Some(Instant::now());
+        self.proto.last_slow = Some(Instant::now());
         Ok(())
     }
 
@@ -585,7 +651,7 @@ impl DeviceRt {
                 continue;
             }
             let counter_spec = counter_spec(&spec, &overrides);
-            let key = channel_key(self.unit, &self.config.model, &spec.name);
+            let key = self.state_key(&spec.name);
             let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
                 (Some(c), _) => c.with_spec(counter_spec),
                 (None, Some(saved)) => Counter::resume(counter_spec, saved),
@@ -605,11 +671,11 @@ impl DeviceRt {
             });
         }
         for (name, gone) in old {
-            let key = channel_key(self.unit, &self.config.model, &name);
+            let key = self.state_key(&name);
             tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
             self.saved.insert(key, gone.state);
         }
-        self.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
+        self.proto.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
     }
 
     /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
@@ -631,7 +697,7 @@ impl DeviceRt {
             let b = blocks[i];
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
-            let answer = match link.read(self.unit, b.start, b.len, timeout).await {
+            let answer = match link.read(self.proto.unit, b.start, b.len, timeout).await {
                 // A device that lost one request or answer to noise is asked again: on a noisy
                 // line a corrupted request gets no answer at all, and three of those in a row
                 // must not make a healthy device offline. An offline device that stays silent
@@ -657,14 +723,14 @@ impl DeviceRt {
                 Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
                     let gaps = b.gaps(regs);
                     tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
-                    self.holes.extend(gaps);
+                    self.proto.holes.extend(gaps);
                     let rest: Vec<Register> = regs
                         .iter()
                         .filter(|r| !out.iter().any(|(done, ..): &(Block, _, _)| done.covers(r)))
                         .copied()
                         .collect();
                     blocks.truncate(i);
-                    blocks.extend(plan_reads(&rest, &self.holes, &self.wire));
+                    blocks.extend(plan_reads(&rest, &self.proto.holes, &self.proto.wire));
                 }
                 Err(exception) => {
                     return Err(PollError::Refused {
@@ -681,25 +747,25 @@ impl DeviceRt {
     /// The reads for `regs`: planned once and reused while the registers, the holes and the
     /// wire's prices stay the same (the count poll asks for the same registers every time).
     fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
-        if let Some(p) = &self.plan_memo
-            && p.fits(regs, self.holes.len(), &self.wire)
+        if let Some(p) = &self.proto.plan_memo
+            && p.fits(regs, self.proto.holes.len(), &self.proto.wire)
         {
             return p.blocks.clone();
         }
-        let p = crate::plan::PollPlan::new(regs, &self.holes, &self.wire);
+        let p = crate::plan::PollPlan::new(regs, &self.proto.holes, &self.proto.wire);
         tracing::debug!(device = %self.name, plan = %p.describe(), "poll plan");
         let blocks = p.blocks.clone();
-        self.plan_memo = Some(p);
+        self.proto.plan_memo = Some(p);
         blocks
     }
 
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let line = link
-            .timing_for(self.unit)
+            .timing_for(self.proto.unit)
             .map(|t| t.chars(crate::plan::read_chars(len)))
             .unwrap_or_default();
-        self.answer_timeout + line
+        self.proto.answer_timeout + line
     }
 
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
@@ -710,26 +776,21 @@ impl DeviceRt {
             self.latencies.pop_front();
         }
         self.latencies.push_back(d.as_secs_f64());
-        if let Some(t) = link.timing_for(self.unit) {
+        if let Some(t) = link.timing_for(self.proto.unit) {
             let line = t.chars(crate::plan::read_chars(len));
             let turnaround = d.saturating_sub(line).as_secs_f64();
-            self.turnaround = Some(match self.turnaround {
+            self.proto.turnaround = Some(match self.proto.turnaround {
                 Some(old) => old * 0.9 + turnaround * 0.1,
                 None => turnaround,
             });
         }
     }
 
-    /// The device's measured turnaround (RTU), in seconds.
-    pub fn turnaround(&self) -> Option<f64> {
-        self.turnaround
-    }
-
     /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
     /// request really costs this device.
     fn replan_with_turnaround(&mut self, link: &Link) {
-        if let (Some(t), Some(ta)) = (link.timing_for(self.unit), self.turnaround) {
-            self.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
+        if let (Some(t), Some(ta)) = (link.timing_for(self.proto.unit), self.proto.turnaround) {
+            self.proto.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
     }
 }

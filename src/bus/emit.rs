@@ -36,7 +36,7 @@ impl Emitter {
         }
     }
 
-    fn channel(&mut self, d: &DeviceRt, channel: &Arc<str>) -> &mut ChannelOut {
+    fn channel<P>(&mut self, d: &DeviceRt<P>, channel: &Arc<str>) -> &mut ChannelOut {
         let gateway = self.policy;
         self.channels
             .entry((d.name.clone(), channel.clone()))
@@ -61,7 +61,7 @@ impl Emitter {
     /// outputs to send (the bus sends them once their seq is durable, see `saver`).
     /// With `payload = "device"`, a poll in which any channel is due publishes all of them in
     /// one message.
-    pub(super) fn emit(&mut self, d: &mut DeviceRt, readings: Vec<Reading>) -> Vec<Output> {
+    pub(super) fn emit<P>(&mut self, d: &mut DeviceRt<P>, readings: Vec<Reading>) -> Vec<Output> {
         let payload = d.config.payload.unwrap_or(self.payload);
         let wants: Vec<bool> = readings
             .iter()

@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::{DeviceRt, Snapshot};
+use super::device::{DeviceRt, ModbusDevice, Snapshot};
 use super::link::Link;
 use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
@@ -29,7 +29,7 @@ fn exception(e: ExceptionCode) -> CommandError {
     CommandError::WriteFailed(format!("the module refused the write: {e:?}"))
 }
 
-impl DeviceRt {
+impl DeviceRt<ModbusDevice> {
     /// Carries out `req` on this (discovered) device.
     pub async fn execute(&mut self, link: &mut Link, req: &Request) -> Executed {
         let mut readings = Vec::new();
@@ -122,7 +122,7 @@ impl DeviceRt {
                         }
                     })?;
                 let timeout = self.timeout_for(link, 0);
-                link.write_registers(self.unit, ch.spec.count.address, &words, timeout)
+                link.write_registers(self.proto.unit, ch.spec.count.address, &words, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
@@ -196,7 +196,7 @@ impl DeviceRt {
                 .filter_map(|&i| self.channels[i].spec.clear_all)
                 .collect();
             for code in codes {
-                link.write_register(self.unit, code.register, code.code, timeout)
+                link.write_register(self.proto.unit, code.register, code.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
@@ -210,7 +210,7 @@ impl DeviceRt {
         for &i in targets.iter().filter(|i| !done.contains(i)) {
             let clear = self.channels[i].spec.clear.clone();
             if clear.restart.is_empty() {
-                link.write_register(self.unit, clear.register, clear.code, timeout)
+                link.write_register(self.proto.unit, clear.register, clear.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
@@ -218,16 +218,16 @@ impl DeviceRt {
                 // The register also runs the counter: note its state (up, down, paused or
                 // stopped), clear (which stops it), and put it back in that state.
                 let state = link
-                    .read(self.unit, clear.register, 1, timeout)
+                    .read(self.proto.unit, clear.register, 1, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                link.write_register(self.unit, clear.register, clear.code, timeout)
+                link.write_register(self.proto.unit, clear.register, clear.code, timeout)
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
                 if state[0] != clear.code {
-                    link.write_register(self.unit, clear.register, state[0], timeout)
+                    link.write_register(self.proto.unit, clear.register, state[0], timeout)
                         .await
                         .map_err(write_failed)?
                         .map_err(exception)?;

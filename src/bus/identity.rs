@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use tokio_modbus::ExceptionCode;
 
-use super::device::{DeviceRt, PollError};
+use super::device::{DeviceRt, ModbusDevice, PollError};
 use super::link::Link;
 use crate::profile::{Profile, Profiles};
 
@@ -102,7 +102,7 @@ fn hex(words: &[u16]) -> String {
     format!("[{}]", w.join(", "))
 }
 
-impl DeviceRt {
+impl DeviceRt<ModbusDevice> {
     /// Reads the identification registers and judges them. Link failures (no answer) are
     /// returned as such: they say nothing about the model.
     pub(super) async fn identify(&mut self, link: &mut Link) -> Result<Verdict, PollError> {
@@ -115,7 +115,7 @@ impl DeviceRt {
         if matches!(&own, Ok(w) if *w == expected.1) {
             return Ok(Verdict::Confirmed);
         }
-        let known = self.known.clone();
+        let known = self.proto.known.clone();
         let mut others = Vec::new();
         for id in known
             .iter()
@@ -143,7 +143,7 @@ impl DeviceRt {
         let timeout = self.timeout_for(link, len);
         let mut tries = 0;
         loop {
-            match link.read(self.unit, address, len, timeout).await {
+            match link.read(self.proto.unit, address, len, timeout).await {
                 // Lost to noise: asked again as a poll's read is (see `NOISE_RETRIES`).
                 Err(e)
                     if e.is_noise()

@@ -34,7 +34,7 @@ use crate::reading::Output;
 use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
-use driver::Driver;
+use driver::{DeviceState, Driver};
 use link::WireCounters;
 use schedule::{Slot, earliest};
 
@@ -152,19 +152,13 @@ impl BusTask {
             saver::Saver::new(self.state_path.clone(), name.clone()),
             after_seq,
         );
-        let wire = driver.wire_pricing();
-        let configured: Vec<_> = bus.devices.iter().map(|d| d.profile.clone()).collect();
-        let known = identity::known(&configured);
-        let devices: Vec<DeviceRt> = bus
+        let devices: Vec<DeviceRt<D::Device>> = bus
             .devices
             .iter()
             .filter(|d| d.enabled)
             .map(|d| {
-                let key = crate::state::device_key(d.unit, &d.model);
-                let mut rt = DeviceRt::new(bus, d, wire, &saved.channels, saved.holes_of(&key))
-                    .with_metrics(self.metrics.device(&d.name));
-                rt.known = known.clone();
-                rt
+                DeviceRt::new(bus, d, &saved.channels, driver.device(bus, d, &saved))
+                    .with_metrics(self.metrics.device(&d.name))
             })
             .collect();
         durable.orphans = unclaimed(&name, &saved, &devices);
@@ -297,6 +291,7 @@ impl BusTask {
                 }
                 self.heart.set_up(true);
                 let d = &mut core.devices[i];
+                d.note_good_poll();
                 availability::answered(d, &name, &self.out);
                 availability::mode_mismatch(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
@@ -351,10 +346,10 @@ enum Next {
 }
 
 /// The running bus: devices, their slots, the driver and the loop's bookkeeping.
-struct Core<D> {
+struct Core<D: Driver> {
     name: Arc<str>,
     driver: D,
-    devices: Vec<DeviceRt>,
+    devices: Vec<DeviceRt<D::Device>>,
     slots: Vec<Slot>,
     durable: saver::Durable,
     /// Configured units (a scan skips them).
@@ -377,7 +372,7 @@ impl<D: Driver> Core<D> {
     fn new(
         name: Arc<str>,
         driver: D,
-        devices: Vec<DeviceRt>,
+        devices: Vec<DeviceRt<D::Device>>,
         durable: saver::Durable,
         units: Vec<u8>,
         state_flush: Duration,
@@ -464,7 +459,7 @@ fn stall_hook(bus: &str) -> Option<Duration> {
 /// did.
 async fn run_one_command<D: driver::Driver>(
     pending: &mut Vec<BusCommand>,
-    devices: &mut [DeviceRt],
+    devices: &mut [DeviceRt<D::Device>],
     driver: &mut D,
 ) -> Option<(usize, Vec<crate::reading::Reading>)> {
     let now = Instant::now();
@@ -507,19 +502,14 @@ async fn run_one_command<D: driver::Driver>(
 /// The bus's state now: every device's, plus the saved state no configured device claims
 /// (kept, never attached to another meter); `clean` only for the save after the last reading
 /// at shutdown.
-fn snapshot(devices: &[DeviceRt], orphans: &BusState, clean: bool) -> BusState {
+fn snapshot<P: DeviceState>(devices: &[DeviceRt<P>], orphans: &BusState, clean: bool) -> BusState {
     let mut s = BusState {
         clean,
         ..orphans.clone()
     };
     for d in devices {
         s.channels.extend(d.counter_states());
-        if !d.holes.is_empty() {
-            s.holes.insert(
-                d.holes_key(),
-                d.holes.iter().map(|h| (h.start, h.end)).collect(),
-            );
-        }
+        d.proto.save(&mut s);
     }
     s
 }
@@ -527,12 +517,13 @@ fn snapshot(devices: &[DeviceRt], orphans: &BusState, clean: bool) -> BusState {
 /// Saved state that no configured (and enabled) device can have: kept as it is, so a device
 /// taken out of the config or disabled resumes its total, with a gap, when it comes back.
 /// `pulsegate state prune` removes it.
-fn unclaimed(bus: &str, saved: &BusState, devices: &[DeviceRt]) -> BusState {
+fn unclaimed<P: DeviceState>(bus: &str, saved: &BusState, devices: &[DeviceRt<P>]) -> BusState {
     let claimed: std::collections::BTreeSet<String> = devices
         .iter()
         .flat_map(|d| d.counter_states().into_keys())
         .collect();
-    let holes: std::collections::BTreeSet<String> = devices.iter().map(|d| d.holes_key()).collect();
+    let holes: std::collections::BTreeSet<String> =
+        devices.iter().filter_map(|d| d.proto.state_key()).collect();
     let mut out = BusState::default();
     for (key, state) in &saved.channels {
         if !claimed.contains(key) {

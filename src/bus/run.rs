@@ -4,7 +4,7 @@
 //! and its reading says so (`reset`); `run = "leave"` leaves it to another system; a paused
 //! counter is left paused.
 
-use super::device::{At, DeviceRt};
+use super::device::{At, DeviceRt, ModbusDevice};
 use super::link::Link;
 use crate::config::Run;
 use crate::counter::{Direction, Event};
@@ -60,7 +60,7 @@ pub(super) fn start_code(spec: &ChannelSpec, run: Run) -> Option<u16> {
     }
 }
 
-impl DeviceRt {
+impl DeviceRt<ModbusDevice> {
     /// Resumes channel `i`, found paused, where configured (`resume_paused`): the count was
     /// kept, so nothing is rebased; the next reads count on.
     pub(super) async fn resume_paused(&mut self, link: &mut Link, i: usize) {
@@ -71,7 +71,7 @@ impl DeviceRt {
         let (name, register) = (ch.name.clone(), ch.spec.clear.register);
         let timeout = self.timeout_for(link, 1);
         match link
-            .write_register(self.unit, register, code, timeout)
+            .write_register(self.proto.unit, register, code, timeout)
             .await
         {
             Ok(Ok(())) => {
@@ -101,7 +101,7 @@ impl DeviceRt {
             };
             let down = ch.run == Run::Down && ch.spec.kind == ChannelKind::Counter;
             let name = ch.name.clone();
-            let word = match link.read(self.unit, p.address, 1, timeout).await {
+            let word = match link.read(self.proto.unit, p.address, 1, timeout).await {
                 Ok(Ok(w)) => w[0],
                 other => {
                     tracing::warn!(device = %self.name, channel = %name, "power-on state not read: {other:?}");
@@ -111,7 +111,7 @@ impl DeviceRt {
             let wanted = p.apply(word, down);
             if wanted != word {
                 match link
-                    .write_register(self.unit, p.address, wanted, timeout)
+                    .write_register(self.proto.unit, p.address, wanted, timeout)
                     .await
                 {
                     Ok(Ok(())) => {
@@ -144,7 +144,7 @@ impl DeviceRt {
         let register = ch.spec.clear.register;
         let timeout = self.timeout_for(link, 1);
         match link
-            .write_register(self.unit, register, code, timeout)
+            .write_register(self.proto.unit, register, code, timeout)
             .await
         {
             Ok(Ok(())) => {}
@@ -169,7 +169,7 @@ impl DeviceRt {
             ch.counter.spec.direction = d;
         }
         let update = ch.counter.rebase(count, at.stamp, Event::Reset);
-        self.module_restarted();
+        self.proto.module_restarted();
         let ch = &self.channels[i];
         Some(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update))
     }

@@ -150,9 +150,9 @@ impl Durable {
 
     /// Collects a finished save, releases what it covers, and starts the next save if readings
     /// are still held.
-    pub async fn collect(
+    pub async fn collect<P: super::DeviceState>(
         &mut self,
-        devices: &[super::DeviceRt],
+        devices: &[super::DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         self.saver.collect(&mut self.ledger).await;
@@ -165,15 +165,15 @@ impl Durable {
 
     /// Sends `outputs` (the readings of `devices[from]`), or holds them until a save covers
     /// their seq.
-    pub fn publish(
+    pub fn publish<P: super::DeviceState>(
         &mut self,
         outputs: Vec<Output>,
         from: usize,
-        devices: &[super::DeviceRt],
+        devices: &[super::DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         let d = &devices[from];
-        let key = |r: &Reading| crate::state::channel_key(d.unit, &d.config.model, &r.channel);
+        let key = |r: &Reading| d.state_key(&r.channel);
         for o in outputs {
             let keys = readings_of(&o)
                 .iter()
@@ -205,9 +205,9 @@ impl Durable {
     }
 
     /// The last save, at shutdown (seq may go on from here), then whatever was held.
-    pub async fn finish(
+    pub async fn finish<P: super::DeviceState>(
         &mut self,
-        devices: &[super::DeviceRt],
+        devices: &[super::DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) -> bool {
         let saved = self

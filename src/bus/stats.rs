@@ -7,6 +7,7 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::device::DeviceRt;
+use super::driver::DeviceState;
 use super::link::WireCounters;
 use super::schedule::Slot;
 
@@ -50,9 +51,9 @@ fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
 
 /// Bus health since the last report: the wire's counters now and then, the devices and their
 /// slots, the interval and the time the line was busy in it.
-pub(super) fn of(
+pub(super) fn of<P: DeviceState>(
     (c, since): (&WireCounters, &WireCounters),
-    devices: &[DeviceRt],
+    devices: &[DeviceRt<P>],
     slots: &[Slot],
     wall: Duration,
     busy: Duration,
@@ -67,7 +68,7 @@ pub(super) fn of(
             poll_ms: ms(d.config.poll.as_secs_f64()),
             achieved_poll_ms: d.achieved_interval.map(ms),
             missed: s.missed,
-            turnaround_ms: d.turnaround().map(ms),
+            turnaround_ms: d.proto.turnaround().map(ms),
             latency_p50_ms: percentile(&lat, 0.5).map(ms),
             latency_p99_ms: percentile(&lat, 0.99).map(ms),
             last_error: d.availability.last_error().map(str::to_string),

@@ -11,7 +11,7 @@ use serde_json::{Value, json};
 use super::CommissionError;
 use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
-use crate::bus::device::DeviceRt;
+use crate::bus::device::{DeviceRt, ModbusDevice};
 use crate::bus::link::Link;
 use crate::command::{Op, Reply, Request};
 use crate::config::{Bus, ChannelConfig, Device, Run};
@@ -86,7 +86,7 @@ pub(super) fn poller(
     unit: u8,
     profile: &Arc<Profile>,
     link: &Link,
-) -> DeviceRt {
+) -> DeviceRt<ModbusDevice> {
     let bus = Bus {
         name: "commission".into(),
         link: target.link_config(baud),
@@ -128,19 +128,20 @@ pub(super) fn poller(
         Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
         None => Wire::tcp(),
     };
-    DeviceRt::new(&bus, &device, wire, &BTreeMap::new(), Vec::new())
+    let proto = ModbusDevice::new(&bus, &device, wire, Vec::new());
+    DeviceRt::new(&bus, &device, &BTreeMap::new(), proto)
 }
 
 /// One read of every channel, as JSON: the gateway's payload fields (count, freq_hz, rpm) plus
 /// kind and pulses per revolution, and the work modes.
 pub(super) async fn read_once(
-    rt: &mut DeviceRt,
+    rt: &mut DeviceRt<ModbusDevice>,
     link: &mut Link,
     profile: &Profile,
     target: &Target,
     baud: u32,
 ) -> Result<Value, CommissionError> {
-    let unit = rt.unit;
+    let unit = rt.proto.unit;
     let readings = rt.poll(link, &|| false).await.map_err(|e| match e {
         crate::bus::device::PollError::Link(l) => target.error(unit, l),
         other => CommissionError::Failed(format!("unit {unit}: {other}")),
@@ -228,7 +229,7 @@ pub(super) fn table(read: &Value, previous: Option<&Value>) -> String {
 
 /// Clears or presets one channel the way an MQTT command does; returns the count read back.
 pub(super) async fn write_count(
-    rt: &mut DeviceRt,
+    rt: &mut DeviceRt<ModbusDevice>,
     link: &mut Link,
     target: &Target,
     channel: &str,
@@ -236,8 +237,8 @@ pub(super) async fn write_count(
 ) -> Result<Option<i64>, CommissionError> {
     // The poll discovers the channels (work modes) first, as the gateway does.
     rt.poll(link, &|| false).await.map_err(|e| match e {
-        crate::bus::device::PollError::Link(l) => target.error(rt.unit, l),
-        other => CommissionError::Failed(format!("unit {}: {other}", rt.unit)),
+        crate::bus::device::PollError::Link(l) => target.error(rt.proto.unit, l),
+        other => CommissionError::Failed(format!("unit {}: {other}", rt.proto.unit)),
     })?;
     let now = tokio::time::Instant::now();
     let req = Request {
