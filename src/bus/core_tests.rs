@@ -8,9 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use tokio::sync::mpsc::unbounded_channel;
 
-use super::driver::{Driver, Preempt};
-use super::execute::Executed;
-use super::link::LinkError;
+use super::driver::{DeviceState, Driver, Executed, Preempt};
 use super::*;
 use crate::reading::Reading;
 
@@ -57,9 +55,10 @@ impl Driver for Scripted {
     ) -> Result<Vec<Reading>, PollError> {
         tokio::time::sleep(Duration::from_millis(50)).await;
         if self.outage.contains(&self.note("poll")) {
-            return Err(PollError::Link(LinkError::Timeout(Duration::from_millis(
-                100,
-            ))));
+            return Err(PollError::Device {
+                message: "no answer".into(),
+                answered: false,
+            });
         }
         Ok(Vec::new())
     }

@@ -9,10 +9,11 @@ use tokio::sync::mpsc::{Receiver, UnboundedSender};
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
-use super::device::{DeviceRt, ModbusDevice, PollError};
-use super::execute::Executed;
+use super::device::{DeviceRt, PollError};
 use super::identity::Identity;
-use super::link::{Link, WireCounters};
+use super::link::Link;
+use super::modbus::ModbusDevice;
+use super::stats::WireCounters;
 use super::survey::{ScanRequest, Survey};
 use crate::command::Request;
 use crate::config::Bus;
@@ -20,6 +21,13 @@ use crate::plan::Wire;
 use crate::reading::{Output, Reading};
 use crate::state::BusState;
 use std::sync::Arc;
+
+/// The outcome of a command: readings to publish (booked counts and the event readings) and the
+/// result (the count read back for a single channel).
+pub struct Executed {
+    pub readings: Vec<Reading>,
+    pub result: Result<Option<i64>, crate::command::CommandError>,
+}
 
 /// Asked between transactions: `true` when a command waits and the poll should give way.
 pub type Preempt<'a> = &'a (dyn Fn() -> bool + Sync);
@@ -85,8 +93,6 @@ pub trait DeviceState {
 pub struct Idle<'a> {
     /// The next poll: the idle time ends here.
     pub until: Instant,
-    /// Configured units (a scan skips them).
-    pub units: &'a [u8],
     pub bus: &'a str,
     pub out: &'a UnboundedSender<Output>,
     pub shutdown: &'a CancellationToken,
@@ -97,6 +103,8 @@ pub struct Modbus {
     pub link: Link,
     /// Identification of every model configured on the bus, to name what a wrong module is.
     known: Arc<[Identity]>,
+    /// Configured units (a scan skips them).
+    units: Vec<u8>,
     scan: Option<Survey>,
     requests: Option<Receiver<ScanRequest>>,
 }
@@ -114,6 +122,7 @@ impl Modbus {
         Modbus {
             link,
             known: super::identity::known(&configured),
+            units: bus.devices.iter().map(|d| d.unit).collect(),
             scan: None,
             requests: None,
         }
@@ -187,7 +196,7 @@ impl Driver for Modbus {
             &mut self.requests,
             &mut self.link,
             idle.until,
-            idle.units,
+            &self.units,
             idle.bus,
             idle.out,
             idle.shutdown,

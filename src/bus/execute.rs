@@ -6,20 +6,15 @@ use std::collections::BTreeSet;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::{DeviceRt, ModbusDevice, Snapshot};
+use super::device::DeviceRt;
+use super::driver::Executed;
 use super::link::Link;
+use super::modbus::{ModbusDevice, Snapshot};
 use crate::command::{CommandError, Op, Request};
 use crate::counter::Event;
 use crate::decode::{decode, encode_int};
 use crate::profile::Register;
 use crate::reading::Reading;
-
-/// The outcome of a command: readings to publish (booked counts and the event readings) and the
-/// result (the count read back for a single channel).
-pub struct Executed {
-    pub readings: Vec<Reading>,
-    pub result: Result<Option<i64>, CommandError>,
-}
 
 fn write_failed(e: impl std::fmt::Display) -> CommandError {
     CommandError::WriteFailed(e.to_string())

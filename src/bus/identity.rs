@@ -7,8 +7,9 @@ use std::sync::Arc;
 
 use tokio_modbus::ExceptionCode;
 
-use super::device::{DeviceRt, ModbusDevice, PollError};
+use super::device::{DeviceRt, PollError};
 use super::link::Link;
+use super::modbus::ModbusDevice;
 use crate::profile::{Profile, Profiles};
 
 /// The identification of one known model.
@@ -148,7 +149,7 @@ impl DeviceRt<ModbusDevice> {
                 Err(e)
                     if e.is_noise()
                         && self.availability.worth_retrying(e.device_answered())
-                        && tries < super::device::NOISE_RETRIES =>
+                        && tries < super::modbus::NOISE_RETRIES =>
                 {
                     tries += 1
                 }

@@ -72,18 +72,7 @@ impl LinkError {
 /// A transaction's outcome: the link failed, or the device answered (possibly an exception).
 pub type Answer<T> = Result<Result<T, ExceptionCode>, LinkError>;
 
-/// Counters of what happened on the wire (for health stats).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct WireCounters {
-    pub transactions: u64,
-    pub timeouts: u64,
-    pub mismatches: u64,
-    pub io_errors: u64,
-    pub exceptions: u64,
-    pub reconnects: u64,
-    /// Answers that arrived garbled (bad CRC, cut short).
-    pub garbled: u64,
-}
+pub use super::stats::WireCounters;
 
 /// One bus's wire.
 pub struct Link {

@@ -9,6 +9,7 @@ mod execute;
 mod identity;
 mod ledger;
 pub mod link;
+pub mod modbus;
 mod run;
 mod saver;
 pub mod schedule;
@@ -35,8 +36,8 @@ use crate::state::{BusState, bus_path};
 use device::DeviceRt;
 pub use device::PollError;
 use driver::{DeviceState, Driver};
-use link::WireCounters;
 use schedule::{Slot, earliest};
+use stats::WireCounters;
 
 /// A checked command for a device on this bus, and where its outcome goes.
 pub struct BusCommand {
@@ -168,7 +169,6 @@ impl BusTask {
             driver,
             devices,
             durable,
-            bus.devices.iter().map(|d| d.unit).collect(),
             self.state_flush,
             self.stats_interval,
         ))
@@ -209,7 +209,6 @@ impl BusTask {
             }
             let idle = driver::Idle {
                 until: core.slots[i].due,
-                units: &core.units,
                 bus: &core.name,
                 out: &self.out,
                 shutdown,
@@ -352,8 +351,6 @@ struct Core<D: Driver> {
     devices: Vec<DeviceRt<D::Device>>,
     slots: Vec<Slot>,
     durable: saver::Durable,
-    /// Configured units (a scan skips them).
-    units: Vec<u8>,
     start: Instant,
     flush_at: Instant,
     stats_at: Instant,
@@ -374,7 +371,6 @@ impl<D: Driver> Core<D> {
         driver: D,
         devices: Vec<DeviceRt<D::Device>>,
         durable: saver::Durable,
-        units: Vec<u8>,
         state_flush: Duration,
         stats_interval: Duration,
     ) -> Core<D> {
@@ -389,7 +385,6 @@ impl<D: Driver> Core<D> {
             devices,
             slots,
             durable,
-            units,
             start,
             flush_at: start + state_flush,
             stats_at: start + stats_interval,

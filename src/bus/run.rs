@@ -4,8 +4,9 @@
 //! and its reading says so (`reset`); `run = "leave"` leaves it to another system; a paused
 //! counter is left paused.
 
-use super::device::{At, DeviceRt, ModbusDevice};
+use super::device::{At, DeviceRt};
 use super::link::Link;
+use super::modbus::ModbusDevice;
 use crate::config::Run;
 use crate::counter::{Direction, Event};
 use crate::profile::{ChannelKind, ChannelSpec, Register};

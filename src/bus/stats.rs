@@ -8,8 +8,23 @@ use serde::Serialize;
 
 use super::device::DeviceRt;
 use super::driver::DeviceState;
-use super::link::WireCounters;
 use super::schedule::Slot;
+
+/// Counters of what happened on the wire, kept by the driver (for health stats). The names are
+/// the ones the stats have always published; every protocol has these events.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct WireCounters {
+    pub transactions: u64,
+    pub timeouts: u64,
+    /// Answers to another request (late ones), dropped (`stale_dropped` in the stats).
+    pub mismatches: u64,
+    pub io_errors: u64,
+    /// Requests the device refused (Modbus: exception answers).
+    pub exceptions: u64,
+    pub reconnects: u64,
+    /// Answers that arrived garbled (bad CRC, cut short).
+    pub garbled: u64,
+}
 
 /// One bus's health over the last stats interval.
 #[derive(Debug, Clone, PartialEq, Serialize)]

@@ -1,0 +1,579 @@
+//! What the Modbus driver keeps of one device ([`ModbusDevice`]) and how it polls it: identity,
+//! work modes and the channels they give, slow registers, then counts and frequencies read in
+//! planned blocks (holes learnt from exception 02 are read around).
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::time::Instant;
+use tokio_modbus::ExceptionCode;
+
+use super::device::{At, ChannelRt, DeviceRt, PollError};
+use super::driver::DeviceState;
+use super::identity::{Identity, Verdict};
+use super::link::Link;
+use super::run::RunState;
+use crate::config::{Bus, ChannelConfig, Device, Run};
+use crate::counter::{Counter, CounterSpec, Direction};
+use crate::decode::decode;
+use crate::plan::{Block, Wire, plan_reads};
+use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
+use crate::reading::Reading;
+use crate::state::device_key;
+
+/// Times a read is asked again after noise (timeout, garbled, mismatch), when the device's
+/// availability says it is worth it ([`Availability::worth_retrying`]).
+///
+/// [`Availability::worth_retrying`]: super::availability::Availability::worth_retrying
+pub(super) const NOISE_RETRIES: u32 = 2;
+
+/// Registers read in one poll, by block.
+pub(super) struct Snapshot {
+    blocks: Vec<(Block, Vec<u16>, At)>,
+}
+
+impl Snapshot {
+    pub(super) fn get(&self, r: &Register) -> Option<(&[u16], At)> {
+        self.blocks
+            .iter()
+            .find(|(b, ..)| b.covers(r))
+            .map(|(b, words, at)| {
+                let off = usize::from(r.address - b.start);
+                (&words[off..off + usize::from(r.len())], *at)
+            })
+    }
+}
+
+/// What a Modbus driver keeps of one device: its unit, the register plan and what shapes it
+/// (holes, wire prices, measured turnaround), the work modes, and the identity check.
+pub struct ModbusDevice {
+    pub unit: u8,
+    /// Where the holes are saved in the state file.
+    holes_key: String,
+    /// Answer timeout before line time is added.
+    answer_timeout: Duration,
+    wire: Wire,
+    modes: Option<Vec<u16>>,
+    fast: Vec<Register>,
+    /// Register ranges the device refused (exception 02): never bridged again.
+    pub holes: Vec<Range<u16>>,
+    last_slow: Option<Instant>,
+    slow_every: Duration,
+    /// The plan of the last read asked for (the count poll asks for the same every time).
+    plan_memo: Option<crate::plan::PollPlan>,
+    /// Measured turnaround (seconds, moving average), RTU only.
+    turnaround: Option<f64>,
+    /// The module's identity is to be checked before the next poll (at discovery, after a
+    /// reset).
+    pub(super) identify_due: bool,
+    /// Identification of every known model, to name what a wrong module is.
+    pub(super) known: Arc<[Identity]>,
+    unidentified_warned: bool,
+}
+
+impl ModbusDevice {
+    pub fn new(bus: &Bus, config: &Device, wire: Wire, holes: Vec<Range<u16>>) -> ModbusDevice {
+        ModbusDevice {
+            unit: config.unit,
+            holes_key: device_key(config.unit, &config.model),
+            answer_timeout: config.answer_timeout(bus),
+            wire,
+            modes: None,
+            fast: Vec::new(),
+            holes,
+            last_slow: None,
+            slow_every: bus.slow_poll,
+            plan_memo: None,
+            turnaround: None,
+            identify_due: true,
+            known: Arc::from(Vec::new()),
+            unidentified_warned: false,
+        }
+    }
+
+    /// Knows every model in `known`, to name what a wrong module is.
+    pub fn with_known(mut self, known: Arc<[Identity]>) -> ModbusDevice {
+        self.known = known;
+        self
+    }
+
+    /// The key under which this device's holes are saved.
+    pub fn holes_key(&self) -> String {
+        self.holes_key.clone()
+    }
+
+    /// Whether the channels are known (the work modes were read).
+    pub fn discovered(&self) -> bool {
+        self.modes.is_some()
+    }
+
+    /// The module restarted (or was reset by someone else): it may be another module now, and
+    /// mode words written before take effect at a restart. Both are read again next poll.
+    pub(super) fn module_restarted(&mut self) {
+        self.identify_due = true;
+        self.last_slow = None;
+    }
+}
+
+impl DeviceState for ModbusDevice {
+    fn poll_failed(&mut self, e: &PollError) {
+        // A module that starts refusing registers it answered before may be another module, or
+        // have restarted in another work mode: identity and modes are read again (once per new
+        // refusal, so a device that keeps refusing costs no extra reads).
+        if matches!(e, PollError::Refused { .. }) && self.discovered() {
+            self.module_restarted();
+        }
+    }
+
+    fn went_offline(&mut self) {
+        // Whatever answers at this address next may be another module.
+        self.identify_due = true;
+    }
+
+    fn turnaround(&self) -> Option<f64> {
+        self.turnaround
+    }
+
+    fn save(&self, state: &mut crate::state::BusState) {
+        if !self.holes.is_empty() {
+            state.holes.insert(
+                self.holes_key(),
+                self.holes.iter().map(|h| (h.start, h.end)).collect(),
+            );
+        }
+    }
+
+    fn state_key(&self) -> Option<String> {
+        Some(self.holes_key())
+    }
+}
+
+impl DeviceRt<ModbusDevice> {
+    /// One poll: discovery and slow registers when due, then counts and frequencies.
+    /// `preempt` is asked between transactions: when it says yes, the poll gives way.
+    pub async fn poll(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Vec<Reading>, PollError> {
+        self.discover(link, preempt).await?;
+        let fast = std::mem::take(&mut self.proto.fast);
+        let snapshot = self.read_registers(link, &fast, preempt).await;
+        self.proto.fast = fast;
+        let snapshot = snapshot?;
+        let order = self.profile.word_order;
+        let mut readings = Vec::with_capacity(self.channels.len());
+        let mut stopped = Vec::new();
+        let mut paused = Vec::new();
+        let mut restarted = false;
+        for (i, ch) in self.channels.iter_mut().enumerate() {
+            let Some((words, at)) = snapshot.get(&ch.spec.count) else {
+                continue;
+            };
+            let count = decode(words, ch.spec.count.ty, order).as_i64();
+            let freq_hz = ch
+                .spec
+                .freq
+                .and_then(|r| snapshot.get(&r))
+                .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
+                .filter(|f| f.is_finite())
+                .and_then(|f| match ch.spec.freq_window {
+                    // Pulses in the module's counting window → Hz.
+                    Some(_) => ch.window_s.map(|s| f / s),
+                    None => Some(f),
+                });
+            let rpm = match (freq_hz, ch.ppr) {
+                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
+                _ => None,
+            };
+            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
+                match super::run::run_state(&ch.spec, w[0]) {
+                    // The module cleared it; the gateway starts it after this read.
+                    RunState::Stopped if ch.run != Run::Leave => {
+                        stopped.push((i, count, at, freq_hz, rpm));
+                        continue;
+                    }
+                    RunState::Running(d) => ch.counter.spec.direction = d,
+                    RunState::Paused if ch.resume_paused => paused.push(i),
+                    _ => {}
+                }
+            }
+            // A read the counter holds as suspect is not published.
+            let Some(update) = ch.counter.update(count, at.stamp) else {
+                tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
+                continue;
+            };
+            if update.event == Some(crate::counter::Event::Reset) {
+                restarted = true;
+            }
+            let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);
+            self.metrics.reading(&reading);
+            readings.push(reading);
+        }
+        for (i, count, at, freq_hz, rpm) in stopped {
+            if let Some(reading) = self.start_stopped(link, i, count, at, freq_hz, rpm).await {
+                self.metrics.reading(&reading);
+                readings.push(reading);
+            }
+        }
+        for i in paused {
+            self.resume_paused(link, i).await;
+        }
+        if restarted {
+            self.proto.module_restarted();
+        }
+        Ok(readings)
+    }
+
+    /// Discovery when due (identity, then the work modes and slow registers that give the
+    /// channels), and the slow registers' refresh.
+    pub async fn discover(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        if self.proto.identify_due {
+            self.check_identity(link).await?;
+        }
+        let slow_due = self
+            .proto
+            .last_slow
+            .is_none_or(|t| t.elapsed() >= self.proto.slow_every);
+        if self.proto.modes.is_none() {
+            // Without the work modes there are no channels: discovery must succeed.
+            self.read_slow(link, preempt).await?;
+        } else if slow_due {
+            // Once discovered, a failed refresh of the slow registers keeps the values known
+            // and tries again a slow interval later; the counts matter more.
+            match self.read_slow(link, preempt).await {
+                Err(PollError::Preempted) => return Err(PollError::Preempted),
+                Err(e) => {
+                    tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
+                    self.proto.last_slow = Some(Instant::now());
+                }
+                Ok(()) => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the module's identity (due at discovery and after a reset).
+    async fn check_identity(&mut self, link: &mut Link) -> Result<(), PollError> {
+        match self.identify(link).await? {
+            Verdict::Confirmed => {}
+            Verdict::Unidentified => {
+                if !std::mem::replace(&mut self.proto.unidentified_warned, true) {
+                    tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
+                }
+            }
+            Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
+        }
+        self.proto.identify_due = false;
+        if let Some(was) = self.wrong_model.take() {
+            tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
+            self.metrics.wrong_model(false);
+        }
+        Ok(())
+    }
+
+    /// Reads work modes (and with them the channel set) and pulses per revolution.
+    async fn read_slow(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        let mode_regs = self.profile.mode_registers();
+        let word = |address| Register {
+            address,
+            ty: ValueType::U16,
+        };
+        // The mode words, then the partner words that must agree with them.
+        let regs: Vec<Register> = mode_regs
+            .iter()
+            .map(|m| word(m.address))
+            .chain(mode_regs.iter().filter_map(|m| m.partner.map(word)))
+            .collect();
+        let snap = self.read_registers(link, &regs, preempt).await?;
+        // Masked: bits outside the mask (a counter's power-on state) are no work mode.
+        let masks = mode_regs.iter().map(|m| m.mask).chain(
+            mode_regs
+                .iter()
+                .filter(|m| m.partner.is_some())
+                .map(|m| m.mask),
+        );
+        let modes: Vec<u16> = regs
+            .iter()
+            .zip(masks)
+            .filter_map(|(r, mask)| snap.get(r).map(|(w, _)| w[0] & mask))
+            .collect();
+        let mut specs = self
+            .profile
+            .channels(&modes)
+            .map_err(|e| PollError::Profile(e.to_string()))?;
+        let value = |a| snap.get(&word(a)).map(|(w, _)| w[0]);
+        // (mode word, description) of each pair whose two words disagree.
+        let mismatched: Vec<(u16, String)> = mode_regs
+            .iter()
+            .filter_map(|m| {
+                let (own, partner) = (value(m.address)?, value(m.partner?)?);
+                ((own ^ partner) & m.mask != 0).then(|| {
+                    let why = format!(
+                        "mode words {:#06x} = {own:#06x} and {:#06x} = {partner:#06x} disagree on bits {:#06x}",
+                        m.address,
+                        m.partner.expect("checked"),
+                        m.mask
+                    );
+                    (m.address, why)
+                })
+            })
+            .collect();
+        // The module does not count such a pair: publish no channel that never moves.
+        specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
+        let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
+        self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
+        if self.proto.modes.as_ref() != Some(&modes) {
+            if self.proto.modes.is_some() {
+                tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
+            }
+            self.build_channels(specs);
+            self.proto.modes = Some(modes);
+        }
+        let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
+        if !ppr_regs.is_empty() {
+            let snap = self.read_registers(link, &ppr_regs, preempt).await?;
+            let order = self.profile.word_order;
+            for ch in &mut self.channels {
+                let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
+                let read = ch
+                    .spec
+                    .ppr
+                    .and_then(|r| snap.get(&r))
+                    .map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
+                ch.ppr = configured.or(read.filter(|p| *p > 0.0));
+            }
+        }
+        self.read_windows(link, preempt).await?;
+        self.set_power_on(link).await;
+        self.replan_with_turnaround(link);
+        self.proto.last_slow = Some(Instant::now());
+        Ok(())
+    }
+
+    /// Reads the counting windows of frequency registers that count pulses per window.
+    async fn read_windows(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
+        let regs: Vec<Register> = self
+            .channels
+            .iter()
+            .filter_map(|c| c.spec.freq_window.map(|w| w.register))
+            .collect();
+        if regs.is_empty() {
+            return Ok(());
+        }
+        let snap = self.read_registers(link, &regs, preempt).await?;
+        let order = self.profile.word_order;
+        for ch in &mut self.channels {
+            let Some(w) = ch.spec.freq_window else {
+                continue;
+            };
+            let Some((words, _)) = snap.get(&w.register) else {
+                continue;
+            };
+            let raw = decode(words, w.register.ty, order).as_i64() as u64;
+            let seconds = w.seconds(raw);
+            if seconds.is_none() && !std::mem::replace(&mut ch.window_bad, true) {
+                tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
+            }
+            ch.window_bad = seconds.is_none();
+            ch.window_s = seconds;
+        }
+        Ok(())
+    }
+
+    /// Builds the channels of the current work mode. A channel keeps its counter across the
+    /// rebuild; a channel the new mode does not have (or a disabled one) keeps its state for
+    /// when it comes back, resumed with a gap.
+    fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
+        let mut old: BTreeMap<String, Counter> = self
+            .channels
+            .drain(..)
+            .map(|c| (c.name.to_string(), c.counter))
+            .collect();
+        for spec in specs {
+            let overrides = self
+                .config
+                .channels
+                .get(&spec.name)
+                .cloned()
+                .unwrap_or_default();
+            if !overrides.enabled {
+                continue;
+            }
+            let counter_spec = counter_spec(&spec, &overrides);
+            let key = self.state_key(&spec.name);
+            let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
+                (Some(c), _) => c.with_spec(counter_spec),
+                (None, Some(saved)) => Counter::resume(counter_spec, saved),
+                (None, None) => Counter::new(counter_spec),
+            };
+            self.channels.push(ChannelRt {
+                name: Arc::from(spec.name.as_str()),
+                ppr: overrides.ppr,
+                run: overrides.run,
+                resume_paused: overrides.resume_paused,
+                command: super::run::command_register(&spec),
+                window_s: None,
+                window_bad: false,
+                power_on_done: false,
+                spec,
+                counter,
+            });
+        }
+        for (name, gone) in old {
+            let key = self.state_key(&name);
+            tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
+            self.saved.insert(key, gone.state);
+        }
+        self.proto.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
+    }
+
+    /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
+    /// and is split at once.
+    pub(super) async fn read_registers(
+        &mut self,
+        link: &mut Link,
+        regs: &[Register],
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Snapshot, PollError> {
+        let mut blocks = self.plan(regs);
+        let mut out = Vec::with_capacity(blocks.len());
+        let mut i = 0;
+        let mut retries = 0;
+        while i < blocks.len() {
+            if preempt() {
+                return Err(PollError::Preempted);
+            }
+            let b = blocks[i];
+            let timeout = self.timeout_for(link, b.len);
+            let started = Instant::now();
+            let answer = match link.read(self.proto.unit, b.start, b.len, timeout).await {
+                // A device that lost one request or answer to noise is asked again: on a noisy
+                // line a corrupted request gets no answer at all, and three of those in a row
+                // must not make a healthy device offline. An offline device that stays silent
+                // is not asked twice (a dead one costs the others one timeout per probe).
+                Err(e)
+                    if e.is_noise()
+                        && self.availability.worth_retrying(e.device_answered())
+                        && retries < NOISE_RETRIES =>
+                {
+                    retries += 1;
+                    continue;
+                }
+                other => other?,
+            };
+            retries = 0;
+            match answer {
+                Ok(words) => {
+                    let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
+                    self.record_latency(latency, link, b.len);
+                    out.push((b, words, At::now()));
+                    i += 1;
+                }
+                Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
+                    let gaps = b.gaps(regs);
+                    tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
+                    self.proto.holes.extend(gaps);
+                    let rest: Vec<Register> = regs
+                        .iter()
+                        .filter(|r| !out.iter().any(|(done, ..): &(Block, _, _)| done.covers(r)))
+                        .copied()
+                        .collect();
+                    blocks.truncate(i);
+                    blocks.extend(plan_reads(&rest, &self.proto.holes, &self.proto.wire));
+                }
+                Err(exception) => {
+                    return Err(PollError::Refused {
+                        start: b.start,
+                        len: b.len,
+                        exception,
+                    });
+                }
+            }
+        }
+        Ok(Snapshot { blocks: out })
+    }
+
+    /// The reads for `regs`: planned once and reused while the registers, the holes and the
+    /// wire's prices stay the same (the count poll asks for the same registers every time).
+    fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
+        if let Some(p) = &self.proto.plan_memo
+            && p.fits(regs, self.proto.holes.len(), &self.proto.wire)
+        {
+            return p.blocks.clone();
+        }
+        let p = crate::plan::PollPlan::new(regs, &self.proto.holes, &self.proto.wire);
+        tracing::debug!(device = %self.name, plan = %p.describe(), "poll plan");
+        let blocks = p.blocks.clone();
+        self.proto.plan_memo = Some(p);
+        blocks
+    }
+
+    /// The answer timeout plus the time the request and answer take on the line.
+    pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
+        let line = link
+            .timing_for(self.proto.unit)
+            .map(|t| t.chars(crate::plan::read_chars(len)))
+            .unwrap_or_default();
+        self.proto.answer_timeout + line
+    }
+
+    /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
+    /// the time the request and answer of `len` registers take on the line.
+    fn record_latency(&mut self, d: Duration, link: &Link, len: u16) {
+        self.metrics.latency(d);
+        if self.latencies.len() >= 256 {
+            self.latencies.pop_front();
+        }
+        self.latencies.push_back(d.as_secs_f64());
+        if let Some(t) = link.timing_for(self.proto.unit) {
+            let line = t.chars(crate::plan::read_chars(len));
+            let turnaround = d.saturating_sub(line).as_secs_f64();
+            self.proto.turnaround = Some(match self.proto.turnaround {
+                Some(old) => old * 0.9 + turnaround * 0.1,
+                None => turnaround,
+            });
+        }
+    }
+
+    /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
+    /// request really costs this device.
+    fn replan_with_turnaround(&mut self, link: &Link) {
+        if let (Some(t), Some(ta)) = (link.timing_for(self.proto.unit), self.proto.turnaround) {
+            self.proto.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
+        }
+    }
+}
+
+/// How a channel's count moves: encoders both ways; inputs counting on their own only up, or
+/// in the direction the gateway runs them (ZH-YX1600 counters are signed and can count down).
+fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
+    let signed = matches!(spec.count.ty, ValueType::I32 | ValueType::I16);
+    let direction = match (spec.kind, signed, config.run) {
+        (ChannelKind::Encoder, ..) => Direction::Both,
+        (ChannelKind::Counter, false, _) => Direction::Up,
+        (ChannelKind::Counter, true, _) if spec.clear.restart.is_empty() => Direction::Both,
+        (ChannelKind::Counter, true, Run::Up) => Direction::Up,
+        (ChannelKind::Counter, true, Run::Down) => Direction::Down,
+        (ChannelKind::Counter, true, Run::Leave) => Direction::Both,
+    };
+    CounterSpec {
+        modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
+        direction,
+        max_rate_hz: config.max_rate_hz.unwrap_or(spec.max_rate_hz),
+    }
+}
