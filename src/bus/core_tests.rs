@@ -28,29 +28,47 @@ impl Scripted {
     }
 }
 
-/// The scripted protocol keeps nothing per device.
-struct Nothing;
+/// The scripted protocol's per-device state: what the core told it, saved with the bus's state
+/// (under the key `scripted`, as the Modbus driver saves its holes under the device's key).
+#[derive(Default)]
+struct Heard {
+    failed: u16,
+    offline: u16,
+}
 
-impl DeviceState for Nothing {}
-
-impl Driver for Scripted {
-    type Device = Nothing;
-
-    fn device(&self, _: &Bus, _: &crate::config::Device, _: &BusState) -> Nothing {
-        Nothing
+impl DeviceState for Heard {
+    fn poll_failed(&mut self, _: &PollError) {
+        self.failed += 1;
     }
 
-    async fn discover(
-        &mut self,
-        _: &mut DeviceRt<Nothing>,
-        _: Preempt<'_>,
-    ) -> Result<(), PollError> {
+    fn went_offline(&mut self) {
+        self.offline += 1;
+    }
+
+    fn save(&self, state: &mut BusState) {
+        let heard = vec![(self.failed, self.offline)];
+        state.holes.insert("scripted".into(), heard);
+    }
+
+    fn state_key(&self) -> Option<String> {
+        Some("scripted".into())
+    }
+}
+
+impl Driver for Scripted {
+    type Device = Heard;
+
+    fn device(&self, _: &Bus, _: &crate::config::Device, _: &BusState) -> Heard {
+        Heard::default()
+    }
+
+    async fn discover(&mut self, _: &mut DeviceRt<Heard>, _: Preempt<'_>) -> Result<(), PollError> {
         Ok(())
     }
 
     async fn poll(
         &mut self,
-        _: &mut DeviceRt<Nothing>,
+        _: &mut DeviceRt<Heard>,
         _: Preempt<'_>,
     ) -> Result<Vec<Reading>, PollError> {
         tokio::time::sleep(Duration::from_millis(50)).await;
@@ -63,7 +81,7 @@ impl Driver for Scripted {
         Ok(Vec::new())
     }
 
-    async fn execute(&mut self, _: &mut DeviceRt<Nothing>, _: &Request) -> Executed {
+    async fn execute(&mut self, _: &mut DeviceRt<Heard>, _: &Request) -> Executed {
         tokio::time::sleep(Duration::from_millis(50)).await;
         self.note("execute");
         Executed {
@@ -80,7 +98,7 @@ impl Driver for Scripted {
         false
     }
 
-    fn ready_for_commands(&self, _: &DeviceRt<Nothing>) -> bool {
+    fn ready_for_commands(&self, _: &DeviceRt<Heard>) -> bool {
         true
     }
 
@@ -179,6 +197,21 @@ async fn a_sixty_second_outage_takes_the_device_offline_and_back_with_few_probes
     assert!(probes <= 13, "{probes} transactions in the 60 s outage");
     let back = log.iter().find(|(at, _)| *at >= secs(65)).unwrap().0;
     assert!(back <= secs(65 + 8), "asked again {back:?} after the start");
+}
+
+#[tokio::test(start_paused = true)]
+async fn the_protocols_own_device_state_hears_the_outage_and_is_saved_with_the_bus() {
+    let secs = Duration::from_secs;
+    let config = config("heard");
+    let path = crate::state::bus_path(&config.gateway.state_dir, "l");
+    let mut bus = start_with(config, secs(5)..secs(65));
+    tokio::time::sleep(secs(80)).await;
+    bus.stop.cancel();
+    bus.task.await.unwrap();
+    assert_eq!(statuses(&mut bus.out), [true, false, true, false]);
+    let saved = BusState::load(&path).unwrap();
+    // One new error (the same one repeats through the outage), one offline; no Modbus type.
+    assert_eq!(saved.holes.get("scripted"), Some(&vec![(1, 1)]));
 }
 
 #[tokio::test(start_paused = true)]

@@ -12,7 +12,7 @@ use super::link::LinkError;
 use crate::config::{Bus, Device, Run};
 use crate::counter::{Counter, CounterState, Stamp};
 use crate::metrics::DeviceMetrics;
-use crate::profile::{ChannelSpec, Profile, Register};
+use crate::profile::{ChannelSpec, Profile};
 use crate::reading::Reading;
 use crate::state::channel_key;
 
@@ -67,14 +67,6 @@ pub(super) struct ChannelRt {
     pub(super) run: Run,
     /// Resume the counter when it is found paused.
     pub(super) resume_paused: bool,
-    /// The command register, where the module starts and stops counters by register.
-    pub(super) command: Option<Register>,
-    /// The counting window of a frequency register that holds pulses per window, in seconds;
-    /// `None` while unknown (then no frequency is published).
-    pub(super) window_s: Option<f64>,
-    pub(super) window_bad: bool,
-    /// The power-on state was checked (and set where configured) in this run.
-    pub(super) power_on_done: bool,
 }
 
 impl ChannelRt {

@@ -46,6 +46,19 @@ impl Snapshot {
     }
 }
 
+/// What a Modbus driver keeps of one channel (beside the core's `ChannelRt`, same index).
+#[derive(Default)]
+pub(super) struct ModbusChannel {
+    /// The command register, where the module starts and stops counters by register.
+    pub(super) command: Option<Register>,
+    /// The counting window of a frequency register that holds pulses per window, in seconds;
+    /// `None` while unknown (then no frequency is published).
+    pub(super) window_s: Option<f64>,
+    window_bad: bool,
+    /// The power-on state was checked (and set where configured) in this run.
+    pub(super) power_on_done: bool,
+}
+
 /// What a Modbus driver keeps of one device: its unit, the register plan and what shapes it
 /// (holes, wire prices, measured turnaround), the work modes, and the identity check.
 pub struct ModbusDevice {
@@ -57,6 +70,8 @@ pub struct ModbusDevice {
     wire: Wire,
     modes: Option<Vec<u16>>,
     fast: Vec<Register>,
+    /// Per channel, in the order of the device's channels.
+    pub(super) channels: Vec<ModbusChannel>,
     /// Register ranges the device refused (exception 02): never bridged again.
     pub holes: Vec<Range<u16>>,
     last_slow: Option<Instant>,
@@ -82,6 +97,7 @@ impl ModbusDevice {
             wire,
             modes: None,
             fast: Vec::new(),
+            channels: Vec::new(),
             holes,
             last_slow: None,
             slow_every: bus.slow_poll,
@@ -168,7 +184,12 @@ impl DeviceRt<ModbusDevice> {
         let mut stopped = Vec::new();
         let mut paused = Vec::new();
         let mut restarted = false;
-        for (i, ch) in self.channels.iter_mut().enumerate() {
+        for (i, (ch, mb)) in self
+            .channels
+            .iter_mut()
+            .zip(&self.proto.channels)
+            .enumerate()
+        {
             let Some((words, at)) = snapshot.get(&ch.spec.count) else {
                 continue;
             };
@@ -181,14 +202,14 @@ impl DeviceRt<ModbusDevice> {
                 .filter(|f| f.is_finite())
                 .and_then(|f| match ch.spec.freq_window {
                     // Pulses in the module's counting window → Hz.
-                    Some(_) => ch.window_s.map(|s| f / s),
+                    Some(_) => mb.window_s.map(|s| f / s),
                     None => Some(f),
                 });
             let rpm = match (freq_hz, ch.ppr) {
                 (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
                 _ => None,
             };
-            if let Some((w, _)) = ch.command.and_then(|r| snapshot.get(&r)) {
+            if let Some((w, _)) = mb.command.and_then(|r| snapshot.get(&r)) {
                 match super::run::run_state(&ch.spec, w[0]) {
                     // The module cleared it; the gateway starts it after this read.
                     RunState::Stopped if ch.run != Run::Leave => {
@@ -377,7 +398,7 @@ impl DeviceRt<ModbusDevice> {
         }
         let snap = self.read_registers(link, &regs, preempt).await?;
         let order = self.profile.word_order;
-        for ch in &mut self.channels {
+        for (ch, mb) in self.channels.iter().zip(&mut self.proto.channels) {
             let Some(w) = ch.spec.freq_window else {
                 continue;
             };
@@ -386,11 +407,11 @@ impl DeviceRt<ModbusDevice> {
             };
             let raw = decode(words, w.register.ty, order).as_i64() as u64;
             let seconds = w.seconds(raw);
-            if seconds.is_none() && !std::mem::replace(&mut ch.window_bad, true) {
+            if seconds.is_none() && !std::mem::replace(&mut mb.window_bad, true) {
                 tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
             }
-            ch.window_bad = seconds.is_none();
-            ch.window_s = seconds;
+            mb.window_bad = seconds.is_none();
+            mb.window_s = seconds;
         }
         Ok(())
     }
@@ -404,6 +425,7 @@ impl DeviceRt<ModbusDevice> {
             .drain(..)
             .map(|c| (c.name.to_string(), c.counter))
             .collect();
+        self.proto.channels.clear();
         for spec in specs {
             let overrides = self
                 .config
@@ -421,15 +443,15 @@ impl DeviceRt<ModbusDevice> {
                 (None, Some(saved)) => Counter::resume(counter_spec, saved),
                 (None, None) => Counter::new(counter_spec),
             };
+            self.proto.channels.push(ModbusChannel {
+                command: super::run::command_register(&spec),
+                ..ModbusChannel::default()
+            });
             self.channels.push(ChannelRt {
                 name: Arc::from(spec.name.as_str()),
                 ppr: overrides.ppr,
                 run: overrides.run,
                 resume_paused: overrides.resume_paused,
-                command: super::run::command_register(&spec),
-                window_s: None,
-                window_bad: false,
-                power_on_done: false,
                 spec,
                 counter,
             });

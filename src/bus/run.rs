@@ -97,7 +97,8 @@ impl DeviceRt<ModbusDevice> {
                 .channels
                 .get(&*ch.name)
                 .is_some_and(|c| c.power_on);
-            let (Some(p), true, false) = (ch.spec.power_on, configured, ch.power_on_done) else {
+            let done = self.proto.channels[i].power_on_done;
+            let (Some(p), true, false) = (ch.spec.power_on, configured, done) else {
                 continue;
             };
             let down = ch.run == Run::Down && ch.spec.kind == ChannelKind::Counter;
@@ -124,7 +125,7 @@ impl DeviceRt<ModbusDevice> {
                     }
                 }
             }
-            self.channels[i].power_on_done = true;
+            self.proto.channels[i].power_on_done = true;
         }
     }
 
