@@ -3,6 +3,7 @@
 //! it and carries out clear/preset on it, and reports what the wire did. Modbus RTU/TCP
 //! ([`Modbus`]) is the one driver today; a new protocol is a new implementation of [`Driver`].
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::sync::mpsc::{Receiver, UnboundedSender};
@@ -20,7 +21,6 @@ use crate::config::Bus;
 use crate::plan::Wire;
 use crate::reading::{Output, Reading};
 use crate::state::BusState;
-use std::sync::Arc;
 
 /// The outcome of a command: readings to publish (booked counts and the event readings) and the
 /// result (the count read back for a single channel).
@@ -133,9 +133,7 @@ impl Modbus {
         self.requests = requests;
         self
     }
-}
 
-impl Modbus {
     /// How the planner prices a read on this bus (until a device's turnaround is measured).
     pub fn wire_pricing(&self) -> Wire {
         match self.link.timing() {
