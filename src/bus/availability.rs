@@ -220,7 +220,7 @@ pub(super) fn answered<P>(d: &mut DeviceRt<P>, bus: &str, out: &UnboundedSender<
 /// offline; `None` to keep its schedule.
 pub(super) fn failed<P: DeviceState>(
     d: &mut DeviceRt<P>,
-    e: &PollError,
+    e: &PollError<P::Error>,
     line_fault: bool,
     bus: &str,
     out: &UnboundedSender<Output>,

@@ -8,6 +8,7 @@ use std::sync::{Arc, Mutex};
 
 use tokio::sync::mpsc::unbounded_channel;
 
+use super::device::ProtocolError;
 use super::driver::{DeviceState, Driver, Executed, Preempt};
 use super::*;
 use crate::reading::Reading;
@@ -36,8 +37,26 @@ struct Heard {
     offline: u16,
 }
 
+/// The scripted protocol's one failure.
+#[derive(Debug)]
+struct NoAnswer;
+
+impl std::fmt::Display for NoAnswer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("no answer")
+    }
+}
+
+impl ProtocolError for NoAnswer {
+    fn device_answered(&self) -> bool {
+        false
+    }
+}
+
 impl DeviceState for Heard {
-    fn poll_failed(&mut self, _: &PollError) {
+    type Error = NoAnswer;
+
+    fn poll_failed(&mut self, _: &PollError<NoAnswer>) {
         self.failed += 1;
     }
 
@@ -62,7 +81,11 @@ impl Driver for Scripted {
         Heard::default()
     }
 
-    async fn discover(&mut self, _: &mut DeviceRt<Heard>, _: Preempt<'_>) -> Result<(), PollError> {
+    async fn discover(
+        &mut self,
+        _: &mut DeviceRt<Heard>,
+        _: Preempt<'_>,
+    ) -> Result<(), PollError<NoAnswer>> {
         Ok(())
     }
 
@@ -70,13 +93,10 @@ impl Driver for Scripted {
         &mut self,
         _: &mut DeviceRt<Heard>,
         _: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError> {
+    ) -> Result<Vec<Reading>, PollError<NoAnswer>> {
         tokio::time::sleep(Duration::from_millis(50)).await;
         if self.outage.contains(&self.note("poll")) {
-            return Err(PollError::Device {
-                message: "no answer".into(),
-                answered: false,
-            });
+            return Err(PollError::Protocol(NoAnswer));
         }
         Ok(Vec::new())
     }
@@ -94,7 +114,7 @@ impl Driver for Scripted {
         (WireCounters::default(), Duration::ZERO)
     }
 
-    fn is_line_fault(&self, _: &PollError) -> bool {
+    fn is_line_fault(&self, _: &PollError<NoAnswer>) -> bool {
         false
     }
 

@@ -6,9 +6,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use tokio::time::Instant;
-use tokio_modbus::ExceptionCode;
 
-use super::link::LinkError;
 use crate::config::{Bus, Device, Run};
 use crate::counter::{Counter, CounterState, Stamp};
 use crate::metrics::DeviceMetrics;
@@ -16,17 +14,13 @@ use crate::profile::{ChannelSpec, Profile};
 use crate::reading::Reading;
 use crate::state::channel_key;
 
-/// Why a poll produced no readings.
+/// Why a poll produced no readings: the protocol's own failure `E` (Modbus:
+/// [`ModbusError`](super::modbus::ModbusError)), or one the core understands.
 #[derive(Debug, thiserror::Error)]
-pub enum PollError {
+pub enum PollError<E> {
+    /// The protocol's own failure (no answer, a refusal, a broken line).
     #[error("{0}")]
-    Link(#[from] LinkError),
-    #[error("refused a read of {len} registers at {start}: {exception:?}")]
-    Refused {
-        start: u16,
-        len: u16,
-        exception: ExceptionCode,
-    },
+    Protocol(E),
     #[error("{0}")]
     Profile(String),
     /// A command is waiting: the poll stepped aside after the transaction in flight.
@@ -35,18 +29,19 @@ pub enum PollError {
     /// The module is not the configured model: out of service, no readings.
     #[error("wrong model: {0}")]
     WrongModel(String),
-    /// A failure in a protocol's own terms, for drivers other than Modbus (which says
-    /// [`PollError::Link`] or [`PollError::Refused`]); `answered` when the device said something.
-    #[error("{message}")]
-    Device { message: String, answered: bool },
 }
 
-impl PollError {
+/// A protocol's own poll failure, as the bus core sees it.
+pub trait ProtocolError: std::fmt::Display + std::fmt::Debug {
+    /// The device said something (a refusal, a garbled answer): it is there.
+    fn device_answered(&self) -> bool;
+}
+
+impl<E: ProtocolError> PollError<E> {
     /// The device said something: it is there, even if it refused.
     pub fn device_answered(&self) -> bool {
         match self {
-            PollError::Link(l) => l.device_answered(),
-            PollError::Device { answered, .. } => *answered,
+            PollError::Protocol(e) => e.device_answered(),
             _ => true,
         }
     }

@@ -10,10 +10,10 @@ use tokio::sync::mpsc::{Receiver, UnboundedSender};
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
-use super::device::{DeviceRt, PollError};
+use super::device::{DeviceRt, PollError, ProtocolError};
 use super::identity::Identity;
 use super::link::Link;
-use super::modbus::ModbusDevice;
+use super::modbus::{ModbusDevice, ModbusError};
 use super::stats::WireCounters;
 use super::survey::{ScanRequest, Survey};
 use crate::command::Request;
@@ -28,6 +28,9 @@ pub struct Executed {
     pub readings: Vec<Reading>,
     pub result: Result<Option<i64>, crate::command::CommandError>,
 }
+
+/// A poll failure of driver `D`: its protocol's own, or one the core understands.
+pub type Failure<D> = PollError<<<D as Driver>::Device as DeviceState>::Error>;
 
 /// Asked between transactions: `true` when a command waits and the poll should give way.
 pub type Preempt<'a> = &'a (dyn Fn() -> bool + Sync);
@@ -45,20 +48,20 @@ pub trait Driver {
         &mut self,
         device: &mut DeviceRt<Self::Device>,
         preempt: Preempt<'_>,
-    ) -> Result<(), PollError>;
+    ) -> Result<(), PollError<<Self::Device as DeviceState>::Error>>;
     /// One poll of a device (discovering it first when due): its readings.
     async fn poll(
         &mut self,
         device: &mut DeviceRt<Self::Device>,
         preempt: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError>;
+    ) -> Result<Vec<Reading>, PollError<<Self::Device as DeviceState>::Error>>;
     /// Carries out a clear or preset (the device is discovered and online).
     async fn execute(&mut self, device: &mut DeviceRt<Self::Device>, request: &Request)
     -> Executed;
     /// What the wire did so far: transactions, timeouts, errors, and the time it was busy.
     fn wire(&self) -> (WireCounters, Duration);
     /// A fault of the line itself (port gone, connection refused), as opposed to one device.
-    fn is_line_fault(&self, e: &PollError) -> bool;
+    fn is_line_fault(&self, e: &PollError<<Self::Device as DeviceState>::Error>) -> bool;
     /// Whether the device can take a command now (Modbus: its work modes are known).
     fn ready_for_commands(&self, device: &DeviceRt<Self::Device>) -> bool;
     /// Idle line time before the next poll: a driver may use it (Modbus: scans of unconfigured
@@ -73,8 +76,10 @@ pub trait Driver {
 /// What the bus core may tell or ask a driver's per-device state. Every method has a default
 /// that does nothing: a protocol without such state needs none of them.
 pub trait DeviceState {
-    /// A poll failed with `e` (not preempted, not a wrong model).
-    fn poll_failed(&mut self, _e: &PollError) {}
+    /// The protocol's own poll failures.
+    type Error: ProtocolError;
+    /// A poll failed with `e` (a new error: the same one again is not told twice).
+    fn poll_failed(&mut self, _e: &PollError<Self::Error>) {}
     /// The device went offline: whatever answers next may be another device.
     fn went_offline(&mut self) {}
     /// The device's measured turnaround, in seconds, for the bus stats.
@@ -156,7 +161,7 @@ impl Driver for Modbus {
         &mut self,
         device: &mut DeviceRt<ModbusDevice>,
         preempt: Preempt<'_>,
-    ) -> Result<(), PollError> {
+    ) -> Result<(), PollError<ModbusError>> {
         device.discover(&mut self.link, preempt).await
     }
 
@@ -164,7 +169,7 @@ impl Driver for Modbus {
         &mut self,
         device: &mut DeviceRt<ModbusDevice>,
         preempt: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError> {
+    ) -> Result<Vec<Reading>, PollError<ModbusError>> {
         device.poll(&mut self.link, preempt).await
     }
 
@@ -180,8 +185,8 @@ impl Driver for Modbus {
         (self.link.counters, self.link.busy)
     }
 
-    fn is_line_fault(&self, e: &PollError) -> bool {
-        matches!(e, PollError::Link(l) if l.is_line_fault())
+    fn is_line_fault(&self, e: &PollError<ModbusError>) -> bool {
+        matches!(e, PollError::Protocol(ModbusError::Link(l)) if l.is_line_fault())
     }
 
     fn ready_for_commands(&self, device: &DeviceRt<ModbusDevice>) -> bool {

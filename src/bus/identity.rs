@@ -7,9 +7,9 @@ use std::sync::Arc;
 
 use tokio_modbus::ExceptionCode;
 
-use super::device::{DeviceRt, PollError};
+use super::device::DeviceRt;
 use super::link::Link;
-use super::modbus::ModbusDevice;
+use super::modbus::{ModbusDevice, PollError};
 use crate::profile::{Profile, Profiles};
 
 /// The identification of one known model.

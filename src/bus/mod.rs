@@ -272,7 +272,7 @@ impl BusTask {
         &mut self,
         core: &mut Core<D>,
         i: usize,
-        result: Result<Vec<crate::reading::Reading>, PollError>,
+        result: Result<Vec<crate::reading::Reading>, driver::Failure<D>>,
     ) {
         let now = Instant::now();
         let name = core.name.clone();

@@ -10,10 +10,10 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::{At, ChannelRt, DeviceRt, PollError};
+use super::device::{At, ChannelRt, DeviceRt, ProtocolError};
 use super::driver::DeviceState;
 use super::identity::{Identity, Verdict};
-use super::link::Link;
+use super::link::{Link, LinkError};
 use super::run::RunState;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, Direction};
@@ -22,6 +22,37 @@ use crate::plan::{Block, Wire, plan_reads};
 use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
 use crate::reading::Reading;
 use crate::state::device_key;
+
+/// What goes wrong in a Modbus poll, besides what the bus core understands.
+#[derive(Debug, thiserror::Error)]
+pub enum ModbusError {
+    #[error("{0}")]
+    Link(#[from] LinkError),
+    #[error("refused a read of {len} registers at {start}: {exception:?}")]
+    Refused {
+        start: u16,
+        len: u16,
+        exception: ExceptionCode,
+    },
+}
+
+impl ProtocolError for ModbusError {
+    fn device_answered(&self) -> bool {
+        match self {
+            ModbusError::Link(l) => l.device_answered(),
+            ModbusError::Refused { .. } => true,
+        }
+    }
+}
+
+/// A poll error of the Modbus driver.
+pub type PollError = super::device::PollError<ModbusError>;
+
+impl From<LinkError> for PollError {
+    fn from(e: LinkError) -> PollError {
+        PollError::Protocol(ModbusError::Link(e))
+    }
+}
 
 /// Times a read is asked again after noise (timeout, garbled, mismatch), when the device's
 /// availability says it is worth it ([`Availability::worth_retrying`]).
@@ -134,11 +165,13 @@ impl ModbusDevice {
 }
 
 impl DeviceState for ModbusDevice {
+    type Error = ModbusError;
+
     fn poll_failed(&mut self, e: &PollError) {
         // A module that starts refusing registers it answered before may be another module, or
         // have restarted in another work mode: identity and modes are read again (once per new
         // refusal, so a device that keeps refusing costs no extra reads).
-        if matches!(e, PollError::Refused { .. }) && self.discovered() {
+        if matches!(e, PollError::Protocol(ModbusError::Refused { .. })) && self.discovered() {
             self.module_restarted();
         }
     }
@@ -519,11 +552,11 @@ impl DeviceRt<ModbusDevice> {
                     blocks.extend(plan_reads(&rest, &self.proto.holes, &self.proto.wire));
                 }
                 Err(exception) => {
-                    return Err(PollError::Refused {
+                    return Err(PollError::Protocol(ModbusError::Refused {
                         start: b.start,
                         len: b.len,
                         exception,
-                    });
+                    }));
                 }
             }
         }

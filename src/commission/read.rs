@@ -13,7 +13,7 @@ use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
 use crate::bus::device::DeviceRt;
 use crate::bus::link::Link;
-use crate::bus::modbus::ModbusDevice;
+use crate::bus::modbus::{ModbusDevice, ModbusError};
 use crate::command::{Op, Reply, Request};
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::plan::Wire;
@@ -144,7 +144,7 @@ pub(super) async fn read_once(
 ) -> Result<Value, CommissionError> {
     let unit = rt.proto.unit;
     let readings = rt.poll(link, &|| false).await.map_err(|e| match e {
-        crate::bus::device::PollError::Link(l) => target.error(unit, l),
+        crate::bus::device::PollError::Protocol(ModbusError::Link(l)) => target.error(unit, l),
         other => CommissionError::Failed(format!("unit {unit}: {other}")),
     })?;
     let timeout = timeout_for(profile.answer_timeout, link, 1);
@@ -238,7 +238,9 @@ pub(super) async fn write_count(
 ) -> Result<Option<i64>, CommissionError> {
     // The poll discovers the channels (work modes) first, as the gateway does.
     rt.poll(link, &|| false).await.map_err(|e| match e {
-        crate::bus::device::PollError::Link(l) => target.error(rt.proto.unit, l),
+        crate::bus::device::PollError::Protocol(ModbusError::Link(l)) => {
+            target.error(rt.proto.unit, l)
+        }
         other => CommissionError::Failed(format!("unit {}: {other}", rt.proto.unit)),
     })?;
     let now = tokio::time::Instant::now();
