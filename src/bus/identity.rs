@@ -146,13 +146,7 @@ impl DeviceRt<ModbusDevice> {
         loop {
             match link.read(self.proto.unit, address, len, timeout).await {
                 // Lost to noise: asked again as a poll's read is (see `NOISE_RETRIES`).
-                Err(e)
-                    if e.is_noise()
-                        && self.availability.worth_retrying(e.device_answered())
-                        && tries < super::modbus::NOISE_RETRIES =>
-                {
-                    tries += 1
-                }
+                Err(e) if self.asks_again(&e, tries) => tries += 1,
                 other => return Ok(other?),
             }
         }

@@ -544,14 +544,18 @@ impl FlushingPort {
         }
     }
 
-    /// Whether the answer's bytes are all in (as far as its header tells).
-    fn complete(&self) -> bool {
-        let total = if self.got >= self.head.len() {
+    /// The answer's length: from its header once that is in, else as the request implies.
+    fn total(&self) -> Option<usize> {
+        if self.got >= self.head.len() {
             expected_len(&self.head)
         } else {
             self.expected
-        };
-        total.is_some_and(|t| self.got >= t)
+        }
+    }
+
+    /// Whether the answer's bytes are all in (as far as its header tells).
+    fn complete(&self) -> bool {
+        self.total().is_some_and(|t| self.got >= t)
     }
 
     /// Notes `bytes` of the answer; while more are to come, the port stays quiet for the time
@@ -563,12 +567,11 @@ impl FlushingPort {
             }
         }
         self.got += bytes.len();
-        let total = if self.got >= self.head.len() {
-            expected_len(&self.head)
-        } else {
-            self.expected
-        };
-        let Some(rest) = total.map(|t| t.saturating_sub(self.got)).filter(|r| *r > 0) else {
+        let Some(rest) = self
+            .total()
+            .map(|t| t.saturating_sub(self.got))
+            .filter(|r| *r > 0)
+        else {
             return Ok(()); // complete, or of a length nobody can tell: watched
         };
         let guard = self.guard;

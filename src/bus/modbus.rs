@@ -58,7 +58,7 @@ impl From<LinkError> for PollError {
 /// availability says it is worth it ([`Availability::worth_retrying`]).
 ///
 /// [`Availability::worth_retrying`]: super::availability::Availability::worth_retrying
-pub(super) const NOISE_RETRIES: u32 = 2;
+const NOISE_RETRIES: u32 = 2;
 
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
@@ -200,6 +200,14 @@ impl DeviceState for ModbusDevice {
 }
 
 impl DeviceRt<ModbusDevice> {
+    /// Whether a read that failed with `e` after `tries` retries is asked again at once: lost
+    /// to noise, fewer than [`NOISE_RETRIES`], and the device's availability finds it worth it.
+    pub(super) fn asks_again(&self, e: &LinkError, tries: u32) -> bool {
+        e.is_noise()
+            && tries < NOISE_RETRIES
+            && self.availability.worth_retrying(e.device_answered())
+    }
+
     /// One poll: discovery and slow registers when due, then counts and frequencies.
     /// `preempt` is asked between transactions: when it says yes, the poll gives way.
     pub async fn poll(
@@ -521,11 +529,7 @@ impl DeviceRt<ModbusDevice> {
                 // line a corrupted request gets no answer at all, and three of those in a row
                 // must not make a healthy device offline. An offline device that stays silent
                 // is not asked twice (a dead one costs the others one timeout per probe).
-                Err(e)
-                    if e.is_noise()
-                        && self.availability.worth_retrying(e.device_answered())
-                        && retries < NOISE_RETRIES =>
-                {
+                Err(e) if self.asks_again(&e, retries) => {
                     retries += 1;
                     continue;
                 }
