@@ -145,7 +145,7 @@ impl DeviceRt<ModbusDevice> {
         let mut tries = 0;
         loop {
             match link.read(self.proto.unit, address, len, timeout).await {
-                // Lost to noise: asked again as a poll's read is (see `NOISE_RETRIES`).
+                // Lost to noise: asked again as a poll's read is (see `asks_again`).
                 Err(e) if self.asks_again(&e, tries) => tries += 1,
                 other => return Ok(other?),
             }
