@@ -187,6 +187,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     let mut m = Mqtt {
         host: "127.0.0.1".into(),
         port: 1883,
+        socket: None,
         client_id: format!("pulsegate-{gateway_id}"),
         username: None,
         password: None,
@@ -236,6 +237,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     m.username = t.opt("username", errs);
     m.password = mqtt_password(&mut t, errs);
     m.tls = mqtt_tls(&mut t, errs);
+    m.socket = super::socket::mqtt_socket(&mut t, errs);
     mqtt_delivery(&mut t, &mut m, errs);
     t.finish(errs);
     m

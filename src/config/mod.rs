@@ -8,6 +8,7 @@ pub mod channel;
 mod check;
 mod metrics;
 pub mod publish;
+mod socket;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -121,8 +122,12 @@ pub struct Tls {
 /// `[mqtt]`
 #[derive(Debug, Clone, PartialEq)]
 pub struct Mqtt {
+    /// Not used when `socket` is set.
     pub host: String,
     pub port: u16,
+    /// `mqtt.socket`: a local broker's Unix domain socket, used instead of `host`/`port`
+    /// (cheaper than loopback TCP, and filesystem permissions decide who may connect).
+    pub socket: Option<PathBuf>,
     pub client_id: String,
     pub username: Option<String>,
     /// From `password`, `password_file`, `PULSEGATE__MQTT__PASSWORD`, or the systemd credential
@@ -142,6 +147,16 @@ pub struct Mqtt {
     pub protocol: MqttProtocol,
     /// `mqtt.format`: how events become payloads, one of [`crate::publish::format::NAMES`].
     pub format: String,
+}
+
+impl Mqtt {
+    /// The broker as logs and status name it: the socket path, or `host:port`.
+    pub fn broker(&self) -> String {
+        match &self.socket {
+            Some(path) => path.display().to_string(),
+            None => format!("{}:{}", self.host, self.port),
+        }
+    }
 }
 
 /// The MQTT protocol version spoken to the broker.
@@ -350,5 +365,7 @@ pub fn is_topic_safe(name: &str) -> bool {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod socket_tests;
 #[cfg(test)]
 mod units_tests;

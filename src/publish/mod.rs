@@ -17,3 +17,5 @@ pub mod units;
 
 #[cfg(test)]
 mod discovery_tests;
+#[cfg(test)]
+mod socket_tests;

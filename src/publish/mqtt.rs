@@ -153,16 +153,11 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
         let password = config.password.as_ref().map(|p| p.0.clone());
         (user.clone(), password.unwrap_or_default())
     });
-    let transport = match &config.tls {
-        Some(tls) => Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-            super::tls::client_config(tls)?,
-        ))),
-        None => None,
-    };
+    let (host, transport) = broker_transport(config)?;
     Ok(Options::new(Settings {
         protocol: config.protocol,
         client_id: &config.client_id,
-        host: &config.host,
+        host: &host,
         port: config.port,
         keep_alive: config.keep_alive,
         max_incoming: MAX_PACKET,
@@ -171,6 +166,25 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
         login,
         transport,
     }))
+}
+
+/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
+/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
+/// TLS: `check` refuses that config, and a config built another way must fail closed too.
+fn broker_transport(config: &Mqtt) -> Result<(String, Option<Transport>), super::tls::TlsError> {
+    match (&config.socket, &config.tls) {
+        (Some(path), Some(_)) => Err(super::tls::TlsError::OverSocket {
+            socket: path.display().to_string(),
+        }),
+        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
+        (None, Some(tls)) => Ok((
+            config.host.clone(),
+            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
+                super::tls::client_config(tls)?,
+            ))),
+        )),
+        (None, None) => Ok((config.host.clone(), None)),
+    }
 }
 
 /// What the MQTT task is given, besides its channels.
@@ -214,7 +228,7 @@ pub async fn run(
     };
     let link = Connection {
         options,
-        broker: format!("{}:{}", task.config.host, task.config.port),
+        broker: task.config.broker(),
         client_id: task.config.client_id.clone(),
         commands: task.config.commands,
         boot: task.boot.clone(),

@@ -34,6 +34,8 @@ pub enum Options {
 pub struct Settings<'a> {
     pub protocol: MqttProtocol,
     pub client_id: &'a str,
+    /// The broker's host, or its socket path with `Transport::Unix` (rumqttc takes the path
+    /// as the broker address and ignores the port).
     pub host: &'a str,
     pub port: u16,
     pub keep_alive: std::time::Duration,

@@ -25,6 +25,10 @@ pub enum TlsError {
     BadPem { path: String, message: String },
     #[error("TLS setup: {0}")]
     Rustls(#[from] rustls::Error),
+    /// rumqttc has no TLS over a Unix socket; connecting without it would drop a security
+    /// setting the user asked for.
+    #[error("mqtt.socket ({socket}) and mqtt.tls cannot be set together: remove one of them")]
+    OverSocket { socket: String },
 }
 
 fn read(path: &Path) -> Result<Vec<u8>, TlsError> {
