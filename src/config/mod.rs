@@ -364,8 +364,8 @@ pub fn is_topic_safe(name: &str) -> bool {
 }
 
 #[cfg(test)]
-mod tests;
-#[cfg(test)]
 mod socket_tests;
+#[cfg(test)]
+mod tests;
 #[cfg(test)]
 mod units_tests;

@@ -14,6 +14,8 @@ pub const MAX_SOCKET_PATH: usize = 107;
 
 /// `mqtt.socket`, or `None` when unset or refused (the error is in `errs`).
 pub(super) fn mqtt_socket(t: &mut Table<'_>, errs: &mut Errors) -> Option<PathBuf> {
+    // The value's own origin: an override from the environment is named as such.
+    let origin = t.raw("socket").and_then(|v| v.origin()).map(str::to_string);
     let path = t.opt::<PathBuf>("socket", errs)?;
     let key = join(&t.path, "socket");
     let problem = if t.has("tls") {
@@ -29,7 +31,7 @@ pub(super) fn mqtt_socket(t: &mut Table<'_>, errs: &mut Errors) -> Option<PathBu
     };
     match problem {
         Some(why) => {
-            errs.push(&key, t.origin(), why);
+            errs.push(&key, origin.as_deref().or(t.origin()), why);
             None
         }
         None => Some(path),

@@ -54,7 +54,9 @@ fn a_socket_with_tls_never_connects_without_tls() {
         cert_file: None,
         key_file: None,
     });
-    let e = client_options(&config, &Topics::new("pg")).err().expect("refused");
+    let e = client_options(&config, &Topics::new("pg"))
+        .err()
+        .expect("refused");
     assert!(e.to_string().contains("mqtt.socket"), "{e}");
     assert!(e.to_string().contains("mqtt.tls"), "{e}");
 }

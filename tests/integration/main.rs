@@ -10,6 +10,7 @@ mod counters;
 mod dashboards;
 mod faults;
 mod hostile;
+mod local_socket;
 mod metrics;
 mod pipeline;
 mod plants;

@@ -87,6 +87,36 @@ impl Broker {
         b
     }
 
+    /// A broker that also listens on a Unix socket at `socket` (Mosquitto >= 2.0:
+    /// `listener 0 <path>`), returned once the socket takes connections.
+    pub fn start_with_socket(port: u16, socket: &Path) -> Broker {
+        // Started as root, Mosquitto drops to its own user before it binds: the socket's
+        // directory must be writable by that user, or the listener fails.
+        let dir = socket.parent().expect("socket in a directory");
+        std::fs::create_dir_all(dir).unwrap();
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(dir, std::fs::Permissions::from_mode(0o777)).unwrap();
+        }
+        let b = Self::start_with(
+            port,
+            &format!(
+                "persistence false\nmax_queued_messages 0\nlistener 0 {}\n",
+                socket.display()
+            ),
+        );
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while std::os::unix::net::UnixStream::connect(socket).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "mosquitto did not listen on {}",
+                socket.display()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        b
+    }
+
     fn start_with(port: u16, extra: &str) -> Broker {
         let conf = std::env::temp_dir().join(format!("pulsegate-mosquitto-{port}.conf"));
         std::fs::write(
