@@ -126,7 +126,7 @@ pub struct Mqtt {
     pub host: String,
     pub port: u16,
     /// `mqtt.socket`: a local broker's Unix domain socket, used instead of `host`/`port`
-    /// (cheaper than loopback TCP, and filesystem permissions decide who may connect).
+    /// (no TCP port: the socket file's permissions decide who may connect).
     pub socket: Option<PathBuf>,
     pub client_id: String,
     pub username: Option<String>,

@@ -103,5 +103,8 @@ fn a_socket_path_with_a_nul_byte_is_refused() {
 fn a_socket_that_is_not_a_string_is_refused() {
     // The config crate turns the number into the string "5": a relative path.
     let e = errors("socket = 5");
-    assert!(e.contains("mqtt.socket: 5: must be an absolute path"), "{e}");
+    assert!(
+        e.contains("mqtt.socket: 5: must be an absolute path"),
+        "{e}"
+    );
 }

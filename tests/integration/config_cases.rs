@@ -131,10 +131,15 @@ const CASES: &[(&str, &str, &str, &str)] = &[
     ("mqtt.port", "70000", "mqtt.port", "out of range"),
     ("mqtt.port", "-1", "mqtt.port", "out of range"),
     ("mqtt.port", "\"x\"", "mqtt.port", "whole number"),
-    ("mqtt.qos", "3", "mqtt.qos", "0, 1 or 2"),
-    ("mqtt.socket", "\"mqtt.sock\"", "mqtt.socket", "absolute path"),
+    (
+        "mqtt.socket",
+        "\"mqtt.sock\"",
+        "mqtt.socket",
+        "absolute path",
+    ),
     ("mqtt.socket", "\"/run/\\u0000\"", "mqtt.socket", "NUL"),
     ("mqtt.socket", "7", "mqtt.socket", "absolute path"),
+    ("mqtt.qos", "3", "mqtt.qos", "0, 1 or 2"),
     ("mqtt.qos", "-1", "mqtt.qos", "out of range"),
     (
         "mqtt.keep_alive",
