@@ -130,29 +130,17 @@ impl Sample {
 
 /// Runs `child` for `warmup`, then measures it over `window`; stops it (SIGTERM) after.
 async fn measure(
-    mut child: Child,
+    child: Child,
     plant: &Plant,
     bus: &str,
     warmup: Duration,
     window: Duration,
 ) -> Sample {
-    let pid = child.id();
+    let mut c = Running::start(child);
     tokio::time::sleep(warmup).await;
-    let (c0, r0) = (cpu_of(pid), reads(plant, bus));
+    c.begin(plant, bus);
     tokio::time::sleep(window).await;
-    let (c1, r1) = (cpu_of(pid), reads(plant, bus));
-    let _ = Command::new("kill")
-        .args(["-TERM", &pid.to_string()])
-        .status();
-    let _ = child.wait();
-    Sample {
-        cpu: Cpu {
-            sched_ns: c1.sched_ns.saturating_sub(c0.sched_ns),
-            stat_ns: c1.stat_ns.saturating_sub(c0.stat_ns),
-            switches: c1.switches.saturating_sub(c0.switches),
-        },
-        tx: r1 - r0,
-    }
+    c.end(plant, bus)
 }
 
 fn plant_config(dir: &Path) -> SimConfig {
@@ -162,7 +150,13 @@ fn plant_config(dir: &Path) -> SimConfig {
             "[buses.hall.devices.t{u}]\nunit = {u}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 100.0 }}\n"
         );
     }
-    for (bus, trickle) in [("line", false), ("trickle", true)] {
+    // Twin RTU lines of each kind: mbpoll on one, the gateway on the other, in the same window.
+    for (bus, trickle) in [
+        ("line-a", false),
+        ("line-b", false),
+        ("trickle-a", true),
+        ("trickle-b", true),
+    ] {
         t += &format!(
             "[buses.{bus}]\nlink = {:?}\nline = {{ baud = {RTU_BAUD}, turnaround = \"{}ms\", trickle = {trickle} }}\n",
             dir.join(bus),
@@ -170,7 +164,7 @@ fn plant_config(dir: &Path) -> SimConfig {
         );
         for u in 1..=RTU_UNITS {
             t += &format!(
-                "[buses.{bus}.devices.{bus}{u}]\nunit = {u}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 100.0 }}\n"
+                "[buses.{bus}.devices.{bus}-{u}]\nunit = {u}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 100.0 }}\n"
             );
         }
     }
@@ -380,37 +374,16 @@ pub async fn run(figures: &mut Vec<Figure>) {
     let sim = plant_config(&dir);
     let plant = Plant::start(&sim).await.unwrap();
     let endpoint = |bus: &str| plant.bus(bus).unwrap().endpoint.clone();
-    let (tcp, line, trickle) = (endpoint("hall"), endpoint("line"), endpoint("trickle"));
+    let tcp = endpoint("hall");
     let broker = mosquitto.1;
     let configs = [
         gateway_config(&dir, "tcp-ch", &tcp, TCP_UNITS, broker, false, "1ms"),
         gateway_config(&dir, "tcp-dev", &tcp, TCP_UNITS, broker, true, "1ms"),
-        gateway_config(&dir, "line-ch", &line, RTU_UNITS, broker, false, "1ms"),
-        gateway_config(
-            &dir,
-            "trickle-ch",
-            &trickle,
-            RTU_UNITS,
-            broker,
-            false,
-            "1ms",
-        ),
-        gateway_config(
-            &dir,
-            "trickle-dev",
-            &trickle,
-            RTU_UNITS,
-            broker,
-            true,
-            "1ms",
-        ),
     ];
-    let warmup = Duration::from_secs(3);
-    let short = Duration::from_secs(1);
     let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
     // BENCH_SIDE=rtu (or tcp) measures one side only, when working on it.
     let side = std::env::var("BENCH_SIDE").unwrap_or_default();
-    for _ in 0..rounds {
+    for round in 0..rounds {
         if side != "rtu" {
             tcp_rounds(
                 &plant,
@@ -427,40 +400,16 @@ pub async fn run(figures: &mut Vec<Figure>) {
         if side == "tcp" {
             continue;
         }
-        let m = measure(
-            mbpoll(&line, RTU_UNITS, cpu),
-            &plant,
-            "line",
-            short,
-            rtu_window,
-        )
-        .await;
-        let g = measure(
-            gateway(&configs[2], cpu),
-            &plant,
-            "line",
-            warmup,
-            rtu_window,
-        )
-        .await;
-        results[3].push((g, m));
-        let m = measure(
-            mbpoll(&trickle, RTU_UNITS, cpu),
-            &plant,
-            "trickle",
-            short,
-            rtu_window,
-        );
-        let m = m.await;
-        for i in 0..2 {
-            let g = measure(
-                gateway(&configs[3 + i], cpu),
-                &plant,
-                "trickle",
-                warmup,
-                rtu_window,
-            );
-            results[4 + i].push((g.await, m));
+        let rtu = [("line", false), ("trickle", false), ("trickle", true)];
+        for (i, (kind, per_device)) in rtu.into_iter().enumerate() {
+            let twins = RtuTwins {
+                plant: &plant,
+                dir: &dir,
+                kind,
+                broker,
+                cpu,
+            };
+            results[3 + i].push(twins.measure(per_device, round, rtu_window).await);
         }
     }
     for (what, rounds) in SCENARIOS.iter().zip(&results) {
@@ -472,6 +421,88 @@ pub async fn run(figures: &mut Vec<Figure>) {
     drop(plant);
     drop(mosquitto);
     pin(std::process::id(), &before);
+}
+
+/// Twin RTU lines of one kind (`line-a`/`line-b`: frames at once, `trickle-a`/`trickle-b`:
+/// bytes at character pace): mbpoll polls one and the gateway the other, started together and
+/// measured over the same window. The lines pace both clients (neither can take the CPU from
+/// the other), and whatever else the machine does in that window weighs on both: alternating
+/// windows gave ratios that moved ±50% between rounds. Rounds swap the twins.
+struct RtuTwins<'a> {
+    plant: &'a Plant,
+    dir: &'a Path,
+    kind: &'a str,
+    broker: u16,
+    cpu: usize,
+}
+
+impl RtuTwins<'_> {
+    async fn measure(&self, per_device: bool, round: usize, window: Duration) -> (Sample, Sample) {
+        let (mine, theirs) = if round % 2 == 0 {
+            ("b", "a")
+        } else {
+            ("a", "b")
+        };
+        let (gw_bus, mb_bus) = (
+            format!("{}-{mine}", self.kind),
+            format!("{}-{theirs}", self.kind),
+        );
+        let endpoint = |bus: &str| self.plant.bus(bus).expect("twin line").endpoint.clone();
+        let name = format!("{gw_bus}-{}", if per_device { "dev" } else { "ch" });
+        let config = gateway_config(
+            self.dir,
+            &name,
+            &endpoint(&gw_bus),
+            RTU_UNITS,
+            self.broker,
+            per_device,
+            "1ms",
+        );
+        let mut g = Running::start(gateway(&config, self.cpu));
+        let mut m = Running::start(mbpoll(&endpoint(&mb_bus), RTU_UNITS, self.cpu));
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        g.begin(self.plant, &gw_bus);
+        m.begin(self.plant, &mb_bus);
+        tokio::time::sleep(window).await;
+        (g.end(self.plant, &gw_bus), m.end(self.plant, &mb_bus))
+    }
+}
+
+/// A client being measured: CPU and transactions at the window's start.
+struct Running {
+    child: Child,
+    start: (Cpu, u64),
+}
+
+impl Running {
+    fn start(child: Child) -> Running {
+        Running {
+            child,
+            start: (Cpu::default(), 0),
+        }
+    }
+
+    fn begin(&mut self, plant: &Plant, bus: &str) {
+        self.start = (cpu_of(self.child.id()), reads(plant, bus));
+    }
+
+    /// The window's figures; stops the client (SIGTERM).
+    fn end(mut self, plant: &Plant, bus: &str) -> Sample {
+        let (c1, r1) = (cpu_of(self.child.id()), reads(plant, bus));
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        let _ = self.child.wait();
+        let c0 = self.start.0;
+        Sample {
+            cpu: Cpu {
+                sched_ns: c1.sched_ns.saturating_sub(c0.sched_ns),
+                stat_ns: c1.stat_ns.saturating_sub(c0.stat_ns),
+                switches: c1.switches.saturating_sub(c0.switches),
+            },
+            tx: r1 - self.start.1,
+        }
+    }
 }
 
 /// One round of the TCP comparisons (results 0..3).
