@@ -9,8 +9,10 @@
 //! - CPU is the client's whole process, read from `/proc/PID/task/*/schedstat` (nanoseconds of
 //!   CPU per thread) at the start and end of a fixed window; `/proc/PID/stat` (utime + stime, in
 //!   10 ms ticks) is read too and printed beside it as a cross-check. No in-process timer.
-//! - Rounds alternate gateway and mbpoll (`BENCH_ROUNDS`, default 3): each round's ratio comes
-//!   from measurements a few seconds apart, and the spread over rounds is printed.
+//! - RTU: twin lines of each kind; mbpoll polls one and the gateway the other in the same
+//!   window (the lines pace both; host noise weighs on both), rounds swap the twins. TCP: the
+//!   gateway polls as fast as answered and would starve mbpoll, so rounds alternate the clients.
+//!   `BENCH_ROUNDS` (default 3); the spread over rounds is printed.
 //!
 //! mbpoll is the Debian package `mbpoll` (`apt-get install mbpoll`). Without it this part says so
 //! and reports the figures as missed.

@@ -368,6 +368,8 @@ impl Publisher<'_> {
                 }
                 self.watch.up = Some(true);
                 s.on_connack(max_packet, &self.link);
+                // Health (the systemd status, the ready line) says so now, not at the next beat.
+                self.task.heart.set_up(self.shell.outbox.is_connected());
             }
             Ok(Event::Sent(pkid)) => {
                 s.outbox.sent(pkid);
@@ -402,6 +404,7 @@ impl Publisher<'_> {
     /// connects after the back-off (the outbox sends again, in order, what was not acked).
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
+        self.task.heart.set_up(false);
         let eventloop = self.shell.on_lost(&self.link.options);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
     }

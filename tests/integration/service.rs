@@ -89,6 +89,10 @@ async fn systemd_hears_ready_status_watchdog_and_stopping() {
     let (msgs, sock) = msgs;
     let text: Vec<&str> = msgs.iter().map(|m| m.1.as_str()).collect();
     assert!(text.iter().any(|m| m.contains("READY=1")), "{text:?}");
+    // The broker is up from the start: the ready status says so (it said "MQTT disconnected"
+    // for up to a second after the connection, until the MQTT task's next beat).
+    let ready = text.iter().find(|m| m.contains("READY=1")).unwrap();
+    assert!(ready.contains("MQTT connected"), "{ready:?}");
     assert!(
         text.iter().any(|m| m.contains("STATUS=1/1 buses up")),
         "{text:?}"
