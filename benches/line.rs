@@ -345,12 +345,26 @@ fn peak_rss_kb(pid: u32) -> u64 {
 struct Mosquitto(Child, u16);
 
 impl Mosquitto {
+    /// Its Unix socket listener (in the temp dir: Mosquitto started as root binds it as user
+    /// `mosquitto`, which may write there).
+    fn socket_for(port: u16) -> PathBuf {
+        std::env::temp_dir().join(format!("pulsegate-bench-mosquitto-{port}.sock"))
+    }
+
+    fn socket(&self) -> PathBuf {
+        Mosquitto::socket_for(self.1)
+    }
+
     fn start() -> Mosquitto {
         let port = free_port();
+        let _ = std::fs::remove_file(Mosquitto::socket_for(port));
         let conf = std::env::temp_dir().join(format!("pulsegate-bench-mosquitto-{port}.conf"));
         std::fs::write(
             &conf,
-            format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"),
+            format!(
+                "listener {port} 127.0.0.1\nlistener 0 {}\nallow_anonymous true\npersistence false\n",
+                Mosquitto::socket_for(port).display()
+            ),
         )
         .unwrap();
         let child = Command::new("/usr/sbin/mosquitto")
@@ -374,6 +388,7 @@ impl Drop for Mosquitto {
     fn drop(&mut self) {
         let _ = self.0.kill();
         let _ = self.0.wait();
+        let _ = std::fs::remove_file(self.socket());
     }
 }
 

@@ -321,13 +321,14 @@ fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) 
 }
 
 /// The comparisons, in report order.
-const SCENARIOS: [&str; 6] = [
+const SCENARIOS: [&str; 7] = [
     "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
     "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
     "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, bytes trickling, per-device JSON QoS 1",
+    "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1, broker on a Unix socket",
 ];
 
 /// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
@@ -402,13 +403,20 @@ pub async fn run(figures: &mut Vec<Figure>) {
         if side == "tcp" {
             continue;
         }
-        let rtu = [("line", false), ("trickle", false), ("trickle", true)];
-        for (i, (kind, per_device)) in rtu.into_iter().enumerate() {
+        let socket = mosquitto.socket();
+        let rtu = [
+            ("line", false, None),
+            ("trickle", false, None),
+            ("trickle", true, None),
+            ("line", false, Some(socket.as_path())),
+        ];
+        for (i, (kind, per_device, socket)) in rtu.into_iter().enumerate() {
             let twins = RtuTwins {
                 plant: &plant,
                 dir: &dir,
                 kind,
                 broker,
+                socket,
                 cpu,
             };
             results[3 + i].push(twins.measure(per_device, round, rtu_window).await);
@@ -435,6 +443,8 @@ struct RtuTwins<'a> {
     dir: &'a Path,
     kind: &'a str,
     broker: u16,
+    /// The gateway reaches the broker over this Unix socket rather than loopback TCP.
+    socket: Option<&'a Path>,
     cpu: usize,
 }
 
@@ -450,7 +460,11 @@ impl RtuTwins<'_> {
             format!("{}-{theirs}", self.kind),
         );
         let endpoint = |bus: &str| self.plant.bus(bus).expect("twin line").endpoint.clone();
-        let name = format!("{gw_bus}-{}", if per_device { "dev" } else { "ch" });
+        let name = format!(
+            "{gw_bus}-{}{}",
+            if per_device { "dev" } else { "ch" },
+            if self.socket.is_some() { "-unix" } else { "" }
+        );
         let config = gateway_config(
             self.dir,
             &name,
@@ -460,6 +474,9 @@ impl RtuTwins<'_> {
             per_device,
             "1ms",
         );
+        if let Some(socket) = self.socket {
+            over_socket(&config, socket);
+        }
         let mut g = Running::start(gateway(&config, self.cpu));
         let mut m = Running::start(mbpoll(&endpoint(&mb_bus), RTU_UNITS, self.cpu));
         tokio::time::sleep(Duration::from_secs(3)).await;
@@ -468,6 +485,14 @@ impl RtuTwins<'_> {
         tokio::time::sleep(window).await;
         (g.end(self.plant, &gw_bus), m.end(self.plant, &mb_bus))
     }
+}
+
+/// Points the gateway `config` at the broker's Unix socket (`mqtt.socket`; host and port are
+/// then not used).
+fn over_socket(config: &Path, socket: &Path) {
+    let text = std::fs::read_to_string(config).expect("gateway config");
+    let text = text.replacen("[mqtt]\n", &format!("[mqtt]\nsocket = {socket:?}\n"), 1);
+    std::fs::write(config, text).expect("gateway config");
 }
 
 /// A client being measured: CPU and transactions at the window's start.
