@@ -14,6 +14,9 @@
 //!   gateway polls as fast as answered and would starve mbpoll, so rounds alternate the clients.
 //!   `BENCH_ROUNDS` (default 3); the spread over rounds is printed.
 //!
+//! - The floor rows run `examples/rtu_floor.rs` (tokio-serial + tokio-modbus, with and without
+//!   rumqttc publishing) in the gateway's place: what the card packages alone cost.
+//!
 //! mbpoll is the Debian package `mbpoll` (`apt-get install mbpoll`). Without it this part says so
 //! and reports the figures as missed.
 
@@ -278,14 +281,20 @@ fn have_mbpoll() -> bool {
 /// The rounds of one comparison: (gateway, mbpoll) samples.
 type Rounds = Vec<(Sample, Sample)>;
 
-fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) {
+fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: Option<f64>) {
+    // A row without a target measures the floor client, not the gateway.
+    let client = if target.is_some() {
+        "pulsegate"
+    } else {
+        "floor"
+    };
     let mut ratios: Vec<f64> = rounds
         .iter()
         .map(|(g, m)| g.us_per_tx() / m.us_per_tx())
         .collect();
     for (i, (g, m)) in rounds.iter().enumerate() {
         println!(
-            "  {what}, round {}: pulsegate {:.1} us/tx ({} tx; /proc/PID/stat {:.1}; {:.1} switches/tx), mbpoll {:.1} us/tx ({} tx; stat {:.1}; {:.1} switches/tx), ratio {:.3}",
+            "  {what}, round {}: {client} {:.1} us/tx ({} tx; /proc/PID/stat {:.1}; {:.1} switches/tx), mbpoll {:.1} us/tx ({} tx; stat {:.1}; {:.1} switches/tx), ratio {:.3}",
             i + 1,
             g.us_per_tx(),
             g.tx,
@@ -308,20 +317,23 @@ fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: f64) 
     let g = median_of(&|r| r.0.us_per_tx());
     let m = median_of(&|r| r.1.us_per_tx());
     figures.push(Figure {
-        what: format!("{what}: CPU/tx pulsegate / mbpoll"),
+        what: format!("{what}: CPU/tx {client} / mbpoll"),
         value: format!(
             "{g:.0} / {m:.0} us ({:.2}-{:.2})",
             ratios[0],
             ratios[ratios.len() - 1]
         ),
-        target: format!("<= {target:.1} (median of {})", ratios.len()),
+        target: match target {
+            Some(t) => format!("<= {t:.1} (median of {})", ratios.len()),
+            None => format!("(context, median of {})", ratios.len()),
+        },
         ratio: median,
-        pass: median <= target,
+        pass: target.is_none_or(|t| median <= t),
     });
 }
 
 /// The comparisons, in report order.
-const SCENARIOS: [&str; 7] = [
+const SCENARIOS: [&str; 9] = [
     "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
     "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
     "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
@@ -329,7 +341,12 @@ const SCENARIOS: [&str; 7] = [
     "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, bytes trickling, per-device JSON QoS 1",
     "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1, broker on a Unix socket",
+    "floor: tokio-serial + tokio-modbus alone, RTU 9600, frames at once, no MQTT",
+    "floor: tokio-serial + tokio-modbus + rumqttc, RTU 9600, frames at once, 4 messages a poll QoS 1",
 ];
+
+/// The scenarios from here on are floors, printed for context (no target).
+const FLOORS_FROM: usize = 7;
 
 /// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
 /// block (8 registers each).
@@ -386,6 +403,7 @@ pub async fn run(figures: &mut Vec<Figure>) {
     let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
     // BENCH_SIDE=rtu (or tcp) measures one side only, when working on it.
     let side = std::env::var("BENCH_SIDE").unwrap_or_default();
+    let floor = if side == "tcp" { None } else { floor_binary() };
     for round in 0..rounds {
         if side != "rtu" {
             tcp_rounds(
@@ -421,12 +439,27 @@ pub async fn run(figures: &mut Vec<Figure>) {
             };
             results[3 + i].push(twins.measure(per_device, round, rtu_window).await);
         }
+        if let Some(floor) = &floor {
+            let twins = RtuTwins {
+                plant: &plant,
+                dir: &dir,
+                kind: "line",
+                broker,
+                socket: None,
+                cpu,
+            };
+            for (i, mqtt) in [None, Some(broker)].into_iter().enumerate() {
+                let start = |p: &Endpoint| floor_client(floor, p, mqtt, cpu);
+                let pair = twins.measure_client(start, round, rtu_window).await;
+                results[FLOORS_FROM + i].push(pair);
+            }
+        }
     }
-    for (what, rounds) in SCENARIOS.iter().zip(&results) {
+    for (i, (what, rounds)) in SCENARIOS.iter().zip(&results).enumerate() {
         if rounds.is_empty() {
             continue;
         }
-        summary(what, rounds, figures, 1.0);
+        summary(what, rounds, figures, (i < FLOORS_FROM).then_some(1.0));
     }
     drop(plant);
     drop(mosquitto);
@@ -450,34 +483,46 @@ struct RtuTwins<'a> {
 
 impl RtuTwins<'_> {
     async fn measure(&self, per_device: bool, round: usize, window: Duration) -> (Sample, Sample) {
+        let start = |endpoint: &Endpoint| {
+            let name = format!(
+                "{}-{round}-{}{}",
+                self.kind,
+                if per_device { "dev" } else { "ch" },
+                if self.socket.is_some() { "-unix" } else { "" }
+            );
+            let config = gateway_config(
+                self.dir,
+                &name,
+                endpoint,
+                RTU_UNITS,
+                self.broker,
+                per_device,
+                "1ms",
+            );
+            if let Some(socket) = self.socket {
+                over_socket(&config, socket);
+            }
+            gateway(&config, self.cpu)
+        };
+        self.measure_client(start, round, window).await
+    }
+
+    /// `start`s a client on one twin and mbpoll on the other; both measured in one window.
+    async fn measure_client(
+        &self,
+        start: impl FnOnce(&Endpoint) -> Child,
+        round: usize,
+        window: Duration,
+    ) -> (Sample, Sample) {
         let (mine, theirs) = if round % 2 == 0 {
             ("b", "a")
         } else {
             ("a", "b")
         };
-        let (gw_bus, mb_bus) = (
-            format!("{}-{mine}", self.kind),
-            format!("{}-{theirs}", self.kind),
-        );
+        let gw_bus = format!("{}-{mine}", self.kind);
+        let mb_bus = format!("{}-{theirs}", self.kind);
         let endpoint = |bus: &str| self.plant.bus(bus).expect("twin line").endpoint.clone();
-        let name = format!(
-            "{gw_bus}-{}{}",
-            if per_device { "dev" } else { "ch" },
-            if self.socket.is_some() { "-unix" } else { "" }
-        );
-        let config = gateway_config(
-            self.dir,
-            &name,
-            &endpoint(&gw_bus),
-            RTU_UNITS,
-            self.broker,
-            per_device,
-            "1ms",
-        );
-        if let Some(socket) = self.socket {
-            over_socket(&config, socket);
-        }
-        let mut g = Running::start(gateway(&config, self.cpu));
+        let mut g = Running::start(start(&endpoint(&gw_bus)));
         let mut m = Running::start(mbpoll(&endpoint(&mb_bus), RTU_UNITS, self.cpu));
         tokio::time::sleep(Duration::from_secs(3)).await;
         g.begin(self.plant, &gw_bus);
@@ -493,6 +538,43 @@ fn over_socket(config: &Path, socket: &Path) {
     let text = std::fs::read_to_string(config).expect("gateway config");
     let text = text.replacen("[mqtt]\n", &format!("[mqtt]\nsocket = {socket:?}\n"), 1);
     std::fs::write(config, text).expect("gateway config");
+}
+
+/// Builds `examples/rtu_floor.rs` (release) and returns its path; `None` (said) if it cannot.
+fn floor_binary() -> Option<std::path::PathBuf> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let built = Command::new(cargo)
+        .args(["build", "--release", "--quiet", "--example", "rtu_floor"])
+        .current_dir(manifest)
+        .status()
+        .is_ok_and(|s| s.success());
+    let target = std::env::var("CARGO_TARGET_DIR")
+        .map_or_else(|_| manifest.join("target"), std::path::PathBuf::from);
+    let path = target.join("release/examples/rtu_floor");
+    if !built || !path.exists() {
+        println!(
+            "\nthe floor client (examples/rtu_floor.rs) could not be built: its rows are left out"
+        );
+        return None;
+    }
+    Some(path)
+}
+
+/// The floor client on `endpoint` (an RTU line), publishing to the broker at `mqtt` if given.
+fn floor_client(binary: &Path, endpoint: &Endpoint, mqtt: Option<u16>, cpu: usize) -> Child {
+    let Endpoint::Serial(port) = endpoint else {
+        panic!("the floor client polls an RTU line")
+    };
+    let mut c = Command::new("taskset");
+    c.args(["-c", &cpu.to_string()]).arg(binary).arg(port);
+    if let Some(mqtt) = mqtt {
+        c.arg(mqtt.to_string());
+    }
+    c.stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
 }
 
 /// A client being measured: CPU and transactions at the window's start.
