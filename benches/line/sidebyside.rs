@@ -536,6 +536,10 @@ impl RtuTwins<'_> {
 /// then not used).
 fn over_socket(config: &Path, socket: &Path) {
     let text = std::fs::read_to_string(config).expect("gateway config");
+    assert!(
+        text.contains("[mqtt]\n"),
+        "gateway config without an [mqtt] table"
+    );
     let text = text.replacen("[mqtt]\n", &format!("[mqtt]\nsocket = {socket:?}\n"), 1);
     std::fs::write(config, text).expect("gateway config");
 }

@@ -645,6 +645,17 @@ impl AsyncWrite for FlushingPort {
     }
 }
 
+/// A 9600 baud 8N1 RTU link on `port`, as the tests below open their pseudo-terminals.
+#[cfg(test)]
+fn rtu_9600(port: PathBuf) -> LinkConfig {
+    LinkConfig::Rtu {
+        port,
+        baud: 9600,
+        parity: Parity::None,
+        stop_bits: 1,
+    }
+}
+
 #[cfg(test)]
 mod speed_tests {
     use super::*;
@@ -654,12 +665,7 @@ mod speed_tests {
     async fn the_port_is_switched_to_a_units_own_baud_rate_and_back() {
         let (_master, slave) = serialport::TTYPort::pair().unwrap();
         let path = PathBuf::from(slave.name().unwrap());
-        let config = LinkConfig::Rtu {
-            port: path,
-            baud: 9600,
-            parity: Parity::None,
-            stop_bits: 1,
-        };
+        let config = rtu_9600(path);
         let mut link = Link::new(config, Duration::ZERO);
         link.set_unit_baud(5, 19200);
         let short = Duration::from_millis(20);
@@ -726,12 +732,7 @@ mod silence_tests {
         let (master, slave) = serialport::TTYPort::pair().unwrap();
         let path = PathBuf::from(slave.name().unwrap());
         let module = trickling_module(master);
-        let config = LinkConfig::Rtu {
-            port: path,
-            baud: 9600,
-            parity: Parity::None,
-            stop_bits: 1,
-        };
+        let config = rtu_9600(path);
         let mut link = Link::new(config, Duration::ZERO);
         let started = Instant::now();
         let words = link
