@@ -58,6 +58,11 @@ pub enum Output {
         correlation: Option<bytes::Bytes>,
         payload: serde_json::Value,
     },
+    /// A state save of the bus is starting: it records the seq of every reading sent before
+    /// this, so those go to the broker now, not at the end of a batch (`mqtt.batch`). After a
+    /// crash the next run's first readings count from the saved seqs (`after_seq`): a reading
+    /// up to them must not be one that died in memory. Publishes nothing.
+    Checkpoint,
 }
 
 /// Milliseconds since the Unix epoch.

@@ -230,7 +230,7 @@ impl BusTask {
         let now = Instant::now();
         if now >= core.flush_at {
             let state = snapshot(&core.devices, &core.durable.orphans, false);
-            core.durable.saver.start(state);
+            core.durable.saver.start(state, &self.out);
             core.flush_at = now + self.state_flush;
         }
         if now >= core.stats_at {

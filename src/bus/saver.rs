@@ -65,9 +65,11 @@ impl Saver {
         self.failing
     }
 
-    /// Starts a periodic save unless one is still running (then this one is skipped).
-    pub fn start(&mut self, state: BusState) {
+    /// Starts a periodic save unless one is still running (then this one is skipped). The
+    /// readings already sent on `out` are released to the broker first ([`Output::Checkpoint`]).
+    pub fn start(&mut self, state: BusState, out: &tokio::sync::mpsc::UnboundedSender<Output>) {
         if self.running.is_none() {
+            let _ = out.send(Output::Checkpoint);
             self.spawn(state);
         }
     }
@@ -158,8 +160,8 @@ impl Durable {
         self.saver.collect(&mut self.ledger).await;
         self.release(out);
         if self.holding() {
-            self.saver
-                .start(super::snapshot(devices, &self.orphans, false));
+            let state = super::snapshot(devices, &self.orphans, false);
+            self.saver.start(state, out);
         }
     }
 
@@ -183,8 +185,8 @@ impl Durable {
         }
         self.release(out);
         if self.holding() {
-            self.saver
-                .start(super::snapshot(devices, &self.orphans, false));
+            let state = super::snapshot(devices, &self.orphans, false);
+            self.saver.start(state, out);
         }
     }
 

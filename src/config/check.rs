@@ -200,6 +200,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         commands: true,
         protocol: super::MqttProtocol::V5,
         format: "json".into(),
+        batch: DEFAULT_BATCH,
     };
     let Some(mut t) = table else { return m };
     if let Some(v) = t.opt::<String>("format", errs) {
@@ -314,12 +315,21 @@ fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
     tls
 }
 
-/// Keep-alive, QoS, retain, commands, spool size and topic root.
+/// Readings wait this long at most to share a write to the broker with the next polls'.
+pub const DEFAULT_BATCH: Duration = Duration::from_millis(250);
+
+/// A dashboard a reading reaches later than this is not live any more.
+const MAX_BATCH: Duration = Duration::from_secs(5);
+
+/// Keep-alive, batch, QoS, retain, commands, spool size and topic root.
 fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
     // MQTT carries it in 16 bits of seconds.
     let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
     if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
         m.keep_alive = v;
+    }
+    if let Some(v) = t.duration_within("batch", Duration::ZERO, MAX_BATCH, errs) {
+        m.batch = v;
     }
     if let Some(v) = t.int::<u8>("qos", errs) {
         if v > 2 {

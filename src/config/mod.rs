@@ -147,6 +147,9 @@ pub struct Mqtt {
     pub protocol: MqttProtocol,
     /// `mqtt.format`: how events become payloads, one of [`crate::publish::format::NAMES`].
     pub format: String,
+    /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
+    /// [`crate::publish::batch`]); zero sends each poll's at once.
+    pub batch: Duration,
 }
 
 impl Mqtt {

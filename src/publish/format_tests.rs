@@ -167,3 +167,17 @@ fn every_format_name_the_config_takes_is_built() {
         );
     }
 }
+
+#[test]
+fn a_batch_is_a_duration_of_at_most_five_seconds() {
+    assert_eq!(config().batch, Duration::from_millis(250), "the default");
+    assert_eq!(check("batch = \"0s\"").unwrap().mqtt.batch, Duration::ZERO);
+    assert_eq!(
+        check("batch = \"1s\"").unwrap().mqtt.batch,
+        Duration::from_secs(1)
+    );
+    let err = check("batch = \"6s\"").unwrap_err().to_string();
+    assert!(err.contains("mqtt.batch: must be at most 5s"), "{err}");
+    let err = check("batch = \"soon\"").unwrap_err().to_string();
+    assert!(err.contains("mqtt.batch: bad duration"), "{err}");
+}

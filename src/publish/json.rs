@@ -77,6 +77,7 @@ impl Format for Json {
                 }
                 out
             }
+            Output::Checkpoint => Vec::new(),
         }
     }
 }

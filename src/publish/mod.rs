@@ -1,5 +1,6 @@
 //! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
 
+pub mod batch;
 pub mod decimal;
 pub mod discovery;
 pub mod format;

@@ -20,6 +20,7 @@
 //! wait on MQTT.
 
 use std::path::PathBuf;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -27,6 +28,7 @@ use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver};
 use tokio_util::sync::CancellationToken;
 
+use super::batch::{Batch, Verdict};
 use super::format::{Format, Stage};
 use super::poller::{Polled, Poller, Routes};
 use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
@@ -52,6 +54,9 @@ const INFLIGHT: u16 = WINDOW as u16 + 64;
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
 pub const MAX_PACKET: u32 = 64 * 1024;
 
+/// Where the batch timer rests while no reading is held.
+const IDLE: Duration = Duration::from_secs(24 * 3600);
+
 /// The outbox and the client it feeds, owned by the MQTT task.
 struct Shell {
     outbox: Outbox<Spool>,
@@ -59,6 +64,9 @@ struct Shell {
     topics: Topics,
     /// The formats' own filters (Home Assistant's status, say), renewed at every connection.
     extra_filters: Vec<String>,
+    /// The last pump stopped at a full window or queue, not at the end of the outbox: the
+    /// next acknowledgement lets more out.
+    backlog: bool,
 }
 
 impl Shell {
@@ -68,12 +76,14 @@ impl Shell {
             client,
             topics,
             extra_filters: Vec::new(),
+            backlog: false,
         }
     }
 
     /// Hands rumqttc what the outbox says, until it says wait or rumqttc's queue is full.
     fn pump(&mut self) {
         let now = Instant::now();
+        self.backlog = false;
         while let Some(step) = self.outbox.next(now) {
             match step {
                 Step::Send(e) => {
@@ -84,6 +94,7 @@ impl Shell {
                         .is_err()
                     {
                         self.outbox.refused(); // more when it sends
+                        self.backlog = true;
                         break;
                     }
                 }
@@ -92,13 +103,19 @@ impl Shell {
                 }
             }
         }
+        self.backlog |= self.outbox.in_flight() >= WINDOW;
     }
 
     fn enqueue(&mut self, message: Message) {
+        self.queue(message);
+        self.pump();
+    }
+
+    /// Into the outbox (and its spool) without handing anything to rumqttc yet.
+    fn queue(&mut self, message: Message) {
         if let Err(e) = self.outbox.enqueue(message) {
             tracing::error!("{e}");
         }
-        self.pump();
     }
 
     /// A publish outside the outbox (boot marker, gateway status).
@@ -243,6 +260,8 @@ pub async fn run(
         watch: Watch::new(),
         poller: Poller::start(eventloop, Duration::ZERO, routes.clone()),
         routes,
+        batch: Batch::new(task.config.batch),
+        batch_due: Box::pin(tokio::time::sleep(IDLE)),
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -309,6 +328,9 @@ struct Publisher<'t> {
     routes: Routes,
     /// In-flight messages without an acknowledgement for this long: the connection is stalled.
     stall_after: Duration,
+    /// Readings held to go with the next polls' (`mqtt.batch`), and the end of their window.
+    batch: Batch,
+    batch_due: Pin<Box<tokio::time::Sleep>>,
 }
 
 impl Publisher<'_> {
@@ -332,6 +354,7 @@ impl Publisher<'_> {
                     None => return,
                 },
                 Some(polled) = self.poller.events.recv() => self.polled(polled),
+                () = &mut self.batch_due, if self.batch.holding() => self.pump(),
                 Some(config) = self.reloads.recv() => {
                     for m in self.stage.reload(&config) {
                         self.shell.enqueue(m);
@@ -353,8 +376,40 @@ impl Publisher<'_> {
             Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
             _ => {}
         }
+        if !matches!(out, Output::Reading(_) | Output::DeviceReadings { .. }) {
+            for m in self.stage.render(&out) {
+                self.shell.queue(m);
+            }
+            self.pump();
+            return;
+        }
         for m in self.stage.render(&out) {
-            self.shell.enqueue(m);
+            self.shell.queue(m);
+        }
+        match self.batch.reading(Instant::now()) {
+            Verdict::Send => self.pump(),
+            Verdict::HoldUntil(t) => self.batch_due.as_mut().reset(t.into()),
+            Verdict::Hold => {}
+        }
+    }
+
+    /// The connection took or acknowledged a message: more may go out, but held readings wait
+    /// for their batch unless the outbox has a backlog that only the window kept back.
+    fn acknowledged(&mut self) {
+        if !self.batch.holding() || self.shell.backlog {
+            self.pump();
+        }
+    }
+
+    /// Hands rumqttc what the outbox lets out, held readings included: the batch is over.
+    fn pump(&mut self) {
+        self.shell.pump();
+        if self.batch.holding() {
+            self.batch.sent();
+            // Far away rather than dropped: a timer left at the old time would still wake the
+            // runtime then, for nothing.
+            let idle = tokio::time::Instant::now() + IDLE;
+            self.batch_due.as_mut().reset(idle);
         }
     }
 
@@ -373,12 +428,12 @@ impl Publisher<'_> {
             }
             Ok(Event::Sent(pkid)) => {
                 s.outbox.sent(pkid);
-                s.pump();
+                self.acknowledged();
             }
             Ok(Event::Acked(pkid)) => {
                 self.watch.pause = Duration::from_secs(1);
                 s.outbox.acked(pkid, Instant::now());
-                s.pump();
+                self.acknowledged();
             }
             Ok(Event::Received(p)) => self.received(&p.topic, &p.payload),
             // Our DISCONNECT went out, or the client was dropped: the gateway is stopping.
@@ -443,6 +498,7 @@ impl Publisher<'_> {
     /// publishes the gateway offline, lets the connection write that and our DISCONNECT, and
     /// waits (off the runtime thread) for the spool's last writes.
     async fn finish(&mut self) {
+        self.pump();
         let deadline = tokio::time::Instant::now() + Duration::from_millis(1500);
         while self.shell.outbox.is_connected() && !self.shell.outbox.store().is_empty() {
             tokio::select! {
@@ -655,6 +711,8 @@ mod tests {
                 router,
             },
             stall_after: Duration::from_secs(10),
+            batch: Batch::new(task.config.batch),
+            batch_due: Box::pin(tokio::time::sleep(IDLE)),
         };
         (p, reports, eventloop)
     }
@@ -720,5 +778,55 @@ mod tests {
         p.polled(Ok(Event::ConnAck { max_packet: None }));
         p.polled(Err(Failure::RequestsDone));
         assert!(p.shell.outbox.is_connected());
+    }
+
+    fn reading(seq: u64) -> Output {
+        Output::Reading(crate::reading::Reading {
+            device: "d".into(),
+            channel: "enc0".into(),
+            ts: std::time::SystemTime::UNIX_EPOCH,
+            count: 1,
+            freq_hz: None,
+            rpm: None,
+            update: crate::counter::Update {
+                delta: 1,
+                total: 1,
+                seq,
+                rate_hz: None,
+                event: None,
+            },
+            after_seq: None,
+            kind: crate::profile::ChannelKind::Encoder,
+            units: None,
+        })
+    }
+
+    /// Readings wait for their batch (an acknowledgement of something else does not send them);
+    /// a state save's checkpoint, or any other message, takes them along.
+    #[tokio::test]
+    async fn held_readings_go_with_a_checkpoint_and_not_with_an_acknowledgement() {
+        let task = task("batch");
+        assert_eq!(task.config.batch, Duration::from_millis(250), "the default");
+        let (mut p, _reports, _requests) = publisher(&task, "batch");
+        p.handle(reading(1));
+        p.handle(reading(2));
+        assert_eq!(p.shell.outbox.in_flight(), 0, "held");
+        assert_eq!(p.shell.outbox.store().len(), 2, "but in the spool already");
+        p.polled(Ok(Event::Acked(7)));
+        assert_eq!(p.shell.outbox.in_flight(), 0, "still held");
+        p.handle(Output::Checkpoint);
+        assert_eq!(
+            p.shell.outbox.in_flight(),
+            2,
+            "sent before the save records them"
+        );
+        assert!(!p.batch.holding());
+        p.handle(reading(3));
+        assert_eq!(p.shell.outbox.in_flight(), 2);
+        p.handle(Output::DeviceStatus {
+            device: "d".into(),
+            online: true,
+        });
+        assert_eq!(p.shell.outbox.in_flight(), 4, "in order, with the status");
     }
 }

@@ -460,18 +460,21 @@ fn mean_interval(
     from: std::time::Instant,
     to: std::time::Instant,
 ) -> f64 {
-    let at: Vec<std::time::Instant> = sub
+    // The readings' own times, not their arrival: readings of several polls arrive together
+    // (`mqtt.batch`).
+    let at: Vec<std::time::SystemTime> = sub
         .on(topic)
         .iter()
-        .map(|m| m.at)
-        .filter(|t| *t >= from && *t <= to)
+        .filter(|m| m.at >= from && m.at <= to)
+        .map(|m| humantime::parse_rfc3339(m.json()["ts"].as_str().unwrap()).unwrap())
         .collect();
     assert!(
         at.len() >= 10,
         "{topic}: only {} readings in the window",
         at.len()
     );
-    (at[at.len() - 1] - at[0]).as_secs_f64() / (at.len() - 1) as f64
+    let span = at[at.len() - 1].duration_since(at[0]).unwrap();
+    span.as_secs_f64() / (at.len() - 1) as f64
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

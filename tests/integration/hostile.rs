@@ -456,7 +456,7 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
 /// skipped, a reading with `after_seq` supersedes the readings with a higher seq (its delta
 /// holds their pulses). Panics when a seq comes twice with different content. Returns the sum
 /// of the deltas that stand.
-fn consume(readings: &[serde_json::Value]) -> i64 {
+pub fn consume(readings: &[serde_json::Value]) -> i64 {
     let mut by_seq: std::collections::BTreeMap<i64, &serde_json::Value> = Default::default();
     let mut standing: std::collections::BTreeMap<i64, i64> = Default::default();
     for r in readings {
@@ -509,7 +509,9 @@ async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
     };
     for _ in 0..20 {
         let gw = Gateway::start(&config);
-        tokio::time::sleep(Duration::from_millis(300 + next() % 1700)).await;
+        // From 500 ms: a run killed before its first readings left (they wait up to
+        // `mqtt.batch`, 250 ms) has nothing to supersede.
+        tokio::time::sleep(Duration::from_millis(500 + next() % 1500)).await;
         gw.kill();
     }
     let gw = Gateway::start(&config);

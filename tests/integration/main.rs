@@ -1,6 +1,7 @@
 //! One integration binary: the gateway against the simulator over real pseudo-terminals and a
 //! real Mosquitto broker.
 
+mod batching;
 mod burn_in;
 mod clock;
 mod commands;
