@@ -282,11 +282,10 @@ fn have_mbpoll() -> bool {
 type Rounds = Vec<(Sample, Sample)>;
 
 fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: Option<f64>) {
-    // A row without a target measures the floor client, not the gateway.
-    let client = if target.is_some() {
-        "pulsegate"
-    } else {
+    let client = if what.starts_with("floor") {
         "floor"
+    } else {
+        "pulsegate"
     };
     let mut ratios: Vec<f64> = rounds
         .iter()
@@ -333,7 +332,7 @@ fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: Optio
 }
 
 /// The comparisons, in report order.
-const SCENARIOS: [&str; 9] = [
+const SCENARIOS: [&str; 10] = [
     "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
     "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
     "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
@@ -343,9 +342,14 @@ const SCENARIOS: [&str; 9] = [
     "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1, broker on a Unix socket",
     "floor: tokio-serial + tokio-modbus alone, RTU 9600, frames at once, no MQTT",
     "floor: tokio-serial + tokio-modbus + rumqttc, RTU 9600, frames at once, 4 messages a poll QoS 1",
+    "context: pulsegate with mqtt.batch = \"0s\" (each poll at once), RTU 9600, bytes trickling, per-channel JSON QoS 1",
 ];
 
-/// The scenarios from here on are floors, printed for context (no target).
+/// The context row that measures the gateway without its batch.
+const UNBATCHED: usize = 9;
+
+/// The scenarios from here on are printed for context (no target): floors, and the gateway
+/// without its batch.
 const FLOORS_FROM: usize = 7;
 
 /// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
@@ -435,6 +439,7 @@ pub async fn run(figures: &mut Vec<Figure>) {
                 kind,
                 broker,
                 socket,
+                unbatched: false,
                 cpu,
             };
             results[3 + i].push(twins.measure(per_device, round, rtu_window).await);
@@ -446,6 +451,7 @@ pub async fn run(figures: &mut Vec<Figure>) {
                 kind: "line",
                 broker,
                 socket: None,
+                unbatched: false,
                 cpu,
             };
             for (i, mqtt) in [None, Some(broker)].into_iter().enumerate() {
@@ -454,6 +460,16 @@ pub async fn run(figures: &mut Vec<Figure>) {
                 results[FLOORS_FROM + i].push(pair);
             }
         }
+        let twins = RtuTwins {
+            plant: &plant,
+            dir: &dir,
+            kind: "trickle",
+            broker,
+            socket: None,
+            unbatched: true,
+            cpu,
+        };
+        results[UNBATCHED].push(twins.measure(false, round, rtu_window).await);
     }
     for (i, (what, rounds)) in SCENARIOS.iter().zip(&results).enumerate() {
         if rounds.is_empty() {
@@ -478,6 +494,8 @@ struct RtuTwins<'a> {
     broker: u16,
     /// The gateway reaches the broker over this Unix socket rather than loopback TCP.
     socket: Option<&'a Path>,
+    /// The gateway sends each poll's readings at once (`mqtt.batch = "0s"`).
+    unbatched: bool,
     cpu: usize,
 }
 
@@ -485,10 +503,11 @@ impl RtuTwins<'_> {
     async fn measure(&self, per_device: bool, round: usize, window: Duration) -> (Sample, Sample) {
         let start = |endpoint: &Endpoint| {
             let name = format!(
-                "{}-{round}-{}{}",
+                "{}-{round}-{}{}{}",
                 self.kind,
                 if per_device { "dev" } else { "ch" },
-                if self.socket.is_some() { "-unix" } else { "" }
+                if self.socket.is_some() { "-unix" } else { "" },
+                if self.unbatched { "-unbatched" } else { "" }
             );
             let config = gateway_config(
                 self.dir,
@@ -500,7 +519,10 @@ impl RtuTwins<'_> {
                 "1ms",
             );
             if let Some(socket) = self.socket {
-                over_socket(&config, socket);
+                set_mqtt(&config, &format!("socket = {socket:?}"));
+            }
+            if self.unbatched {
+                set_mqtt(&config, "batch = \"0s\"");
             }
             gateway(&config, self.cpu)
         };
@@ -532,15 +554,15 @@ impl RtuTwins<'_> {
     }
 }
 
-/// Points the gateway `config` at the broker's Unix socket (`mqtt.socket`; host and port are
+/// Adds `line` to the `[mqtt]` table of the gateway `config` (`socket = …`: host and port are
 /// then not used).
-fn over_socket(config: &Path, socket: &Path) {
+fn set_mqtt(config: &Path, line: &str) {
     let text = std::fs::read_to_string(config).expect("gateway config");
     assert!(
         text.contains("[mqtt]\n"),
         "gateway config without an [mqtt] table"
     );
-    let text = text.replacen("[mqtt]\n", &format!("[mqtt]\nsocket = {socket:?}\n"), 1);
+    let text = text.replacen("[mqtt]\n", &format!("[mqtt]\n{line}\n"), 1);
     std::fs::write(config, text).expect("gateway config");
 }
 
