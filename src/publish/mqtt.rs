@@ -54,9 +54,6 @@ const INFLIGHT: u16 = WINDOW as u16 + 64;
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
 pub const MAX_PACKET: u32 = 64 * 1024;
 
-/// Where the batch timer rests while no reading is held.
-const IDLE: Duration = Duration::from_secs(24 * 3600);
-
 /// The outbox and the client it feeds, owned by the MQTT task.
 struct Shell {
     outbox: Outbox<Spool>,
@@ -261,7 +258,7 @@ pub async fn run(
         poller: Poller::start(eventloop, Duration::ZERO, routes.clone()),
         routes,
         batch: Batch::new(task.config.batch),
-        batch_due: Box::pin(tokio::time::sleep(IDLE)),
+        batch_due: None,
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -330,7 +327,9 @@ struct Publisher<'t> {
     stall_after: Duration,
     /// Readings held to go with the next polls' (`mqtt.batch`), and the end of their window.
     batch: Batch,
-    batch_due: Pin<Box<tokio::time::Sleep>>,
+    /// Dropped with the batch: a timer left in the runtime's wheel (even reset to later) would
+    /// still wake the runtime at its old time, for nothing.
+    batch_due: Option<Pin<Box<tokio::time::Sleep>>>,
 }
 
 impl Publisher<'_> {
@@ -354,7 +353,7 @@ impl Publisher<'_> {
                     None => return,
                 },
                 Some(polled) = self.poller.events.recv() => self.polled(polled),
-                () = &mut self.batch_due, if self.batch.holding() => self.pump(),
+                () = due(&mut self.batch_due), if self.batch_due.is_some() => self.pump(),
                 Some(config) = self.reloads.recv() => {
                     for m in self.stage.reload(&config) {
                         self.shell.enqueue(m);
@@ -388,7 +387,9 @@ impl Publisher<'_> {
         }
         match self.batch.reading(Instant::now()) {
             Verdict::Send => self.pump(),
-            Verdict::HoldUntil(t) => self.batch_due.as_mut().reset(t.into()),
+            Verdict::HoldUntil(t) => {
+                self.batch_due = Some(Box::pin(tokio::time::sleep_until(t.into())));
+            }
             Verdict::Hold => {}
         }
     }
@@ -406,10 +407,7 @@ impl Publisher<'_> {
         self.shell.pump();
         if self.batch.holding() {
             self.batch.sent();
-            // Far away rather than dropped: a timer left at the old time would still wake the
-            // runtime then, for nothing.
-            let idle = tokio::time::Instant::now() + IDLE;
-            self.batch_due.as_mut().reset(idle);
+            self.batch_due = None;
         }
     }
 
@@ -525,6 +523,14 @@ impl Publisher<'_> {
             let _ = synced.recv_timeout(Duration::from_secs(3));
         });
         let _ = tokio::join!(self.poller.finish(Duration::from_secs(1)), synced);
+    }
+}
+
+/// The end of the batch's window (never, without one).
+async fn due(timer: &mut Option<Pin<Box<tokio::time::Sleep>>>) {
+    match timer {
+        Some(t) => t.await,
+        None => std::future::pending().await,
     }
 }
 
@@ -712,7 +718,7 @@ mod tests {
             },
             stall_after: Duration::from_secs(10),
             batch: Batch::new(task.config.batch),
-            batch_due: Box::pin(tokio::time::sleep(IDLE)),
+            batch_due: None,
         };
         (p, reports, eventloop)
     }
