@@ -366,7 +366,7 @@ impl Publisher<'_> {
     }
 
     /// One event from the buses or the router: its side effects on health and metrics, then
-    /// its messages into the outbox.
+    /// its messages into the outbox, to rumqttc at once or, readings, with their batch.
     fn handle(&mut self, out: Output) {
         let task = self.task;
         match &out {
@@ -375,15 +375,12 @@ impl Publisher<'_> {
             Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
             _ => {}
         }
-        if !matches!(out, Output::Reading(_) | Output::DeviceReadings { .. }) {
-            for m in self.stage.render(&out) {
-                self.shell.queue(m);
-            }
-            self.pump();
-            return;
-        }
         for m in self.stage.render(&out) {
             self.shell.queue(m);
+        }
+        if !matches!(out, Output::Reading(_) | Output::DeviceReadings { .. }) {
+            self.pump(); // never held, and takes held readings along
+            return;
         }
         match self.batch.reading(Instant::now()) {
             Verdict::Send => self.pump(),
@@ -402,13 +399,12 @@ impl Publisher<'_> {
         }
     }
 
-    /// Hands rumqttc what the outbox lets out, held readings included: the batch is over.
+    /// Hands rumqttc what the outbox lets out, held readings included: the batch is over, and
+    /// so is its timer (a fired one left in place would be ready at every turn of the loop).
     fn pump(&mut self) {
         self.shell.pump();
-        if self.batch.holding() {
-            self.batch.sent();
-            self.batch_due = None;
-        }
+        self.batch.sent();
+        self.batch_due = None;
     }
 
     /// What the connection reported.
@@ -834,5 +830,25 @@ mod tests {
             online: true,
         });
         assert_eq!(p.shell.outbox.in_flight(), 4, "in order, with the status");
+    }
+
+    /// A batch that goes with a later poll's reading takes its timer with it: a timer left
+    /// behind fired later and, finished, was ready at every turn of the task's loop (a busy
+    /// loop until the next reading: 5 ms of CPU per RTU transaction with per-device payloads).
+    #[tokio::test]
+    async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
+        let task = task("batch-timer");
+        let (mut p, _reports, _requests) = publisher(&task, "batch-timer");
+        p.batch = Batch::new(Duration::from_millis(4));
+        p.handle(reading(1));
+        assert!(p.batch_due.is_some(), "the window's end is timed");
+        std::thread::sleep(Duration::from_millis(4));
+        p.handle(reading(2));
+        assert_eq!(
+            p.shell.outbox.in_flight(),
+            2,
+            "sent with the second reading"
+        );
+        assert!(p.batch_due.is_none(), "and the timer with them");
     }
 }
