@@ -8,6 +8,7 @@ use serde_json::json;
 
 use pulsegate::sim::Plant;
 
+use crate::hostile::{KILLED_ENCODER, consume, stop_and_collect};
 use crate::support::*;
 
 const PLANT: &str = r#"
@@ -115,10 +116,7 @@ async fn a_command_result_is_not_held_by_a_long_batch() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_crash_with_readings_held_loses_no_counted_pulse() {
     let broker = Broker::start();
-    let plant = plant(
-        "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n",
-    )
-    .await;
+    let plant = plant(KILLED_ENCODER).await;
     let dir = temp_dir("batch-kill");
     let topic = "pulsegate/test/m/a0";
     let sub = Subscriber::start(broker.port, topic).await;
@@ -131,28 +129,11 @@ async fn a_crash_with_readings_held_loses_no_counted_pulse() {
     tokio::time::sleep(Duration::from_millis(2500)).await;
     gw.kill();
     let gw = Gateway::start(&config);
-    tokio::time::sleep(Duration::from_secs(1)).await;
-    plant
-        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
-        .unwrap();
-    let after = Instant::now() + Duration::from_millis(500);
-    sub.wait_for(topic, Duration::from_secs(10), |m| m.at > after)
-        .await
-        .expect("a reading after the pulses stopped");
-    let (status, _) = gw.terminate();
-    assert!(status.success());
-    let all = readings(&sub, topic);
-    let generated = plant
-        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
-        .unwrap();
+    let (all, generated) = stop_and_collect(&plant, &sub, gw, topic).await;
     let first_count = all[0]["count"].as_i64().unwrap();
     assert!(
         all.iter().any(|r| r["after_seq"].is_i64()),
         "the second run's first reading counts from the saved seq"
     );
-    assert_eq!(
-        crate::hostile::consume(&all),
-        generated - first_count,
-        "summed deltas"
-    );
+    assert_eq!(consume(&all), generated - first_count, "summed deltas");
 }

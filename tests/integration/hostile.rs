@@ -4,6 +4,7 @@
 use std::time::{Duration, Instant};
 
 use bytes::Bytes;
+use pulsegate::sim::Plant;
 use rumqttc::v5::mqttbytes::QoS;
 use rumqttc::v5::mqttbytes::v5::PublishProperties;
 
@@ -477,16 +478,40 @@ pub fn consume(readings: &[serde_json::Value]) -> i64 {
     standing.values().sum()
 }
 
+/// A YL67 whose `a0` counts 1000 pulses a second: the plant of the SIGKILL tests.
+pub const KILLED_ENCODER: &str = "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n";
+
+/// After a second of the last run `gw`: stops the pulses, waits for a reading after that and
+/// stops `gw` cleanly. The readings of `topic` in arrival order, and the pulses generated.
+pub async fn stop_and_collect(
+    plant: &Plant,
+    sub: &Subscriber,
+    gw: Gateway,
+    topic: &str,
+) -> (Vec<serde_json::Value>, i64) {
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    plant
+        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
+        .unwrap();
+    let after = Instant::now() + Duration::from_millis(500);
+    sub.wait_for(topic, Duration::from_secs(10), |m| m.at > after)
+        .await
+        .expect("a reading after the pulses stopped");
+    let (status, _) = gw.terminate();
+    assert!(status.success());
+    let generated = plant
+        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
+        .unwrap();
+    (readings(sub, topic), generated)
+}
+
 /// SIGKILL at a random moment, 20 times: no seq is published twice with different content,
 /// and the deltas a consumer keeps (superseded ones dropped by `after_seq`) add up to the
 /// pulses generated, as does `total`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
     let broker = Broker::start();
-    let plant = plant(
-        "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n",
-    )
-    .await;
+    let plant = plant(KILLED_ENCODER).await;
     let dir = temp_dir("hostile-kill");
     let topic = "pulsegate/test/m/a0";
     let sub = Subscriber::start(broker.port, topic).await;
@@ -515,22 +540,8 @@ async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
         gw.kill();
     }
     let gw = Gateway::start(&config);
-    tokio::time::sleep(Duration::from_secs(1)).await;
-    plant
-        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
-        .unwrap();
-    let after = Instant::now() + Duration::from_millis(500);
-    let last = sub
-        .wait_for(topic, Duration::from_secs(5), |m| m.at > after)
-        .await
-        .expect("a reading after the pulses stopped")
-        .json();
-    let (status, _) = gw.terminate();
-    assert!(status.success());
-    let all = readings(&sub, topic);
-    let generated = plant
-        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
-        .unwrap();
+    let (all, generated) = stop_and_collect(&plant, &sub, gw, topic).await;
+    let last = all.last().expect("readings");
     let first_count = all[0]["count"].as_i64().unwrap();
     let restarts = all.iter().filter(|r| r["after_seq"].is_i64()).count();
     println!(
