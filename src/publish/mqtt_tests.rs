@@ -1,0 +1,263 @@
+//! The MQTT task without a broker: its shell, publisher and batch, their connection scripted.
+
+use super::*;
+
+#[test]
+fn a_wildcard_topic_can_never_be_sent() {
+    assert!(unsendable("evil/#", 10, 0, None).is_some());
+    assert!(unsendable("a/+/b", 10, 0, None).is_some());
+    assert!(unsendable("", 10, 0, None).is_some());
+    assert!(unsendable("pulsegate/e1/press/enc0", 100, 0, None).is_none());
+}
+
+/// A connected shell with a client whose requests go nowhere (its event loop is returned to
+/// keep the queue open, never polled).
+fn shell(name: &str) -> (Shell, EventLoop) {
+    let dir = std::env::temp_dir().join(format!("pulsegate-mqtt-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (client, eventloop) = Options::new(Settings {
+        protocol: crate::config::MqttProtocol::V5,
+        client_id: "t",
+        host: "127.0.0.1",
+        port: 1,
+        keep_alive: Duration::from_secs(30),
+        max_incoming: MAX_PACKET,
+        inflight: INFLIGHT,
+        will: ("pg/t/status".into(), "offline"),
+        login: None,
+        transport: None,
+    })
+    .connect(10);
+    let mut shell = Shell::new(
+        Spool::open(&dir, 1 << 20).unwrap(),
+        client,
+        Topics::new("pg/t"),
+    );
+    shell.outbox.connected(None, Instant::now());
+    (shell, eventloop)
+}
+
+fn message(topic: &str) -> Message {
+    Message::new(topic.into(), "{}", 1, false)
+}
+
+/// What rumqttc does after a packet-id collision: the publish was taken but nothing is
+/// acknowledged any more, while pings go on. The gateway counts that as not publishing.
+#[test]
+fn messages_in_flight_without_an_acknowledgement_for_too_long_are_a_stalled_connection() {
+    let (mut s, _requests) = shell("stall");
+    s.enqueue(message("pg/t/d/enc0"));
+    assert_eq!(s.outbox.in_flight(), 1);
+    let limit = Duration::from_secs(10);
+    let now = Instant::now();
+    assert!(!s.outbox.stalled(now, limit));
+    let later = now + Duration::from_secs(11);
+    assert!(
+        s.outbox.stalled(later, limit),
+        "nothing acknowledged for 11 s"
+    );
+    s.outbox.sent(1);
+    s.outbox.acked(1, later);
+    s.pump();
+    assert_eq!(s.outbox.in_flight(), 0);
+    assert!(!s.outbox.stalled(later, limit), "acknowledged: publishing");
+}
+
+#[test]
+fn an_unsendable_message_is_dropped_and_the_next_one_sent() {
+    let (mut s, _requests) = shell("unsendable");
+    s.enqueue(message("evil/#"));
+    s.enqueue(message("pg/t/ok"));
+    assert_eq!(s.outbox.store().len(), 1, "the wildcard one is gone");
+    assert_eq!(s.outbox.in_flight(), 1);
+    assert_eq!(s.outbox.store_mut().get(0).unwrap().topic, "pg/t/ok");
+}
+
+#[test]
+fn a_message_larger_than_the_broker_takes_can_never_be_sent() {
+    assert!(unsendable("t", 2000, 0, Some(1024)).is_some());
+    assert!(unsendable("t", 200, 900, Some(1024)).is_some());
+    assert!(unsendable("t", 200, 0, Some(1024)).is_none());
+}
+
+fn task(name: &str) -> Task {
+    let text = "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
+    let env = Some(std::collections::HashMap::new());
+    let config = crate::config::Config::from_toml(text, std::path::Path::new("x.toml"), env)
+        .expect("config");
+    let health = Arc::new(crate::health::Health::default());
+    Task {
+        spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
+        flush_every: Duration::from_secs(1),
+        heart: health.heart("mqtt"),
+        health,
+        boot: crate::boot::Boot::default(),
+        metrics: crate::metrics::Metrics::disabled(),
+        formats: Vec::new(),
+        config: config.mqtt,
+    }
+}
+
+/// The task's state over a connected shell, its connection scripted by the test.
+fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, EventLoop) {
+    let (shell, eventloop) = shell(name);
+    let (poller, reports) = Poller::scripted();
+    let link = Connection {
+        options: client_options(&task.config, &shell.topics).unwrap(),
+        broker: "127.0.0.1:1".into(),
+        client_id: "t".into(),
+        commands: true,
+        boot: task.boot.clone(),
+    };
+    let (router, _) = tokio::sync::mpsc::channel(1);
+    let p = Publisher {
+        task,
+        stage: Stage::new(vec![super::super::format::build(&task.config)]),
+        reloads: tokio::sync::mpsc::unbounded_channel().1,
+        shell,
+        link,
+        watch: Watch::new(),
+        poller,
+        routes: Routes {
+            to_task: Vec::new(),
+            router,
+        },
+        stall_after: Duration::from_secs(10),
+        batch: Batch::new(task.config.batch),
+        batch_due: None,
+    };
+    (p, reports, eventloop)
+}
+
+/// With two tasks sharing the shell, an acknowledgement of the stalled connection could
+/// still arrive after the outbox had given its messages up. Now the reports come on the
+/// connection's own channel, which goes with it.
+#[tokio::test]
+async fn a_stalled_connection_is_rebuilt_and_its_late_acknowledgements_release_nothing() {
+    let task = task("rebuild");
+    let (mut p, old, _requests) = publisher(&task, "rebuild");
+    let status = Output::DeviceStatus {
+        device: "d".into(),
+        online: true,
+    };
+    p.handle(status);
+    p.polled(Ok(Event::Sent(1)));
+    assert_eq!(p.shell.outbox.in_flight(), 1);
+    p.beat(Instant::now() + Duration::from_secs(11));
+    assert!(!p.shell.outbox.is_connected(), "stalled: counted as lost");
+    assert_eq!(p.shell.outbox.store().len(), 1, "kept to be sent again");
+    assert!(
+        old.try_send(Ok(Event::Acked(1))).is_err(),
+        "the old connection's reports go nowhere"
+    );
+    // The fresh connection: the boot marker and the online status (packet ids 1 and 2)
+    // go first, then the message again; its acknowledgement releases it.
+    p.polled(Ok(Event::ConnAck { max_packet: None }));
+    assert_eq!(p.shell.outbox.in_flight(), 1);
+    for pkid in 1..=3 {
+        p.polled(Ok(Event::Sent(pkid)));
+    }
+    p.polled(Ok(Event::Acked(1)));
+    assert_eq!(
+        p.shell.outbox.store().len(),
+        1,
+        "packet 1 was the boot marker"
+    );
+    p.polled(Ok(Event::Acked(3)));
+    assert!(p.shell.outbox.store().is_empty());
+    assert_eq!(p.watch.up, Some(true));
+}
+
+#[tokio::test]
+async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs_off_longer() {
+    let task = task("failed");
+    let (mut p, _old, _requests) = publisher(&task, "failed");
+    p.polled(Err(Failure::Other("connection refused".into())));
+    assert!(!p.shell.outbox.is_connected());
+    assert_eq!(
+        (p.watch.up, p.watch.pause),
+        (Some(false), Duration::from_secs(1))
+    );
+    p.polled(Err(Failure::TakenOver));
+    assert_eq!(p.watch.pause, Duration::from_secs(5));
+    p.polled(Ok(Event::Acked(9)));
+    assert_eq!(
+        p.watch.pause,
+        Duration::from_secs(1),
+        "an acknowledgement resets it"
+    );
+    // The client dropped (the gateway stopping) is no failure: nothing is rebuilt.
+    p.polled(Ok(Event::ConnAck { max_packet: None }));
+    p.polled(Err(Failure::RequestsDone));
+    assert!(p.shell.outbox.is_connected());
+}
+
+fn reading(seq: u64) -> Output {
+    Output::Reading(crate::reading::Reading {
+        device: "d".into(),
+        channel: "enc0".into(),
+        ts: std::time::SystemTime::UNIX_EPOCH,
+        count: 1,
+        freq_hz: None,
+        rpm: None,
+        update: crate::counter::Update {
+            delta: 1,
+            total: 1,
+            seq,
+            rate_hz: None,
+            event: None,
+        },
+        after_seq: None,
+        kind: crate::profile::ChannelKind::Encoder,
+        units: None,
+    })
+}
+
+/// Readings wait for their batch (an acknowledgement of something else does not send them);
+/// a state save's checkpoint, or any other message, takes them along.
+#[tokio::test]
+async fn held_readings_go_with_a_checkpoint_and_not_with_an_acknowledgement() {
+    let task = task("batch");
+    assert_eq!(task.config.batch, Duration::from_millis(250), "the default");
+    let (mut p, _reports, _requests) = publisher(&task, "batch");
+    p.handle(reading(1));
+    p.handle(reading(2));
+    assert_eq!(p.shell.outbox.in_flight(), 0, "held");
+    assert_eq!(p.shell.outbox.store().len(), 2, "but in the spool already");
+    p.polled(Ok(Event::Acked(7)));
+    assert_eq!(p.shell.outbox.in_flight(), 0, "still held");
+    p.handle(Output::Checkpoint);
+    assert_eq!(
+        p.shell.outbox.in_flight(),
+        2,
+        "sent before the save records them"
+    );
+    assert!(!p.batch.holding());
+    p.handle(reading(3));
+    assert_eq!(p.shell.outbox.in_flight(), 2);
+    p.handle(Output::DeviceStatus {
+        device: "d".into(),
+        online: true,
+    });
+    assert_eq!(p.shell.outbox.in_flight(), 4, "in order, with the status");
+}
+
+/// A batch that goes with a later poll's reading takes its timer with it: a timer left
+/// behind fired later and, finished, was ready at every turn of the task's loop (a busy
+/// loop until the next reading: 5 ms of CPU per RTU transaction with per-device payloads).
+#[tokio::test]
+async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
+    let task = task("batch-timer");
+    let (mut p, _reports, _requests) = publisher(&task, "batch-timer");
+    p.batch = Batch::new(Duration::from_millis(4));
+    p.handle(reading(1));
+    assert!(p.batch_due.is_some(), "the window's end is timed");
+    std::thread::sleep(Duration::from_millis(4));
+    p.handle(reading(2));
+    assert_eq!(
+        p.shell.outbox.in_flight(),
+        2,
+        "sent with the second reading"
+    );
+    assert!(p.batch_due.is_none(), "and the timer with them");
+}
