@@ -115,7 +115,20 @@ mod tests {
             .stdin(std::fs::File::open(&path).unwrap())
             .spawn()
             .unwrap();
-        let found = holders(&path);
+        // Between fork and exec the child (or a child another test thread forks at that
+        // moment) holds the port under an empty or foreign command line: look again until
+        // the exec is seen.
+        let mut found = holders(&path);
+        for _ in 0..100 {
+            if found
+                .iter()
+                .any(|h| h.pid == child.id() && h.command.starts_with("sleep"))
+            {
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            found = holders(&path);
+        }
         let _ = child.kill();
         let _ = child.wait();
         assert!(
