@@ -23,6 +23,7 @@ pub mod decode;
 pub mod demo;
 pub mod dispatch;
 pub mod health;
+pub mod metering;
 pub mod metrics;
 pub mod outbox;
 pub mod plan;

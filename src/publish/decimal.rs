@@ -115,6 +115,25 @@ impl Decimal {
         .normalized()
     }
 
+    /// `self + other`, exactly (a scaled total plus a meter's offset).
+    pub fn plus(&self, other: &Decimal) -> Decimal {
+        let places = self.places.max(other.places);
+        let widen = |d: &Decimal| d.mantissa * 10i128.pow(places - d.places);
+        Decimal {
+            mantissa: widen(self) + widen(other),
+            places,
+        }
+        .normalized()
+    }
+
+    /// `self - other`, exactly.
+    pub fn minus(&self, other: &Decimal) -> Decimal {
+        self.plus(&Decimal {
+            mantissa: -other.mantissa,
+            places: other.places,
+        })
+    }
+
     /// The nearest `f64`, for rates (which are measured, not counted).
     pub fn to_f64(&self) -> f64 {
         self.to_string().parse().unwrap_or(f64::NAN)
