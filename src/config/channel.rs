@@ -46,6 +46,8 @@ pub struct ChannelConfig {
     pub units: ChannelUnits,
     /// Publish policy keys of this channel (over the device's).
     pub publish: PolicyOverride,
+    /// `intervals` of this channel, when it overrides its device's.
+    pub intervals: Option<Vec<crate::metering::Period>>,
 }
 
 impl Default for ChannelConfig {
@@ -59,6 +61,7 @@ impl Default for ChannelConfig {
             resume_paused: false,
             units: ChannelUnits::default(),
             publish: PolicyOverride::default(),
+            intervals: None,
         }
     }
 }
@@ -124,6 +127,7 @@ pub(super) fn channel(
     }
     let units = units(&mut ct, errs);
     let publish = super::publish::policy(&mut ct, errs);
+    let intervals = super::metering::intervals(&mut ct, errs);
     ct.finish(errs);
     ChannelConfig {
         ppr,
@@ -134,6 +138,7 @@ pub(super) fn channel(
         resume_paused,
         units,
         publish,
+        intervals,
     }
 }
 
