@@ -136,6 +136,13 @@ pub struct CounterState {
     /// datasheet maximum): bounds what a wrap after a long absence can be.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub peak_hz: u64,
+    /// The open interval and record seq of each configured period (keyed by the period as
+    /// written): a restart mid-interval still closes it from its saved start.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub intervals: std::collections::BTreeMap<String, crate::metering::IntervalState>,
+    /// The offset of the channel's meter reading (`set_reading`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter: Option<crate::metering::meter::MeterOffset>,
 }
 
 fn is_zero(v: &u64) -> bool {

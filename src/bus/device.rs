@@ -86,6 +86,7 @@ impl ChannelRt {
             kind: self.spec.kind,
             units: None,
             after_seq: None,
+            meter: None,
         }
     }
 }

@@ -107,7 +107,7 @@ impl BusTask {
             return;
         };
         let stall = stall_hook(&self.bus.name);
-        while let Some(i) = earliest(&core.slots) {
+        while let Some(i) = earliest(&core.slots, Instant::now()) {
             self.heart.beat();
             if stall.is_some_and(|at| core.start.elapsed() >= at) {
                 tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
@@ -192,7 +192,7 @@ impl BusTask {
         let now = Instant::now();
         core.poll_owed = core
             .owed
-            .is_some_and(|until| now < until && core.slots[i].due <= now);
+            .is_some_and(|until| now < until && core.slots[i].next_at() <= now);
         core.durable.collect(&core.devices, &self.out).await;
         if !core.poll_owed {
             core.owed = None;
@@ -208,7 +208,7 @@ impl BusTask {
                 return Next::Loop;
             }
             let idle = driver::Idle {
-                until: core.slots[i].due,
+                until: core.slots[i].next_at(),
                 bus: &core.name,
                 out: &self.out,
                 shutdown,
@@ -236,7 +236,7 @@ impl BusTask {
         if now >= core.stats_at {
             self.report_stats(core, now);
         }
-        if core.slots[i].due > now {
+        if core.slots[i].next_at() > now {
             Next::Loop
         } else {
             Next::Poll
@@ -295,11 +295,13 @@ impl BusTask {
                 availability::mode_mismatch(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
                 core.durable.publish(outputs, i, &core.devices, &self.out);
-                core.slots[i].advance(now);
+                core.slots[i].advance_if_due(now);
+                self.rearm(core, i);
             }
             Err(PollError::WrongModel(why)) => {
                 availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
+                self.rearm(core, i);
             }
             Err(e) => {
                 let line_fault = core.driver.is_line_fault(&e);
@@ -311,10 +313,25 @@ impl BusTask {
                 let d = &mut core.devices[i];
                 match availability::failed(d, &e, line_fault, &name, &self.out) {
                     Some(wait) => core.slots[i].defer_to(now + wait),
-                    None => core.slots[i].advance(now),
+                    None => core.slots[i].advance_if_due(now),
                 }
+                self.rearm(core, i);
             }
         }
+    }
+
+    /// Sets device `i`'s next interval boundary read (none while it is offline: its probes
+    /// follow the backoff, and a boundary it misses makes a `merged` record, never a guess).
+    fn rearm<D: Driver>(&self, core: &mut Core<D>, i: usize) {
+        let d = &core.devices[i];
+        core.slots[i].boundary = if d.online() == Some(false) {
+            None
+        } else {
+            let now_ms = crate::reading::unix_ms(std::time::SystemTime::now()) as i64;
+            self.emitter.next_boundary(d, now_ms).map(|b| {
+                Instant::now() + Duration::from_millis(u64::try_from(b - now_ms).unwrap_or(0))
+            })
+        };
     }
 
     /// Saves the state (clean), says the devices are offline, closes the line.
@@ -405,7 +422,7 @@ impl<D: Driver> Core<D> {
         let expiry = self.pending.iter().map(|c| c.request.expires).min();
         let soon = if self.durable.holding() { 20 } else { 1000 };
         self.slots[i]
-            .due
+            .next_at()
             .min(Instant::now() + Duration::from_millis(soon))
             .min(self.flush_at)
             .min(self.stats_at)

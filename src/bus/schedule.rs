@@ -1,4 +1,8 @@
 //! Earliest-deadline-first polling and backoff for offline devices. Pure: instants come in.
+//!
+//! A device with interval records also has a boundary: the next interval boundary of its
+//! channels, when it must be read as soon as the line allows. A boundary that is due goes
+//! before every ordinary poll that is due; it does not move the device's own poll phase.
 
 use std::time::Duration;
 
@@ -10,6 +14,8 @@ pub struct Slot {
     pub due: Instant,
     pub interval: Duration,
     pub missed: u64,
+    /// The next interval boundary to read at, if the device has intervals.
+    pub boundary: Option<Instant>,
 }
 
 impl Slot {
@@ -18,7 +24,18 @@ impl Slot {
             due: first,
             interval,
             missed: 0,
+            boundary: None,
         }
+    }
+
+    /// When the device wants the line next: its poll or its boundary.
+    pub fn next_at(&self) -> Instant {
+        self.boundary.map_or(self.due, |b| b.min(self.due))
+    }
+
+    /// Whether its boundary has come at `now`.
+    pub fn boundary_due(&self, now: Instant) -> bool {
+        self.boundary.is_some_and(|b| b <= now)
     }
 
     /// After a poll that finished at `now`: the next deadline keeps the phase; deadlines that
@@ -33,19 +50,37 @@ impl Slot {
         }
     }
 
+    /// After a poll that finished at `now`, which was a boundary read if the deadline had not
+    /// come: the deadline moves only if it had (a boundary read keeps the poll phase).
+    pub fn advance_if_due(&mut self, now: Instant) {
+        if self.due <= now {
+            self.advance(now);
+        }
+    }
+
     /// Moves the deadline to `at` (a backoff probe), counting nothing.
     pub fn defer_to(&mut self, at: Instant) {
         self.due = at;
     }
 }
 
-/// The index of the slot due first (ties go to the lower index, i.e. config order).
-pub fn earliest(slots: &[Slot]) -> Option<usize> {
-    slots
+/// The index of the slot due first at `now`: a boundary that has come goes before any
+/// ordinary poll (earliest boundary first); otherwise the earliest poll or boundary. Ties go to
+/// the lower index, i.e. config order.
+pub fn earliest(slots: &[Slot], now: Instant) -> Option<usize> {
+    let boundary = slots
         .iter()
         .enumerate()
-        .min_by_key(|(i, s)| (s.due, *i))
-        .map(|(i, _)| i)
+        .filter(|(_, s)| s.boundary_due(now))
+        .min_by_key(|(i, s)| (s.boundary, *i))
+        .map(|(i, _)| i);
+    boundary.or_else(|| {
+        slots
+            .iter()
+            .enumerate()
+            .min_by_key(|(i, s)| (s.next_at(), *i))
+            .map(|(i, _)| i)
+    })
 }
 
 /// Exponential backoff between probes of an offline device.
@@ -109,8 +144,20 @@ mod tests {
             Slot::new(t0 + 10 * MS, MS),
             Slot::new(t0 + 10 * MS, MS),
         ];
-        assert_eq!(earliest(&slots), Some(1));
-        assert_eq!(earliest(&[]), None);
+        assert_eq!(earliest(&slots, t0), Some(1));
+        assert_eq!(earliest(&[], t0), None);
+    }
+
+    #[test]
+    fn a_boundary_that_has_come_goes_before_polls_that_are_overdue() {
+        let t0 = Instant::now();
+        let mut metered = Slot::new(t0 + 60_000 * MS, 60_000 * MS);
+        metered.boundary = Some(t0 + 10 * MS);
+        let slots = [Slot::new(t0, 100 * MS), metered];
+        // Before the boundary the overdue poll goes first; at it, the boundary read does.
+        assert_eq!(earliest(&slots, t0 + 5 * MS), Some(0));
+        assert_eq!(earliest(&slots, t0 + 10 * MS), Some(1));
+        assert_eq!(slots[1].next_at(), t0 + 10 * MS);
     }
 
     #[test]

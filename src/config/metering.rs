@@ -16,7 +16,10 @@ pub(crate) fn intervals(t: &mut Table<'_>, errs: &mut Errors) -> Option<Vec<Peri
                 Some(q) => errs.push(
                     &path,
                     t.origin(),
-                    format!("{text:?} is the same period as {:?}: list each once", q.text()),
+                    format!(
+                        "{text:?} is the same period as {:?}: list each once",
+                        q.text()
+                    ),
                 ),
                 None => periods.push(p),
             },

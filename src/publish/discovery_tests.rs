@@ -66,6 +66,7 @@ fn reading(device: &str, channel: &str) -> Reading {
         },
         units: None,
         after_seq: None,
+        meter: None,
     }
 }
 

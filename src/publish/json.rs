@@ -77,6 +77,15 @@ impl Format for Json {
                 }
                 out
             }
+            Output::Interval(i) => {
+                let topic = t.interval(&i.device, &i.channel, &i.period);
+                vec![Message::new(
+                    topic,
+                    payload::interval(i),
+                    self.qos,
+                    self.retain,
+                )]
+            }
             Output::Checkpoint => Vec::new(),
         }
     }
