@@ -12,6 +12,7 @@ mod dashboards;
 mod faults;
 mod hostile;
 mod local_socket;
+mod metering;
 mod metrics;
 mod pipeline;
 mod plants;
