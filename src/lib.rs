@@ -32,6 +32,7 @@ pub mod publish;
 pub mod reading;
 pub mod report;
 pub mod saved;
+pub mod setreading;
 pub mod sim;
 pub mod state;
 pub mod systemd;

@@ -61,6 +61,19 @@ enum Command {
         #[command(subcommand)]
         action: StateAction,
     },
+    /// Set a channel's meter reading to the meter's display (the running gateway does it; the
+    /// total, the deltas and the intervals do not move, and nothing is written to the module).
+    SetReading {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+        device: String,
+        channel: String,
+        /// The meter's display, in the channel's unit (e.g. 12345.678).
+        value: String,
+        /// How long to wait for the gateway's result.
+        #[arg(long, default_value = "10s")]
+        wait: humantime::Duration,
+    },
     /// Serve simulated modules on pseudo-terminals and TCP ports.
     Simulate {
         #[arg(long)]
@@ -234,6 +247,26 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                 Err(code) => return Ok(code),
             };
             state_command(&config, action)
+        }
+        Command::SetReading {
+            config,
+            device,
+            channel,
+            value,
+            wait,
+        } => {
+            let config = match load(&config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            let result =
+                pulsegate::setreading::run(&config, &device, &channel, &value, wait.into()).await?;
+            println!("{result}");
+            Ok(if result["ok"] == true {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            })
         }
         Command::Simulate { config } => {
             let text = std::fs::read_to_string(&config)

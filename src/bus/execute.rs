@@ -128,6 +128,10 @@ impl DeviceRt<ModbusDevice> {
                     .await?;
                 Ok(0)
             }
+            // The bus core sets meter readings itself; nothing of it is ever written.
+            Op::SetReading(_) => Err(CommandError::WriteFailed(
+                "set_reading writes nothing to a module".into(),
+            )),
         }
     }
 

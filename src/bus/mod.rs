@@ -9,6 +9,7 @@ mod execute;
 mod identity;
 mod ledger;
 pub mod link;
+mod meter;
 pub mod modbus;
 mod run;
 mod saver;
@@ -488,6 +489,11 @@ async fn run_one_command<D: driver::Driver>(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
+        if let crate::command::Op::SetReading(display) = c.request.op {
+            let channel = c.request.channel.as_deref();
+            let _ = c.done.send(meter::set_reading(d, channel, &display));
+            continue;
+        }
         if ran.is_none() && d.online() == Some(true) && driver.ready_for_commands(d) {
             let before = driver.wire().0;
             let executed = driver.execute(d, &c.request).await;

@@ -185,7 +185,9 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
 /// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
 /// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
 /// TLS: `check` refuses that config, and a config built another way must fail closed too.
-fn broker_transport(config: &Mqtt) -> Result<(String, Option<Transport>), super::tls::TlsError> {
+pub(crate) fn broker_transport(
+    config: &Mqtt,
+) -> Result<(String, Option<Transport>), super::tls::TlsError> {
     match (&config.socket, &config.tls) {
         (Some(path), Some(_)) => Err(super::tls::TlsError::OverSocket {
             socket: path.display().to_string(),

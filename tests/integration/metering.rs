@@ -53,7 +53,9 @@ pub(crate) async fn until_wall(ms: i64) {
 
 fn iso_ms(v: &Value) -> i64 {
     let t = humantime::parse_rfc3339(v.as_str().unwrap()).unwrap();
-    t.duration_since(SystemTime::UNIX_EPOCH).unwrap().as_millis() as i64
+    t.duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_millis() as i64
 }
 
 /// The simulator's own account of one channel: when (wall ms) each read of its count register
@@ -154,9 +156,8 @@ async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_
     gw = Gateway::start(&config);
     let last_end = b0 + 50_000;
     assert!(
-        sub.wait_for(topic, Duration::from_secs(15), |m| iso_ms(
-            &m.json()["end"]
-        ) == last_end)
+        sub.wait_for(topic, Duration::from_secs(15), |m| iso_ms(&m.json()["end"])
+            == last_end)
             .await
             .is_some(),
         "the record closed at b0+50 s"
@@ -182,14 +183,21 @@ async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_
         "deltas sum to the total's change"
     );
     let merged: Vec<&Value> = recs.iter().filter(|r| r["status"] == "merged").collect();
-    assert_eq!(merged.len(), 1, "the stop makes one merged record: {recs:#?}");
+    assert_eq!(
+        merged.len(),
+        1,
+        "the stop makes one merged record: {recs:#?}"
+    );
     assert_eq!(
         (iso_ms(&merged[0]["start"]), iso_ms(&merged[0]["end"])),
         (b0 + 20_000, b0 + 40_000),
         "it spans the boundary the stop missed"
     );
     assert_eq!(iso_ms(&last["end"]), last_end);
-    assert_eq!(last["status"], "complete", "the crash mid-interval missed no boundary");
+    assert_eq!(
+        last["status"], "complete",
+        "the crash mid-interval missed no boundary"
+    );
 
     // Each record's delta is the simulator's own count between its two boundary reads (the
     // pulses between the last read before the power cycle and the cycle are gone with the
