@@ -229,3 +229,158 @@ async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_
     assert!(saw_cycle, "one record holds the power cycle");
     drop(broker);
 }
+
+fn decimal(v: &Value) -> pulsegate::publish::decimal::Decimal {
+    pulsegate::publish::decimal::Decimal::parse(&v.to_string())
+        .unwrap_or_else(|e| panic!("{v}: {e}"))
+}
+
+/// The first reading on `topic` that arrived after `after`.
+async fn reading_after(sub: &Subscriber, topic: &str, after: std::time::Instant) -> Value {
+    sub.wait_for(topic, Duration::from_secs(10), |m| m.at > after)
+        .await
+        .unwrap_or_else(|| panic!("a reading on {topic}"))
+        .json()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_module_and_survives_a_restart()
+ {
+    let dir = temp_dir("set-reading");
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { rate = 20.0 }\n",
+    )
+    .await;
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let text = metering_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "m1", 1, "yl67", "200ms")],
+        "state_flush = \"500ms\"\n",
+        SERIAL_115200,
+        "[buses.line1.devices.m1.channels.a0]\nscale = 0.001\nunit = \"kWh\"\n",
+    );
+    let config = write_config(&dir, &text);
+    let topic = "pulsegate/test/m1/a0";
+    let gw = Gateway::start(&config);
+    let first = reading_after(&sub, topic, std::time::Instant::now()).await;
+    assert_eq!(
+        first["reading"], first["value"],
+        "no offset yet: the scaled total"
+    );
+    let writes = || plant.with_module("line1", 1, |m, _| m.writes).unwrap();
+    let writes_before = writes();
+
+    sub.client
+        .publish(
+            format!("{topic}/cmd"),
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            r#"{"op":"set_reading","value":"12345.678","id":"swap-1"}"#,
+        )
+        .await
+        .unwrap();
+    let result = sub
+        .wait_for(
+            &format!("{topic}/cmd/result"),
+            Duration::from_secs(5),
+            |_| true,
+        )
+        .await
+        .expect("a result")
+        .json();
+    assert_eq!(result["ok"], true, "{result}");
+    let answered = std::time::Instant::now();
+    let before: Vec<Value> = sub
+        .on(topic)
+        .iter()
+        .filter(|m| m.at < answered)
+        .map(|m| m.json())
+        .collect();
+    let at_set = before.last().unwrap()["total"].as_i64().unwrap();
+    let after = reading_after(&sub, topic, answered).await;
+    let scale = pulsegate::publish::decimal::Decimal::parse("0.001").unwrap();
+    let display = pulsegate::publish::decimal::Decimal::parse("12345.678").unwrap();
+    let total = after["total"].as_i64().unwrap();
+    assert_eq!(
+        decimal(&after["reading"]),
+        display.plus(&scale.times(total - at_set)),
+        "the reading is the display plus what was counted since: {after}"
+    );
+    assert!(after.get("reading_since").is_some(), "{after}");
+    assert_eq!(
+        after["event"],
+        Value::Null,
+        "no jump, no event in the total"
+    );
+    let all = readings(&sub, topic);
+    for pair in all.windows(2) {
+        assert_eq!(
+            pair[1]["total"].as_i64().unwrap(),
+            pair[0]["total"].as_i64().unwrap() + pair[1]["delta"].as_i64().unwrap(),
+            "the total moves only by the deltas"
+        );
+    }
+    assert_eq!(writes(), writes_before, "nothing written to the module");
+
+    // The offset survives a restart.
+    let (status, _) = gw.terminate();
+    assert!(status.success());
+    let since = after["reading_since"].clone();
+    let gw = Gateway::start(&config);
+    let back = reading_after(&sub, topic, std::time::Instant::now()).await;
+    let total = back["total"].as_i64().unwrap();
+    assert_eq!(
+        decimal(&back["reading"]),
+        display.plus(&scale.times(total - at_set)),
+        "after a restart: {back}"
+    );
+    assert_eq!(back["reading_since"], since);
+
+    // The command line sets it too (through the running gateway).
+    let out = std::process::Command::new(bin())
+        .args(["set-reading", "--config"])
+        .arg(&config)
+        .args(["m1", "a0", "20000"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let said: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (said["ok"].clone(), said["op"].clone()),
+        (true.into(), "set_reading".into())
+    );
+    let after_cli = reading_after(&sub, topic, std::time::Instant::now()).await;
+    let moved = decimal(&after_cli["reading"]);
+    let twenty = pulsegate::publish::decimal::Decimal::parse("20000").unwrap();
+    let since_set = moved.minus(&twenty);
+    assert!(
+        !since_set.to_string().starts_with('-') && since_set.to_f64() < 1.0,
+        "the reading moved to 20000 (plus the pulses since): {after_cli}"
+    );
+    assert_eq!(
+        writes(),
+        writes_before,
+        "still nothing written to the module"
+    );
+    // A channel without a scale has no reading to set.
+    let out = std::process::Command::new(bin())
+        .args(["set-reading", "--config"])
+        .arg(&config)
+        .args(["m1", "a1", "5"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("no scale"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    drop(gw);
+}
