@@ -47,7 +47,10 @@ impl Emitter {
     pub(super) fn next_boundary<P>(&self, d: &DeviceRt<P>, now_ms: i64) -> Option<i64> {
         d.channels
             .iter()
-            .flat_map(|c| d.config.intervals_of(&self.gateway, &c.name))
+            .flat_map(|c| {
+                d.config
+                    .intervals_of(self.gateway.intervals.as_deref(), &c.name)
+            })
             .map(|p| self.clock.next(p, now_ms))
             .min()
     }
@@ -103,7 +106,7 @@ impl Emitter {
                     .map(|c| Arc::new(c.units.clone()));
                 let periods = d
                     .config
-                    .intervals_of(all, channel)
+                    .intervals_of(all.intervals.as_deref(), channel)
                     .iter()
                     .map(|p| (p.clone(), Arc::from(p.text())))
                     .collect();

@@ -296,14 +296,14 @@ impl Device {
     /// gateway's.
     pub fn intervals_of<'a>(
         &'a self,
-        gateway: &'a Gateway,
+        gateway: Option<&'a [crate::metering::Period]>,
         channel: &str,
     ) -> &'a [crate::metering::Period] {
         self.channels
             .get(channel)
             .and_then(|c| c.intervals.as_deref())
             .or(self.intervals.as_deref())
-            .or(gateway.intervals.as_deref())
+            .or(gateway)
             .unwrap_or_default()
     }
 

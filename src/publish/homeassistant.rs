@@ -27,6 +27,8 @@ pub struct Site {
     pub topics: Topics,
     /// The gateway's default payload shape.
     pub payload: PayloadMode,
+    /// `gateway.intervals`: interval periods of channels that do not say otherwise.
+    pub intervals: Option<Vec<crate::metering::Period>>,
 }
 
 impl Site {
@@ -36,6 +38,7 @@ impl Site {
             gateway: config.gateway.id.clone(),
             topics: Topics::new(&config.mqtt.topic_root),
             payload: config.gateway.payload,
+            intervals: config.gateway.intervals.clone(),
         }
     }
 
@@ -196,13 +199,13 @@ pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
 }
 
 /// Where a channel's readings arrive and how a template reaches one of its keys.
-struct State {
-    topic: String,
+pub(super) struct State {
+    pub(super) topic: String,
     channel: Option<String>,
 }
 
 impl State {
-    fn of(site: &Site, m: Module<'_>, channel: &str) -> State {
+    pub(super) fn of(site: &Site, m: Module<'_>, channel: &str) -> State {
         match m.payload(site) {
             PayloadMode::Channel => State {
                 topic: site.topics.reading(&m.device.name, channel),
@@ -217,7 +220,7 @@ impl State {
 
     /// A template of `key`; a message without it (or, per device, without the channel)
     /// keeps the entity's state.
-    fn template(&self, key: &str) -> String {
+    pub(super) fn template(&self, key: &str) -> String {
         match &self.channel {
             None => {
                 format!("{{{{ value_json['{key}'] if '{key}' in value_json else this.state }}}}")
@@ -226,6 +229,15 @@ impl State {
                 "{{{{ value_json['{c}']['{key}'] if '{c}' in value_json and '{key}' in \
                  value_json['{c}'] else this.state }}}}"
             ),
+        }
+    }
+
+    /// A template of `key` that renders empty when the message lacks it (Home Assistant
+    /// ignores an empty `last_reset`).
+    pub(super) fn optional(&self, key: &str) -> String {
+        match &self.channel {
+            None => format!("{{{{ value_json.get('{key}', '') }}}}"),
+            Some(c) => format!("{{{{ value_json.get('{c}', {{}}).get('{key}', '') }}}}"),
         }
     }
 
@@ -241,7 +253,13 @@ impl State {
     }
 }
 
-fn sensor(site: &Site, m: Module<'_>, object: String, name: String, more: Value) -> Entity {
+pub(super) fn sensor(
+    site: &Site,
+    m: Module<'_>,
+    object: String,
+    name: String,
+    more: Value,
+) -> Entity {
     let config = merge(common(site, m, "sensor", &object, &name), more);
     Entity {
         component: "sensor",
@@ -330,6 +348,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
         .unwrap_or_default();
     let state = State::of(site, m, ch);
     let mut out = vec![total(site, m, spec, &units), rate(site, m, spec, &units)];
+    out.extend(super::meter_entities::entities(site, m, spec, &units));
     if spec.freq.is_some() {
         let more = json!({
             "state_topic": state.topic,

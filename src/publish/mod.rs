@@ -6,6 +6,7 @@ pub mod discovery;
 pub mod format;
 pub mod homeassistant;
 pub mod json;
+pub mod meter_entities;
 pub mod mqtt;
 pub mod payload;
 pub mod policy;

@@ -384,3 +384,79 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     );
     drop(gw);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn discovery_of_the_meter_reading_and_interval_sensors_passes_the_key_checks_and_their_templates_find_their_keys()
+ {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { rate = 40.0 }\n",
+    )
+    .await;
+    let dir = temp_dir("meter-discovery");
+    let ha = Subscriber::start(broker.port, "homeassistant/#").await;
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let text = metering_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "500ms")],
+        "intervals = [\"2s\"]\n",
+        SERIAL_115200,
+        "[homeassistant]\ndiscovery = true\n\
+         [buses.line1.devices.meter.channels.a0]\nscale = 0.001\nunit = \"kWh\"\ndevice_class = \"energy\"\n",
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    let record = sub
+        .wait_for(
+            "pulsegate/test/meter/a0/interval/2s",
+            Duration::from_secs(10),
+            |_| true,
+        )
+        .await
+        .expect("a 2 s record")
+        .json();
+    let reading_topic = "homeassistant/sensor/test/line1_u1_a0_reading/config";
+    let interval_topic = "homeassistant/sensor/test/line1_u1_a0_interval_2s/config";
+    for topic in [reading_topic, interval_topic] {
+        assert!(
+            ha.wait_for(topic, Duration::from_secs(5), |m| !m.payload.is_empty())
+                .await
+                .is_some(),
+            "{topic}"
+        );
+    }
+    let configs: std::collections::BTreeMap<String, String> =
+        ha.all().into_iter().map(|m| (m.topic, m.payload)).collect();
+    let reading = crate::dashboards::valid_config(reading_topic, &configs[reading_topic]);
+    let interval = crate::dashboards::valid_config(interval_topic, &configs[interval_topic]);
+    assert_eq!(
+        (
+            reading["state_class"].clone(),
+            interval["state_class"].clone()
+        ),
+        ("total".into(), "total".into())
+    );
+    assert_eq!(
+        interval["state_topic"],
+        "pulsegate/test/meter/a0/interval/2s"
+    );
+    // Every channel's sensors and the new ones pass the same checks.
+    for (topic, payload) in &configs {
+        if !payload.is_empty() && topic.ends_with("/config") {
+            crate::dashboards::valid_config(topic, payload);
+        }
+    }
+    // The keys the templates read are in what is published.
+    assert!(
+        record.get("value").is_some() && record.get("start").is_some(),
+        "{record}"
+    );
+    let last = sub.on("pulsegate/test/meter/a0").last().unwrap().json();
+    assert!(last.get("reading").is_some(), "{last}");
+    let total = configs["homeassistant/sensor/test/line1_u1_a0_total/config"].clone();
+    assert!(
+        total.contains("total_increasing"),
+        "the consumption sensor never jumps"
+    );
+}
