@@ -108,7 +108,7 @@ impl BusTask {
             return;
         };
         let stall = stall_hook(&self.bus.name);
-        while let Some(i) = earliest(&core.slots, Instant::now()) {
+        while let Some(i) = earliest(&core.slots, Instant::now(), core.after_boundary) {
             self.heart.beat();
             if stall.is_some_and(|at| core.start.elapsed() >= at) {
                 tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
@@ -120,6 +120,7 @@ impl BusTask {
                 Next::Stop => break,
                 Next::Poll => {}
             }
+            core.after_boundary = core.slots[i].boundary_due(Instant::now());
             let commands = &self.commands;
             let owed = core.poll_owed;
             // A poll owed after a command runs to its end; otherwise it gives way to a command.
@@ -381,6 +382,8 @@ struct Core<D: Driver> {
     /// line): a burst of commands slows polling at most by half, never starves it.
     owed: Option<Instant>,
     poll_owed: bool,
+    /// The last poll was an interval boundary read (see [`schedule::earliest`]).
+    after_boundary: bool,
 }
 
 impl<D: Driver> Core<D> {
@@ -413,6 +416,7 @@ impl<D: Driver> Core<D> {
             pending: Vec::new(),
             owed: None,
             poll_owed: false,
+            after_boundary: false,
         }
     }
 

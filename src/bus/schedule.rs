@@ -67,7 +67,21 @@ impl Slot {
 /// The index of the slot due first at `now`: a boundary that has come goes before any
 /// ordinary poll (earliest boundary first); otherwise the earliest poll or boundary. Ties go to
 /// the lower index, i.e. config order.
-pub fn earliest(slots: &[Slot], now: Instant) -> Option<usize> {
+///
+/// `after_boundary`: the last transaction was a boundary read. Then a poll that is late by half
+/// its interval or more goes first: during a burst of boundary reads (many devices due at one
+/// boundary) the other devices still get every other turn, so they keep their rate and the
+/// boundary reads still get at least half the line.
+pub fn earliest(slots: &[Slot], now: Instant, after_boundary: bool) -> Option<usize> {
+    let late = slots
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| after_boundary && !s.boundary_due(now) && s.due + s.interval / 2 <= now)
+        .min_by_key(|(i, s)| (s.due, *i))
+        .map(|(i, _)| i);
+    if late.is_some() {
+        return late;
+    }
     let boundary = slots
         .iter()
         .enumerate()
@@ -144,8 +158,8 @@ mod tests {
             Slot::new(t0 + 10 * MS, MS),
             Slot::new(t0 + 10 * MS, MS),
         ];
-        assert_eq!(earliest(&slots, t0), Some(1));
-        assert_eq!(earliest(&[], t0), None);
+        assert_eq!(earliest(&slots, t0, false), Some(1));
+        assert_eq!(earliest(&[], t0, false), None);
     }
 
     #[test]
@@ -155,9 +169,26 @@ mod tests {
         metered.boundary = Some(t0 + 10 * MS);
         let slots = [Slot::new(t0, 100 * MS), metered];
         // Before the boundary the overdue poll goes first; at it, the boundary read does.
-        assert_eq!(earliest(&slots, t0 + 5 * MS), Some(0));
-        assert_eq!(earliest(&slots, t0 + 10 * MS), Some(1));
+        assert_eq!(earliest(&slots, t0 + 5 * MS, false), Some(0));
+        assert_eq!(earliest(&slots, t0 + 10 * MS, false), Some(1));
         assert_eq!(slots[1].next_at(), t0 + 10 * MS);
+    }
+
+    #[test]
+    fn in_a_burst_of_boundary_reads_a_poll_late_by_half_its_interval_gets_every_other_turn() {
+        let t0 = Instant::now();
+        let mut slots = vec![Slot::new(t0, 100 * MS)];
+        for _ in 0..3 {
+            let mut metered = Slot::new(t0 + 60_000 * MS, 60_000 * MS);
+            metered.boundary = Some(t0);
+            slots.push(metered);
+        }
+        let at = t0 + 50 * MS;
+        // The boundary reads go first; after one, the late poll goes; after it, a boundary.
+        assert_eq!(earliest(&slots, at, false), Some(1));
+        assert_eq!(earliest(&slots, at, true), Some(0));
+        // A poll late by less than half its interval waits for the boundary reads.
+        assert_eq!(earliest(&slots, t0 + 40 * MS, true), Some(1));
     }
 
     #[test]

@@ -460,3 +460,105 @@ async fn discovery_of_the_meter_reading_and_interval_sensors_passes_the_key_chec
         "the consumption sensor never jumps"
     );
 }
+
+/// Median and worst of `v` (sorted in place).
+fn median_worst(v: &mut [i64]) -> (i64, i64) {
+    v.sort_unstable();
+    (v[v.len() / 2], *v.last().unwrap())
+}
+
+/// Metered devices per bus in the boundary-burst test.
+const METERED: u8 = 16;
+
+/// Many devices due at one boundary, on a 9600-baud and a 115200-baud line (emulated: bytes
+/// take their time on the wire) side by side: every record is complete (each boundary read
+/// within the lag a 10 s period allows), and the unmetered device on each bus keeps its
+/// 500 ms rate through the bursts. Prints the measured `read_lag_ms` (docs/metering.md).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_devices_due_at_one_boundary_are_read_at_once_and_other_devices_keep_their_rate() {
+    let bauds = [("line1", "a", 9600), ("line2", "b", 115200)];
+    let mut sim = String::new();
+    let mut lines = Vec::new();
+    for (bus, prefix, baud) in bauds {
+        sim += &format!("[buses.{bus}]\nline = {{ baud = {baud}, turnaround = \"2ms\" }}\n");
+        for unit in 1..=METERED + 1 {
+            sim += &format!(
+                "[buses.{bus}.devices.{prefix}{unit}]\nunit = {unit}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = 50.0 }}\n"
+            );
+            let poll = if unit > METERED { "500ms" } else { "60s" };
+            lines.push((bus, format!("{prefix}{unit}"), unit, poll));
+        }
+    }
+    let plant = plant(&sim).await;
+    let broker = Broker::start();
+    let dir = temp_dir("boundary-burst");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let devices: Vec<(&str, &str, u8, &str, &str)> = lines
+        .iter()
+        .map(|(bus, name, unit, poll)| (*bus, name.as_str(), *unit, "yl67", *poll))
+        .collect();
+    let mut text = metering_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &devices,
+        "intervals = [\"10s\"]\n",
+        "timeout = \"100ms\"\n",
+        "",
+    );
+    for (bus, prefix, baud) in bauds {
+        text = text.replace(
+            &format!("[buses.{bus}]\n"),
+            &format!("[buses.{bus}]\nbaud = {baud}\n"),
+        );
+        let other = format!("[buses.{bus}.devices.{prefix}{}]\n", METERED + 1);
+        text = text.replace(&other, &format!("{other}intervals = []\n"));
+    }
+    let _gw = Gateway::start(&write_config(&dir, &text));
+
+    // Records close at the second and third boundaries after the start.
+    let first = (wall_ms() / 10_000 + 1) * 10_000;
+    until_wall(first + 20_000 + 3_000).await;
+    let window = (first + 1_000, first + 21_000);
+    for (bus, prefix, baud) in bauds {
+        let mut lags = Vec::new();
+        for unit in 1..=METERED {
+            let recs = records(
+                &sub,
+                &format!("pulsegate/test/{prefix}{unit}/enc0/interval/10s"),
+            );
+            assert!(!recs.is_empty(), "{bus}: {prefix}{unit} has records");
+            for r in &recs {
+                assert_eq!(r["status"], "complete", "{bus} {prefix}{unit}: {r}");
+                lags.push(r["read_lag_ms"]["end"].as_i64().unwrap());
+            }
+        }
+        let (median, worst) = median_worst(&mut lags);
+        eprintln!(
+            "{baud} baud, {METERED} devices due at one boundary: read_lag_ms median {median}, worst {worst} ({} reads)",
+            lags.len()
+        );
+        // The unmetered device's polls through two bursts: at its rate, no gap past one poll.
+        let other = format!("pulsegate/test/{prefix}{}/enc0", METERED + 1);
+        let stamps: Vec<i64> = readings(&sub, &other)
+            .iter()
+            .map(|r| iso_ms(&r["ts"]))
+            .filter(|t| (window.0..window.1).contains(t))
+            .collect();
+        let gaps: Vec<i64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
+        let longest = gaps.iter().copied().max().unwrap_or(i64::MAX);
+        eprintln!(
+            "{baud} baud: the 500 ms device polled {} times in 20 s, longest gap {longest} ms",
+            stamps.len()
+        );
+        assert!(
+            stamps.len() >= 38,
+            "{bus}: {} polls of the other device in 20 s",
+            stamps.len()
+        );
+        assert!(
+            longest < 1_000,
+            "{bus}: a gap of {longest} ms in a 500 ms poll"
+        );
+    }
+}
