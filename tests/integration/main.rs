@@ -16,5 +16,6 @@ mod metrics;
 mod pipeline;
 mod plants;
 mod protocol;
+mod readings_first;
 mod service;
 mod support;
