@@ -26,6 +26,7 @@ pub mod health;
 pub mod metering;
 pub mod metrics;
 pub mod outbox;
+pub mod outcome;
 pub mod plan;
 pub mod profile;
 pub mod publish;

@@ -102,7 +102,7 @@ pub async fn run(
         broker: config.mqtt.broker(),
         why,
     };
-    let (client, mut events) = options(config)?.connect(16);
+    let (client, mut events) = options(config)?.connect(None, 16);
     client
         .subscribe(result.clone())
         .map_err(|e| broker(e.to_string()))?;

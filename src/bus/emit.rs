@@ -151,14 +151,15 @@ impl Emitter {
                 d.withdraw_seq(&r.channel);
             }
         }
-        let mut outputs: Vec<Output> = match payload {
-            PayloadMode::Channel => published.into_iter().map(Output::Reading).collect(),
-            PayloadMode::Device if !published.is_empty() => vec![Output::DeviceReadings {
+        // One event for the poll: how it goes on the wire (a message per channel or per device)
+        // is the format's business. The records it closed follow it.
+        let mut outputs = Vec::with_capacity(1 + records.len());
+        if !published.is_empty() {
+            outputs.push(Output::DeviceReadings {
                 device: d.name.clone(),
                 readings: published,
-            }],
-            PayloadMode::Device => Vec::new(),
-        };
+            });
+        }
         outputs.extend(records);
         outputs
     }

@@ -71,7 +71,7 @@ fn reading(device: &str, channel: &str) -> Reading {
 }
 
 fn json(d: &mut Discovery, topic: &str) -> Value {
-    let all = d.ha_status(b"online");
+    let all = d.everything();
     let a = all.iter().find(|a| a.topic == topic).unwrap_or_else(|| {
         panic!(
             "no {topic} in {:?}",
@@ -164,8 +164,9 @@ fn a_channel_is_announced_once_and_everything_again_when_home_assistant_returns(
     let first = d.start().len();
     let announced = d.reading(&reading("meter", "a0")).len();
     assert!(d.reading(&reading("meter", "a0")).is_empty());
-    assert_eq!(d.ha_status(b"online").len(), first + announced);
-    assert!(d.ha_status(b"offline").is_empty());
+    let now = tokio::time::Instant::now();
+    assert_eq!(d.ha_status(b"online", now).len(), first + announced);
+    assert!(d.ha_status(b"offline", now).is_empty());
 }
 
 #[test]
@@ -367,7 +368,7 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     let mut stage = Stage::new(chosen(&config(CONFIG)));
     let mut announced = stage.start().len();
     announced += stage.render(&Output::Reading(reading("press", "a0"))).len() - 1;
-    let again = stage.received("homeassistant/status", b"online");
+    let again = stage.received("homeassistant/status", b"online").messages;
     assert_eq!(
         again.len(),
         announced,
@@ -376,10 +377,18 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     assert!(
         stage
             .received("homeassistant/status", b"offline")
+            .messages
             .is_empty()
     );
-    assert!(stage.received("pulsegate/edge/meter/cmd", b"{}").is_empty());
-    let stale = stage.received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}");
+    assert!(
+        stage
+            .received("pulsegate/edge/meter/cmd", b"{}")
+            .messages
+            .is_empty()
+    );
+    let stale = stage
+        .received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}")
+        .messages;
     assert_eq!(stale.len(), 1);
     assert!(stale[0].payload.is_empty() && stale[0].retain, "cleared");
     let without_press = CONFIG.replace(
@@ -442,19 +451,39 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
             format!("sensor.edge_meter_a0_interval_{period}")
         );
     }
-    // An encoder's position is no meter: no reading, no intervals.
-    let all: Vec<String> = d
-        .ha_status(b"online")
-        .into_iter()
-        .map(|a| a.topic)
-        .collect();
+    // An encoder's position is no meter: no reading, no intervals; the press has no intervals
+    // and no scale: neither.
+    use crate::publish::homeassistant::{Module, Site, channel_entities, channel_spec};
+    let c = config(&text);
+    let site = Site::of(&c);
+    let objects = |device: &str, channel: &str, kind| -> Vec<String> {
+        let (bus, dev) = c.devices().find(|(_, d)| d.name == device).unwrap();
+        let m = Module {
+            bus: &bus.name,
+            device: dev,
+        };
+        let spec = channel_spec(m, channel, kind).unwrap();
+        channel_entities(&site, m, &spec)
+            .into_iter()
+            .map(|e| e.object_id)
+            .collect()
+    };
+    let meter_a0 = objects("meter", "a0", ChannelKind::Counter);
     assert!(
-        !all.iter()
-            .any(|t| t.contains("enc0_reading") || t.contains("enc0_interval"))
+        meter_a0.iter().any(|o| o.ends_with("a0_interval_1d")),
+        "{meter_a0:?}"
     );
-    // The press has no intervals: no interval sensor, and no scale: no reading.
+    let enc = objects("meter", "enc0", ChannelKind::Encoder);
     assert!(
-        !all.iter()
-            .any(|t| t.contains("u4_a0_interval") || t.contains("u4_a0_reading"))
+        !enc.iter()
+            .any(|o| o.contains("reading") || o.contains("interval")),
+        "{enc:?}"
+    );
+    let press = objects("press", "a0", ChannelKind::Counter);
+    assert!(
+        !press
+            .iter()
+            .any(|o| o.contains("reading") || o.contains("interval")),
+        "{press:?}"
     );
 }
