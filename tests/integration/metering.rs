@@ -516,18 +516,33 @@ async fn many_devices_due_at_one_boundary_are_read_at_once_and_other_devices_kee
     }
     let _gw = Gateway::start(&write_config(&dir, &text));
 
-    // Records close at the second and third boundaries after the start.
-    let first = (wall_ms() / 10_000 + 1) * 10_000;
-    until_wall(first + 20_000 + 3_000).await;
-    let window = (first + 1_000, first + 21_000);
+    // Every metered device's first record closes at the second boundary after its first read;
+    // then one more burst, so the other devices' polls are watched through two.
+    let topic_of =
+        |prefix: &str, unit: u8| format!("pulsegate/test/{prefix}{unit}/enc0/interval/10s");
+    let started = std::time::Instant::now();
+    let mut boundary = 0;
+    for (bus, prefix, _) in bauds {
+        for unit in 1..=METERED {
+            let got = sub
+                .wait_for(
+                    &topic_of(prefix, unit),
+                    Duration::from_secs(45) - started.elapsed(),
+                    |_| true,
+                )
+                .await;
+            let r = got
+                .unwrap_or_else(|| panic!("{bus}: {prefix}{unit} has a record"))
+                .json();
+            boundary = boundary.max(iso_ms(&r["end"]));
+        }
+    }
+    until_wall(boundary + 10_000 + 3_000).await;
+    let window = (boundary - 9_000, boundary + 11_000);
     for (bus, prefix, baud) in bauds {
         let mut lags = Vec::new();
         for unit in 1..=METERED {
-            let recs = records(
-                &sub,
-                &format!("pulsegate/test/{prefix}{unit}/enc0/interval/10s"),
-            );
-            assert!(!recs.is_empty(), "{bus}: {prefix}{unit} has records");
+            let recs = records(&sub, &topic_of(prefix, unit));
             for r in &recs {
                 assert_eq!(r["status"], "complete", "{bus} {prefix}{unit}: {r}");
                 lags.push(r["read_lag_ms"]["end"].as_i64().unwrap());
