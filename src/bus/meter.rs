@@ -31,7 +31,11 @@ pub(super) fn set_reading<P>(
     };
     let now_ms = crate::reading::unix_ms(std::time::SystemTime::now()) as i64;
     let state = &mut ch.counter.state;
-    let offset = MeterOffset::to_show(shown, &scale, state.total, now_ms);
+    let offset = MeterOffset::to_show(shown, &scale, state.total, now_ms).ok_or_else(|| {
+        CommandError::NotDecimal(format!(
+            "{shown} has too many digits to add exactly to the scaled total"
+        ))
+    })?;
     tracing::info!(device = %d.name, channel = name, reading = %shown, offset = %offset.offset, total = state.total, "meter reading set");
     state.meter = Some(offset);
     Ok(None)

@@ -115,19 +115,26 @@ impl Decimal {
         .normalized()
     }
 
-    /// `self + other`, exactly (a scaled total plus a meter's offset).
-    pub fn plus(&self, other: &Decimal) -> Decimal {
+    /// `self + other`, exactly (a scaled total plus a meter's offset); `None` when the exact
+    /// sum does not fit (numbers of wildly different scales, from hostile input).
+    pub fn plus(&self, other: &Decimal) -> Option<Decimal> {
         let places = self.places.max(other.places);
-        let widen = |d: &Decimal| d.mantissa * 10i128.pow(places - d.places);
-        Decimal {
-            mantissa: widen(self) + widen(other),
-            places,
-        }
-        .normalized()
+        let widen = |d: &Decimal| {
+            10i128
+                .checked_pow(places - d.places)
+                .and_then(|f| d.mantissa.checked_mul(f))
+        };
+        Some(
+            Decimal {
+                mantissa: widen(self)?.checked_add(widen(other)?)?,
+                places,
+            }
+            .normalized(),
+        )
     }
 
-    /// `self - other`, exactly.
-    pub fn minus(&self, other: &Decimal) -> Decimal {
+    /// `self - other`, exactly; `None` when it does not fit.
+    pub fn minus(&self, other: &Decimal) -> Option<Decimal> {
         self.plus(&Decimal {
             mantissa: -other.mantissa,
             places: other.places,
@@ -158,6 +165,19 @@ impl fmt::Display for Decimal {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sums_are_exact_and_a_sum_that_does_not_fit_is_none_not_a_panic() {
+        let d = |t| Decimal::parse(t).unwrap();
+        assert_eq!(
+            d("12343.678").plus(&d("2.5")).unwrap().to_string(),
+            "12346.178"
+        );
+        assert_eq!(d("3").minus(&d("50")).unwrap().to_string(), "-47");
+        let tiny = d("0.000000000000000001e-18");
+        let huge = d("999999999999999999");
+        assert_eq!(huge.plus(&tiny), None);
+    }
 
     fn d(s: &str) -> Decimal {
         Decimal::parse(s).unwrap()

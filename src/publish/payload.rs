@@ -117,7 +117,7 @@ fn json_of(r: &Reading) -> ReadingJson {
     let rate = units.and_then(|u| super::units::rate(u, r.update.rate_hz?));
     let reading = units
         .and_then(|u| u.scale)
-        .map(|s| crate::metering::meter::reading(&s, r.update.total, r.meter.as_ref()))
+        .and_then(|s| crate::metering::meter::reading(&s, r.update.total, r.meter.as_ref()))
         .and_then(|v| RawValue::from_string(v.to_string()).ok());
     let reading_since = r
         .meter
