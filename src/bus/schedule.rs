@@ -51,9 +51,11 @@ impl Slot {
     }
 
     /// After a poll that finished at `now`, which was a boundary read if the deadline had not
-    /// come: the deadline moves only if it had (a boundary read keeps the poll phase).
+    /// come: the deadline moves if it had, or if it was less than half an interval away (that
+    /// poll is the boundary read, not one more transaction right after it); otherwise the
+    /// boundary read leaves the poll phase alone.
     pub fn advance_if_due(&mut self, now: Instant) {
-        if self.due <= now {
+        if self.due <= now + self.interval / 2 {
             self.advance(now);
         }
     }
@@ -172,6 +174,21 @@ mod tests {
         assert_eq!(earliest(&slots, t0 + 5 * MS, false), Some(0));
         assert_eq!(earliest(&slots, t0 + 10 * MS, false), Some(1));
         assert_eq!(slots[1].next_at(), t0 + 10 * MS);
+    }
+
+    #[test]
+    fn a_boundary_read_takes_the_place_of_a_poll_due_within_half_an_interval_only() {
+        let t0 = Instant::now();
+        let mut s = Slot::new(t0 + 400 * MS, 1000 * MS);
+        s.advance_if_due(t0 + 50 * MS);
+        assert_eq!(
+            s.due,
+            t0 + 1400 * MS,
+            "the poll at 400 ms was the boundary read"
+        );
+        let mut s = Slot::new(t0 + 800 * MS, 1000 * MS);
+        s.advance_if_due(t0 + 50 * MS);
+        assert_eq!(s.due, t0 + 800 * MS, "a poll 750 ms away keeps its place");
     }
 
     #[test]
