@@ -306,7 +306,7 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     let total = after["total"].as_i64().unwrap();
     assert_eq!(
         decimal(&after["reading"]),
-        display.plus(&scale.times(total - at_set)),
+        display.plus(&scale.times(total - at_set)).unwrap(),
         "the reading is the display plus what was counted since: {after}"
     );
     assert!(after.get("reading_since").is_some(), "{after}");
@@ -334,7 +334,7 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     let total = back["total"].as_i64().unwrap();
     assert_eq!(
         decimal(&back["reading"]),
-        display.plus(&scale.times(total - at_set)),
+        display.plus(&scale.times(total - at_set)).unwrap(),
         "after a restart: {back}"
     );
     assert_eq!(back["reading_since"], since);
@@ -359,7 +359,7 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     let after_cli = reading_after(&sub, topic, std::time::Instant::now()).await;
     let moved = decimal(&after_cli["reading"]);
     let twenty = pulsegate::publish::decimal::Decimal::parse("20000").unwrap();
-    let since_set = moved.minus(&twenty);
+    let since_set = moved.minus(&twenty).unwrap();
     assert!(
         !since_set.to_string().starts_with('-') && since_set.to_f64() < 1.0,
         "the reading moved to 20000 (plus the pulses since): {after_cli}"
