@@ -45,14 +45,16 @@ impl Emitter {
 
     /// The next interval boundary after `now_ms` of any channel of `d` (Unix ms).
     pub(super) fn next_boundary<P>(&self, d: &DeviceRt<P>, now_ms: i64) -> Option<i64> {
-        d.channels
+        let gateway = self.gateway.intervals.as_deref();
+        let mut periods: Vec<&Period> = d
+            .channels
             .iter()
-            .flat_map(|c| {
-                d.config
-                    .intervals_of(self.gateway.intervals.as_deref(), &c.name)
-            })
-            .map(|p| self.clock.next(p, now_ms))
-            .min()
+            .flat_map(|c| d.config.intervals_of(gateway, &c.name))
+            .collect();
+        // Channels mostly share their periods: each is reckoned once.
+        periods.sort_by_key(|p| p.ms());
+        periods.dedup_by_key(|p| p.ms());
+        periods.iter().map(|p| self.clock.next(p, now_ms)).min()
     }
 
     /// Books each reading into its channel's intervals: the records they close (before the

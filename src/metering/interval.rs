@@ -34,6 +34,10 @@ pub struct IntervalState {
     pub open: Option<Open>,
     #[serde(default)]
     pub seq: u64,
+    /// The open interval's end boundary, once known in this run: reads before it need no
+    /// time-zone arithmetic (most reads of a channel).
+    #[serde(skip)]
+    next_ms: Option<i64>,
 }
 
 /// Whether both boundaries of a record were read one period apart.
@@ -85,6 +89,12 @@ fn note(events: &mut Vec<Event>, e: Option<Event>) {
 impl IntervalState {
     /// Books `read`; the record it closes, if it is a boundary's read.
     pub fn observe(&mut self, clock: &Clock, period: &Period, read: Read) -> Option<Record> {
+        if let (Some(open), Some(next)) = (&mut self.open, self.next_ms)
+            && (open.start_ms..next).contains(&read.at_ms)
+        {
+            note(&mut open.events, read.event);
+            return None;
+        }
         let boundary = clock.floor(period, read.at_ms);
         let lag = read.at_ms - boundary;
         let on_time = lag <= period.max_lag_ms();
@@ -97,6 +107,7 @@ impl IntervalState {
                     lag_ms: lag,
                     events: Vec::new(),
                 });
+                self.next_ms = Some(clock.next(period, boundary));
             }
             return None;
         };
@@ -129,6 +140,7 @@ impl IntervalState {
             lag_ms: lag,
             events: Vec::new(),
         };
+        self.next_ms = Some(clock.next(period, boundary));
         Some(record)
     }
 }
@@ -234,6 +246,33 @@ mod tests {
         ]);
         assert_eq!(recs.len(), 2);
         assert_eq!((recs[1].start_ms, recs[1].delta), (110_000, 4));
+    }
+
+    #[test]
+    fn a_berlin_spring_day_is_one_complete_23_hour_record() {
+        let clock = Clock::named("Europe/Berlin").unwrap();
+        let day = Period::parse("1d").unwrap();
+        let at = |t: &str| t.parse::<jiff::Timestamp>().unwrap().as_millisecond();
+        let mut st = IntervalState::default();
+        let mut records = Vec::new();
+        // Midnight CET, a read every hour through the day, midnight CEST.
+        let start = at("2026-03-28T23:00:05Z");
+        for h in 0..=22 {
+            let r = read(start + h * 3_600_000, h * 10);
+            records.extend(st.observe(&clock, &day, r));
+        }
+        assert!(
+            records.is_empty(),
+            "the day is not over before 22:00Z (midnight CEST)"
+        );
+        records.extend(st.observe(&clock, &day, read(at("2026-03-29T22:00:07Z"), 250)));
+        assert_eq!(records.len(), 1);
+        let r = &records[0];
+        assert_eq!(r.end_ms - r.start_ms, 23 * 3_600_000);
+        assert_eq!(
+            (r.status, r.delta, r.lag_end_ms),
+            (Status::Complete, 250, 7_000)
+        );
     }
 
     #[test]
