@@ -9,6 +9,7 @@ mod commission;
 mod config_cases;
 mod counters;
 mod dashboards;
+mod edges;
 mod faults;
 mod hostile;
 mod local_socket;
