@@ -16,6 +16,7 @@ use crate::bus::BusCommand;
 use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
+use crate::publish::topics::ResponseRule;
 use crate::reading::Output;
 
 fn targets_of(
@@ -73,6 +74,8 @@ pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender
 /// The command router of a gateway.
 pub struct Router {
     root: String,
+    /// Where a response topic may point (see [`ResponseRule`]).
+    responses: ResponseRule,
     targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
@@ -94,6 +97,7 @@ impl Router {
     ) -> Router {
         Router {
             root: config.mqtt.topic_root.clone(),
+            responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
@@ -132,7 +136,7 @@ impl Router {
             return refuse(&reply, "too_large", "correlation data too long".into());
         }
         if let Some(rt) = &msg.response_topic {
-            if let Err(e) = command::check_response_topic(rt) {
+            if let Err(e) = check_response_topic(&self.responses, rt) {
                 return refuse(&reply, e.code(), e.to_string());
             }
             reply.topics.push(rt.clone());
@@ -196,7 +200,7 @@ impl Router {
             topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        if let Err(e) = reply_to(&msg, &mut reply) {
+        if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {
             return self.refuse(&msg.topic, &reply, None, None, e);
         }
         let parsed = match command::parse_payload(&msg.payload, channel.is_some()) {
@@ -351,7 +355,7 @@ impl Router {
 /// Checks the MQTT v5 properties of a command before anything is published to them (a
 /// response topic the gateway cannot publish to must not reach the spool) and adds the response
 /// topic and correlation data to `reply`.
-fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
+fn reply_to(rule: &ResponseRule, msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
     if let Some(c) = &msg.correlation
         && c.len() > command::MAX_CORRELATION
     {
@@ -362,9 +366,16 @@ fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
         });
     }
     if let Some(rt) = &msg.response_topic {
-        command::check_response_topic(rt)?;
+        check_response_topic(rule, rt)?;
         reply.topics.push(rt.clone());
         reply.correlation = msg.correlation.clone();
     }
     Ok(())
+}
+
+/// A response topic's shape (length, wildcards, `$`) and place (not into the gateway's own
+/// topics or Home Assistant's): refused before anything is published there.
+fn check_response_topic(rule: &ResponseRule, topic: &str) -> Result<(), CommandError> {
+    command::check_response_topic(topic)?;
+    rule.check(topic).map_err(CommandError::BadResponseTopic)
 }

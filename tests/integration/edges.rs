@@ -44,3 +44,111 @@ async fn a_device_with_zero_min_interval_publishes_every_poll_under_a_paced_gate
     assert!(f >= 15, "the 0s device publishes every poll: {f} in 4 s");
     assert!((2..=5).contains(&p), "the inherited 1s still paces the other: {p}");
 }
+
+/// Publishes a command as MQTT v5 with a response topic.
+async fn command_v5(sub: &Subscriber, topic: &str, payload: &str, response_topic: &str) {
+    let props = rumqttc::v5::mqttbytes::v5::PublishProperties {
+        response_topic: Some(response_topic.into()),
+        correlation_data: Some(bytes::Bytes::from_static(b"c")),
+        ..Default::default()
+    };
+    sub.client
+        .publish_with_properties(
+            topic,
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            payload.to_string(),
+            props,
+        )
+        .await
+        .unwrap();
+}
+
+/// A command sender who may publish only command topics cannot, through the gateway's
+/// response topic, put a result onto the gateway's status, a device's status or a reading
+/// topic: each is refused on the default result topic and nothing lands there.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_response_topic_into_the_gateways_own_topics_gets_nothing_published_there() {
+    let broker = Broker::start();
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let dir = temp_dir("response-topics");
+    let sub = Subscriber::start(broker.port, "#").await;
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        "",
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    let root = "pulsegate/test";
+    sub.wait_for(&format!("{root}/meter/status"), Duration::from_secs(10), |m| {
+        m.payload == "online"
+    })
+    .await
+    .expect("the device comes online");
+    let targets = [
+        (format!("{root}/ghost/enc0/cmd"), format!("{root}/status")),
+        (format!("{root}/meter/enc0/cmd"), format!("{root}/meter/status")),
+        (format!("{root}/meter/enc0/cmd"), format!("{root}/meter/enc1")),
+    ];
+    for (cmd, response) in &targets {
+        command_v5(&sub, cmd, r#"{"op":"clear"}"#, response).await;
+    }
+    // A response topic outside the gateway's topics still gets its answer.
+    command_v5(
+        &sub,
+        &format!("{root}/ghost/cmd"),
+        r#"{"op":"clear_all"}"#,
+        "replies/app/1",
+    )
+    .await;
+    sub.wait_for("replies/app/1", Duration::from_secs(5), |m| {
+        m.json()["error"] == "unknown_device"
+    })
+    .await
+    .expect("an allowed response topic is answered");
+    let refused = |topic: &str| {
+        sub.on(topic)
+            .iter()
+            .filter(|m| m.json()["error"] == "bad_response_topic")
+            .count()
+    };
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    while refused(&format!("{root}/meter/enc0/cmd/result")) < 2
+        || refused(&format!("{root}/ghost/enc0/cmd/result")) < 1
+    {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "each refusal answered on the default result topic: {:?}",
+            sub.all()
+                .iter()
+                .filter(|m| m.topic.ends_with("/result"))
+                .map(|m| (&m.topic, &m.payload))
+                .collect::<Vec<_>>()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    for (_, response) in &targets {
+        let results: Vec<String> = sub
+            .on(response)
+            .iter()
+            .filter(|m| m.json().get("op").is_some() || m.json().get("error").is_some())
+            .map(|m| m.payload.clone())
+            .collect();
+        assert!(results.is_empty(), "{response} got {results:?}");
+    }
+    let statuses: Vec<String> = sub
+        .on(&format!("{root}/status"))
+        .iter()
+        .chain(sub.on(&format!("{root}/meter/status")).iter())
+        .map(|m| m.payload.clone())
+        .collect();
+    assert!(
+        statuses.iter().all(|p| p == "online"),
+        "statuses stay online: {statuses:?}"
+    );
+    let log = _gw.log_text();
+    assert!(log.contains("response topic refused"), "{log}");
+}
