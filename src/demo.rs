@@ -315,8 +315,19 @@ mod tests {
     fn the_table_lists_readings_in_natural_order_and_no_gateway_marker_row() {
         let mut latest = BTreeMap::new();
         for topic in [
-            "gateway", "status", "io/status", "bus/line1/stats", "io/di10", "io/di2", "io/di1",
-            "io/di16", "io/di3", "io/cmd/result", "io/di1/cmd", "meter/enc0", "meter/enc1",
+            "gateway",
+            "status",
+            "io/status",
+            "bus/line1/stats",
+            "io/di10",
+            "io/di2",
+            "io/di1",
+            "io/di16",
+            "io/di3",
+            "io/cmd/result",
+            "io/di1/cmd",
+            "meter/enc0",
+            "meter/enc1",
         ] {
             latest.insert(topic.to_string(), "{}".to_string());
         }

@@ -28,6 +28,9 @@ fn targets_of(
         .filter_map(|(bus, d)| {
             let target = Target {
                 bus: buses.get(&bus.name)?.clone(),
+                bus_name: bus.name.clone(),
+                unit: d.unit,
+                scanned: d.commands,
                 commands: d.commands && d.enabled && bus.enabled,
                 channels: d
                     .profile
@@ -54,6 +57,11 @@ pub struct Incoming {
 /// Where a device's commands go.
 pub struct Target {
     bus: UnboundedSender<BusCommand>,
+    bus_name: String,
+    unit: u8,
+    /// `commands = false` also keeps the device out of scans over MQTT: its unit is neither
+    /// asked nor named in the result.
+    scanned: bool,
     commands: bool,
     channels: BTreeSet<String>,
 }
@@ -142,10 +150,17 @@ impl Router {
             reply.topics.push(rt.clone());
             reply.correlation = msg.correlation.clone();
         }
-        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+        let (mut units, id) = match survey::parse_scan_payload(&msg.payload) {
             Ok(p) => p,
             Err(e) => return refuse(&reply, "bad_payload", e),
         };
+        let targets = self.targets.read().unwrap_or_else(|e| e.into_inner());
+        units.retain(|u| {
+            !targets
+                .values()
+                .any(|t| !t.scanned && t.bus_name == bus && t.unit == *u)
+        });
+        drop(targets);
         let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
         let Some(tx) = scans.get(bus) else {
             return refuse(&reply, "unknown_bus", format!("no bus {bus:?}"));
@@ -379,3 +394,7 @@ fn check_response_topic(rule: &ResponseRule, topic: &str) -> Result<(), CommandE
     command::check_response_topic(topic)?;
     rule.check(topic).map_err(CommandError::BadResponseTopic)
 }
+
+#[cfg(test)]
+#[path = "dispatch_tests.rs"]
+mod tests;

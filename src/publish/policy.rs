@@ -291,7 +291,10 @@ mod tests {
             ..Default::default()
         };
         let p = gateway.then(&channel).policy();
-        assert_eq!(p.heartbeat, None, "no heartbeat: a still channel stays quiet");
+        assert_eq!(
+            p.heartbeat, None,
+            "no heartbeat: a still channel stays quiet"
+        );
         assert!(!gate.wants(&p, 10_000_000, 10, &update(0, 0)));
         assert_eq!(
             gateway.policy().min_interval,

@@ -42,7 +42,10 @@ async fn a_device_with_zero_min_interval_publishes_every_poll_under_a_paced_gate
     let (f, p) = (sub.on(fast).len(), sub.on(paced).len());
     // 20 polls in 4 s: every one published; the paced device at most one a second.
     assert!(f >= 15, "the 0s device publishes every poll: {f} in 4 s");
-    assert!((2..=5).contains(&p), "the inherited 1s still paces the other: {p}");
+    assert!(
+        (2..=5).contains(&p),
+        "the inherited 1s still paces the other: {p}"
+    );
 }
 
 /// Publishes a command as MQTT v5 with a response topic.
@@ -82,15 +85,23 @@ async fn a_response_topic_into_the_gateways_own_topics_gets_nothing_published_th
     );
     let _gw = Gateway::start(&write_config(&dir, &text));
     let root = "pulsegate/test";
-    sub.wait_for(&format!("{root}/meter/status"), Duration::from_secs(10), |m| {
-        m.payload == "online"
-    })
+    sub.wait_for(
+        &format!("{root}/meter/status"),
+        Duration::from_secs(10),
+        |m| m.payload == "online",
+    )
     .await
     .expect("the device comes online");
     let targets = [
         (format!("{root}/ghost/enc0/cmd"), format!("{root}/status")),
-        (format!("{root}/meter/enc0/cmd"), format!("{root}/meter/status")),
-        (format!("{root}/meter/enc0/cmd"), format!("{root}/meter/enc1")),
+        (
+            format!("{root}/meter/enc0/cmd"),
+            format!("{root}/meter/status"),
+        ),
+        (
+            format!("{root}/meter/enc0/cmd"),
+            format!("{root}/meter/enc1"),
+        ),
     ];
     for (cmd, response) in &targets {
         command_v5(&sub, cmd, r#"{"op":"clear"}"#, response).await;
