@@ -163,3 +163,46 @@ async fn a_response_topic_into_the_gateways_own_topics_gets_nothing_published_th
     let log = _gw.log_text();
     assert!(log.contains("response topic refused"), "{log}");
 }
+
+/// Sixteen connections that send half a request and hold it (a slow-loris client) do not keep
+/// a health probe out: `/healthz` answers 4 probes of 4, all within 2 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn held_half_written_requests_leave_healthz_answering() {
+    use std::io::Write;
+    let broker = Broker::start();
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let dir = temp_dir("slow-loris");
+    let port = crate::support::free_port();
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        &format!("[metrics]\nlisten = \"127.0.0.1:{port}\"\n"),
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    crate::metrics::scrape_until(port, Duration::from_secs(10), "the endpoint is up", |t| {
+        t.contains("pulsegate_mqtt_connected 1")
+    })
+    .await;
+    let mut held = Vec::new();
+    for _ in 0..16 {
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        s.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+            .unwrap();
+        held.push(s);
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let answered = tokio::task::spawn_blocking(move || {
+        let start = std::time::Instant::now();
+        let ok = (0..4)
+            .filter(|_| crate::metrics::http_get(port, "/healthz").0 == 200)
+            .count();
+        (ok, start.elapsed())
+    })
+    .await
+    .unwrap();
+    assert_eq!(answered.0, 4, "probes answered 200: {answered:?}");
+    assert!(answered.1 < Duration::from_secs(2), "{answered:?}");
+    drop(held);
+}
