@@ -232,6 +232,7 @@ async fn apply(
     }
     let devices: Vec<String> = new.devices().map(|(_, d)| d.name.clone()).collect();
     health.retain_devices(&devices);
+    metrics.retain(&new);
     tracing::info!(unchanged = kept, buses = new.buses.len(), "config reloaded");
     let gateway = current.gateway.clone();
     let mqtt = current.mqtt.clone();

@@ -1,6 +1,8 @@
 //! The metric families, their names, help texts, labels and histogram buckets: the one place
 //! that defines what `/metrics` shows.
 
+use std::collections::BTreeSet;
+
 use prometheus::{
     CounterVec, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
     IntGaugeVec, Opts, Registry,
@@ -157,7 +159,44 @@ const START_TIME: Family = (
 );
 const BUILD_INFO: Family = ("pulsegate_build_info", "Always 1; the version is a label.");
 
+/// Series of buses, devices and channels that are gone (see `Metrics::retain`).
+#[derive(Default)]
+pub(super) struct Gone {
+    pub buses: BTreeSet<String>,
+    pub devices: BTreeSet<(String, String)>,
+    pub channels: BTreeSet<(String, String, String)>,
+}
+
 impl Families {
+    /// Removes the series of what is gone from every family labelled with it.
+    pub fn forget(&self, gone: &Gone) {
+        // A series never created is not there to remove: the error says only that.
+        for (b, d, c) in &gone.channels {
+            let l = [b.as_str(), d.as_str(), c.as_str()];
+            let _ = self.channel_pulses.remove_label_values(&l);
+            let _ = self.channel_position.remove_label_values(&l);
+            let _ = self.channel_rate.remove_label_values(&l);
+        }
+        for (b, d) in &gone.devices {
+            let l = [b.as_str(), d.as_str()];
+            let _ = self.device_up.remove_label_values(&l);
+            let _ = self.device_wrong_model.remove_label_values(&l);
+            let _ = self.device_transactions.remove_label_values(&l);
+            let _ = self.device_timeouts.remove_label_values(&l);
+            let _ = self.device_garbled.remove_label_values(&l);
+            let _ = self.device_exceptions.remove_label_values(&l);
+            let _ = self.device_latency.remove_label_values(&l);
+        }
+        for b in &gone.buses {
+            let l = [b.as_str()];
+            let _ = self.bus_transactions.remove_label_values(&l);
+            let _ = self.bus_reconnects.remove_label_values(&l);
+            let _ = self.bus_line_faults.remove_label_values(&l);
+            let _ = self.bus_busy.remove_label_values(&l);
+            let _ = self.bus_utilisation.remove_label_values(&l);
+        }
+    }
+
     pub fn register(r: &Registry) -> Families {
         Families {
             channel_pulses: family!(r, IntCounterVec, CHANNEL_PULSES, CHANNEL),

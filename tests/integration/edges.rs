@@ -206,3 +206,54 @@ async fn held_half_written_requests_leave_healthz_answering() {
     assert!(answered.1 < Duration::from_secs(2), "{answered:?}");
     drop(held);
 }
+
+/// A device removed from the config and a SIGHUP: no series names it any more (it was exported
+/// as up, so a dashboard would show a phantom device online).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reload_that_removes_a_device_leaves_no_series_with_its_name() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m3]\nunit = 3\nmodel = \"yl67\"\n",
+    )
+    .await;
+    let dir = temp_dir("reload-metrics");
+    let port = crate::support::free_port();
+    let metrics = format!("[metrics]\nlisten = \"127.0.0.1:{port}\"\n");
+    let both = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[
+            ("line1", "m1", 1, "yl67", "200ms"),
+            ("line1", "m3", 3, "yl67", "200ms"),
+        ],
+        &metrics,
+    );
+    let gw = Gateway::start(&write_config(&dir, &both));
+    let up = |d: &str| format!("pulsegate_device_up{{bus=\"line1\",device=\"{d}\"}}");
+    let (up1, up3) = (up("m1"), up("m3"));
+    crate::metrics::scrape_until(port, Duration::from_secs(10), "both devices up", |t| {
+        crate::metrics::sample(t, &up1) == Some(1.0)
+            && crate::metrics::sample(t, &up3) == Some(1.0)
+            && t.contains("channel=\"enc0\",device=\"m3\"")
+    })
+    .await;
+    let one = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "m1", 1, "yl67", "200ms")],
+        &metrics,
+    );
+    write_config(&dir, &one);
+    gw.signal("HUP");
+    let text = crate::metrics::scrape_until(
+        port,
+        Duration::from_secs(10),
+        "no series of m3 after the reload",
+        |t| !t.contains("\"m3\""),
+    )
+    .await;
+    assert_eq!(crate::metrics::sample(&text, &up1), Some(1.0), "{text}");
+}
