@@ -33,4 +33,5 @@ pub mod report;
 pub mod saved;
 pub mod sim;
 pub mod state;
+pub mod state_lock;
 pub mod systemd;

@@ -257,3 +257,83 @@ async fn a_reload_that_removes_a_device_leaves_no_series_with_its_name() {
     .await;
     assert_eq!(crate::metrics::sample(&text, &up1), Some(1.0), "{text}");
 }
+
+/// Runs `pulsegate <args> --config <config>`.
+fn tool(args: &[&str], config: &std::path::Path) -> std::process::Output {
+    std::process::Command::new(crate::support::bin())
+        .args(args)
+        .arg("--config")
+        .arg(config)
+        .output()
+        .unwrap()
+}
+
+/// `state list` only reads: a state file of a newer format is named and left where it is (the
+/// next gateway start must still find it, not a moved-aside copy).
+#[test]
+fn state_list_leaves_a_newer_format_file_untouched() {
+    let dir = temp_dir("state-list-newer");
+    let config = write_config(
+        &dir,
+        &format!(
+            "[gateway]\nid = \"t\"\nstate_dir = {dir:?}\n[buses.line1]\nport = \"/dev/ttyS0\"\n\
+             [buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n"
+        ),
+    );
+    let file = dir.join("bus-line1.json");
+    let newer = r#"{"version":999,"channels":{},"holes":{},"what":"comes next"}"#;
+    std::fs::write(&file, newer).unwrap();
+    for args in [
+        &["state", "list"][..],
+        &["state", "prune"],
+        &["state", "prune", "--apply"],
+    ] {
+        let out = tool(args, &config);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && err.contains("newer"),
+            "{args:?}: {err}"
+        );
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), newer, "{args:?}");
+        let names: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(
+            names.iter().all(|n| !n.contains(".bad-")),
+            "{args:?} moved a file aside: {names:?}"
+        );
+    }
+}
+
+/// `state prune --apply` refuses while a gateway runs on the state directory, and works once it
+/// has stopped.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn state_prune_apply_refuses_while_a_gateway_holds_the_state_directory() {
+    let broker = Broker::start();
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let dir = temp_dir("state-prune-lock");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        "",
+    );
+    let config = write_config(&dir, &text);
+    let gw = Gateway::start(&config);
+    sub.expect_any("pulsegate/test/meter/enc0", Duration::from_secs(10))
+        .await;
+    let out = tool(&["state", "prune", "--apply"], &config);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("pulsegate.lock") && err.contains("stop it"),
+        "{err}"
+    );
+    let dry = tool(&["state", "list"], &config);
+    assert!(dry.status.success(), "listing needs no lock: {dry:?}");
+    gw.terminate();
+    let out = tool(&["state", "prune", "--apply"], &config);
+    assert!(out.status.success(), "{out:?}");
+}
