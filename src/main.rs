@@ -204,6 +204,13 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                 Err(code) => return Ok(code),
             };
             print!("{}", pulsegate::report::poll_plan(&config));
+            let spool = config.gateway.state_dir.join("spool");
+            if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
+                println!(
+                    "warning: the spool cannot be kept in {} ({e}): the gateway would spool in a fresh private temporary directory, lost at reboot",
+                    spool.display()
+                );
+            }
             if let Some(host) = &config.gateway.id_from_hostname {
                 println!(
                     "gateway.id is not set: \"{}\" (from the hostname {host:?})",

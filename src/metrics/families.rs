@@ -38,6 +38,7 @@ pub(super) struct Families {
     pub spool_messages: IntGauge,
     pub spool_bytes: IntGauge,
     pub spool_dropped: IntCounter,
+    pub spool_fallback: IntGauge,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -145,6 +146,10 @@ const SPOOL_DROPPED: Family = (
     "pulsegate_spool_dropped_messages_total",
     "Oldest messages dropped because the spool was full.",
 );
+const SPOOL_FALLBACK: Family = (
+    "pulsegate_spool_private_fallback",
+    "1 while the spool is in a fresh private temporary directory because <state_dir>/spool could not be used (lost at reboot).",
+);
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
     "Commands answered (a retained command message is ignored, not counted).",
@@ -229,6 +234,7 @@ impl Families {
             spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
             spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
             spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
+            spool_fallback: family!(r, IntGauge, SPOOL_FALLBACK),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

@@ -93,6 +93,14 @@ impl Metrics {
         }
     }
 
+    /// Whether the spool fell back to a private temporary directory (see
+    /// `publish::spool_place`).
+    pub fn spool_fallback(&self, fallback: bool) {
+        if let Some(e) = &self.inner {
+            e.families.spool_fallback.set(fallback as i64);
+        }
+    }
+
     /// A command was answered with `payload` (`{"ok":true,…}` or `{"ok":false,"error":CODE}`).
     pub fn command_result(&self, payload: &serde_json::Value) {
         let Some(e) = &self.inner else { return };

@@ -275,7 +275,12 @@ async fn start(task: &Task, topics: &Topics) -> Option<(Options, Spool)> {
             return None;
         }
     };
-    let spool = open_spool(task.spool_dir.clone(), task.config.spool_bytes).await?;
+    let spool = open_spool(
+        task.spool_dir.clone(),
+        task.config.spool_bytes,
+        &task.metrics,
+    )
+    .await?;
     if !spool.is_empty() {
         tracing::info!(
             messages = spool.len(),
@@ -286,19 +291,14 @@ async fn start(task: &Task, topics: &Topics) -> Option<(Options, Spool)> {
 }
 
 /// Opens the spool off the runtime thread (a large one left by the last run must not hold up
-/// the buses); a temporary directory when its own cannot be used.
-async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
-    let opened = tokio::task::spawn_blocking(move || match Spool::open(&dir, bytes) {
-        Ok(s) => Ok(s),
-        Err(e) => {
-            tracing::error!("{e}; spooling in a temporary directory instead");
-            let dir = std::env::temp_dir().join(format!("pulsegate-spool-{}", std::process::id()));
-            Spool::open(&dir, bytes)
-        }
-    })
-    .await;
+/// the buses); a fresh private directory when its own cannot be used (see `spool_place`).
+async fn open_spool(dir: PathBuf, bytes: u64, metrics: &crate::metrics::Metrics) -> Option<Spool> {
+    let opened = tokio::task::spawn_blocking(move || super::spool_place::open(&dir, bytes)).await;
     match opened {
-        Ok(Ok(s)) => Some(s),
+        Ok(Ok(o)) => {
+            metrics.spool_fallback(o.fallback.is_some());
+            Some(o.spool)
+        }
         Ok(Err(e)) => {
             tracing::error!("{e}; no spool at all: stopping");
             None

@@ -337,3 +337,41 @@ async fn state_prune_apply_refuses_while_a_gateway_holds_the_state_directory() {
     let out = tool(&["state", "prune", "--apply"], &config);
     assert!(out.status.success(), "{out:?}");
 }
+
+/// A state directory whose spool cannot be made: the gateway spools in a fresh private
+/// directory, never the old predictable `/tmp/pulsegate-spool-<pid>`, and says so in the log,
+/// the metrics and `pulsegate check`; readings still flow.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unusable_spool_directory_falls_back_to_a_private_one_said_loudly() {
+    let broker = Broker::start();
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let dir = temp_dir("spool-fallback");
+    std::fs::write(dir.join("spool"), "a file where the spool directory goes").unwrap();
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let port = crate::support::free_port();
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        &format!("[metrics]\nlisten = \"127.0.0.1:{port}\"\n"),
+    );
+    let config = write_config(&dir, &text);
+    let check = tool(&["check"], &config);
+    let said = String::from_utf8_lossy(&check.stdout);
+    assert!(
+        check.status.success() && said.contains("fresh private temporary directory"),
+        "{said}"
+    );
+    let gw = Gateway::start(&config);
+    sub.expect_any("pulsegate/test/meter/enc0", Duration::from_secs(10))
+        .await;
+    crate::metrics::scrape_until(port, Duration::from_secs(5), "the fallback is exported", |t| {
+        crate::metrics::sample(t, "pulsegate_spool_private_fallback") == Some(1.0)
+    })
+    .await;
+    let log = gw.log_text();
+    assert!(log.contains("spooling in a fresh private directory"), "{log}");
+    let predictable = std::env::temp_dir().join(format!("pulsegate-spool-{}", gw.pid()));
+    assert!(!predictable.exists(), "{}", predictable.display());
+}
