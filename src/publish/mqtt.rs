@@ -416,6 +416,7 @@ impl Publisher<'_> {
                     tracing::info!(broker = %self.link.broker, "connected to MQTT broker");
                 }
                 self.watch.up = Some(true);
+                self.task.heart.set_problem(None);
                 s.on_connack(max_packet, &self.link);
                 // Health (the systemd status, the ready line) says so now, not at the next beat.
                 self.task.heart.set_up(self.shell.outbox.is_connected());
@@ -454,6 +455,9 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
+        if matches!(why, Failure::ProtocolRefused) {
+            self.task.heart.set_problem(Some(why.to_string()));
+        }
         let eventloop = self.shell.on_lost(&self.link.options);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
     }
@@ -548,6 +552,8 @@ struct Watch {
     takeover_log: crate::admission::LogBudget,
     /// Wait before the next attempt after a failure.
     pause: Duration,
+    /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
+    protocol_named: bool,
 }
 
 impl Watch {
@@ -557,6 +563,7 @@ impl Watch {
             takeovers: 0,
             takeover_log: crate::admission::LogBudget::new(1),
             pause: Duration::from_secs(1),
+            protocol_named: false,
         }
     }
 
@@ -580,6 +587,10 @@ impl Watch {
                 tracing::error!(client_id = %link.client_id, takeovers = self.takeovers, "the broker dropped this connection because another client connected with the same client id: is a second gateway using mqtt.client_id {:?}? Both would receive each other's commands", link.client_id);
             }
             self.pause = (self.pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
+        } else if matches!(e, Failure::ProtocolRefused) {
+            if !std::mem::replace(&mut self.protocol_named, true) {
+                tracing::error!(broker = %link.broker, "MQTT broker refused the connection: {e}");
+            }
         } else if self.up != Some(false) {
             tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
         }

@@ -366,12 +366,121 @@ async fn an_unusable_spool_directory_falls_back_to_a_private_one_said_loudly() {
     let gw = Gateway::start(&config);
     sub.expect_any("pulsegate/test/meter/enc0", Duration::from_secs(10))
         .await;
-    crate::metrics::scrape_until(port, Duration::from_secs(5), "the fallback is exported", |t| {
-        crate::metrics::sample(t, "pulsegate_spool_private_fallback") == Some(1.0)
-    })
+    crate::metrics::scrape_until(
+        port,
+        Duration::from_secs(5),
+        "the fallback is exported",
+        |t| crate::metrics::sample(t, "pulsegate_spool_private_fallback") == Some(1.0),
+    )
     .await;
     let log = gw.log_text();
-    assert!(log.contains("spooling in a fresh private directory"), "{log}");
+    assert!(
+        log.contains("spooling in a fresh private directory"),
+        "{log}"
+    );
     let predictable = std::env::temp_dir().join(format!("pulsegate-spool-{}", gw.pid()));
     assert!(!predictable.exists(), "{}", predictable.display());
+}
+
+/// A broker that speaks only MQTT 3.1.1, as the old ones do: it reads the CONNECT and answers
+/// any protocol level but 4 with the 3.1.1 CONNACK "unacceptable protocol version" (return code
+/// 1, no properties), then closes. Returns its port; counts the connections it refused.
+fn v311_only_broker() -> (u16, std::sync::Arc<std::sync::atomic::AtomicUsize>) {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let refused = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let counted = refused.clone();
+    std::thread::spawn(move || {
+        for conn in listener.incoming() {
+            let Ok(mut c) = conn else { return };
+            let _ = c.set_read_timeout(Some(Duration::from_secs(5)));
+            // The whole CONNECT: fixed header, remaining length, body.
+            let mut packet = vec![0u8; 1];
+            let mut len = 0usize;
+            for shift in [0, 7, 14, 21] {
+                let mut b = [0u8; 1];
+                if c.read_exact(&mut b).is_err() {
+                    break;
+                }
+                packet.push(b[0]);
+                len |= usize::from(b[0] & 0x7F) << shift;
+                if b[0] & 0x80 == 0 {
+                    break;
+                }
+            }
+            let start = packet.len();
+            packet.resize(start + len, 0);
+            if c.read_exact(&mut packet[start..]).is_ok()
+                && crate::protocol::protocol_level(&packet) != Some(4)
+            {
+                let _ = c.write_all(&[0x20, 0x02, 0x00, 0x01]);
+                counted.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            }
+        }
+    });
+    (port, refused)
+}
+
+/// Against a broker that refuses MQTT 5, the default (v5) gateway names the cause and the
+/// setting that fixes it in the log (once, not as a timeout) and in the systemd status; both the
+/// v5 answer (reason 0x84, from the 3.1.1 gate of `protocol.rs` in front of Mosquitto) and the
+/// 3.1.1 answer of an old broker (return code 1, a stand-in listener) are understood.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_that_refuses_mqtt_5_is_named_with_the_setting_that_fixes_it() {
+    let broker = Broker::start();
+    let gate = crate::protocol::Gate::start(broker.port);
+    let (old, refused) = v311_only_broker();
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let hint = "set mqtt.protocol = \"3.1.1\"";
+    for (name, port) in [("refuses-v5-gate", gate.port), ("refuses-v5-old", old)] {
+        let dir = temp_dir(name);
+        let text = gateway_toml(
+            &plant,
+            port,
+            &dir,
+            &[("line1", "meter", 1, "yl67", "200ms")],
+            "",
+        );
+        let sock_path = dir.join("notify.sock");
+        let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
+        sock.set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let gw = Gateway::start_with_env(
+            &write_config(&dir, &text),
+            &[("NOTIFY_SOCKET", sock_path.to_str().unwrap())],
+        );
+        // Five seconds: several attempts (one a second at first).
+        let statuses = tokio::task::spawn_blocking(move || {
+            let mut seen = Vec::new();
+            let end = std::time::Instant::now() + Duration::from_secs(5);
+            let mut buf = [0u8; 4096];
+            while std::time::Instant::now() < end {
+                if let Ok(n) = sock.recv(&mut buf) {
+                    seen.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+                }
+            }
+            seen
+        })
+        .await
+        .unwrap();
+        let log = gw.log_text();
+        let said = log
+            .lines()
+            .filter(|l| l.contains("refused the connection") && l.contains(hint))
+            .count();
+        assert_eq!(said, 1, "{name}: the cause and the fix, said once:\n{log}");
+        assert!(log.contains("refuses MQTT 5"), "{name}:\n{log}");
+        assert!(!log.contains("Timeout"), "{name}: not a timeout:\n{log}");
+        assert!(
+            statuses
+                .iter()
+                .any(|m| m.contains("STATUS=") && m.contains(hint)),
+            "{name}: the systemd status names the fix: {statuses:?}"
+        );
+    }
+    assert!(
+        refused.load(std::sync::atomic::Ordering::Relaxed) >= 2,
+        "the gateway kept trying the old broker"
+    );
 }
