@@ -17,5 +17,6 @@ mod metrics;
 mod pipeline;
 mod plants;
 mod protocol;
+mod readings_first;
 mod service;
 mod support;
