@@ -484,3 +484,165 @@ async fn a_broker_that_refuses_mqtt_5_is_named_with_the_setting_that_fixes_it() 
         "the gateway kept trying the old broker"
     );
 }
+
+/// The README's example ACL, run as written (with this test's gateway id): the gateway, a
+/// command sender (the MES), Home Assistant and a read-only dashboard each get what they need
+/// (readings, command and scan results, discovery, replies on their own response topic), and a
+/// user without command rights cannot command or forge a status.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_readme_acl_lets_each_user_do_its_part_and_nothing_else() {
+    let readme = include_str!("../../README.md");
+    let start = readme
+        .find("# the gateway edge-01")
+        .expect("the README's ACL example");
+    let acl_text = &readme[start..start + readme[start..].find("```").unwrap()];
+    let dir = temp_dir("readme-acl");
+    let acl = dir.join("acl");
+    std::fs::write(&acl, acl_text.replace("edge-01", "test")).unwrap();
+    let passwords = dir.join("passwd");
+    std::fs::write(&passwords, "").unwrap();
+    for user in ["pulsegate-test", "mes", "homeassistant", "grafana"] {
+        let ok = std::process::Command::new("mosquitto_passwd")
+            .arg("-b")
+            .arg(&passwords)
+            .args([user, "pw"])
+            .status()
+            .expect("mosquitto_passwd");
+        assert!(ok.success());
+    }
+    let port = crate::support::free_port();
+    let _broker = Broker::start_with_config(
+        port,
+        &format!(
+            "allow_anonymous false\npassword_file {}\nacl_file {}\n",
+            passwords.display(),
+            acl.display()
+        ),
+        port,
+    );
+    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let mes = Subscriber::start_with_login(port, "#", "mes", "pw").await;
+    let ha = Subscriber::start_with_login(port, "#", "homeassistant", "pw").await;
+    let grafana = Subscriber::start_with_login(port, "#", "grafana", "pw").await;
+    let text = gateway_toml(
+        &plant,
+        port,
+        &dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        "[homeassistant]\ndiscovery = true\n",
+    )
+    .replace(
+        "[mqtt]\n",
+        "[mqtt]\nusername = \"pulsegate-test\"\npassword = \"pw\"\n",
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    let root = "pulsegate/test";
+    for (who, sub) in [("mes", &mes), ("grafana", &grafana), ("homeassistant", &ha)] {
+        assert!(
+            sub.wait_for(
+                &format!("{root}/meter/enc0"),
+                Duration::from_secs(10),
+                |_| true
+            )
+            .await
+            .is_some(),
+            "{who} reads the readings"
+        );
+    }
+    let discovery = ha
+        .all()
+        .into_iter()
+        .any(|m| m.topic.starts_with("homeassistant/") && m.topic.ends_with("/config"));
+    assert!(discovery, "Home Assistant reads the discovery configs");
+
+    // The MES clears, scans and gets a reply on its own response topic.
+    command_v5(
+        &mes,
+        &format!("{root}/meter/enc0/cmd"),
+        r#"{"op":"clear","id":"m1"}"#,
+        "replies/mes/7",
+    )
+    .await;
+    mes.client
+        .publish(
+            format!("{root}/bus/line1/scan"),
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            r#"{"units":"1-2","id":"s1"}"#,
+        )
+        .await
+        .unwrap();
+    let wait = Duration::from_secs(20);
+    let ok = |m: &crate::support::Message| m.json()["ok"] == true;
+    assert!(
+        mes.wait_for(&format!("{root}/meter/enc0/cmd/result"), wait, ok)
+            .await
+            .is_some()
+    );
+    assert!(
+        mes.wait_for("replies/mes/7", wait, ok).await.is_some(),
+        "the reply"
+    );
+    assert!(
+        mes.wait_for(&format!("{root}/bus/line1/scan/result"), wait, |m| m.json()
+            ["id"]
+            == "s1")
+            .await
+            .is_some(),
+        "the scan's result"
+    );
+    // Home Assistant presses a clear button.
+    ha.client
+        .publish(
+            format!("{root}/meter/cmd"),
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            r#"{"op":"clear_all","id":"h1"}"#,
+        )
+        .await
+        .unwrap();
+    assert!(
+        ha.wait_for(&format!("{root}/meter/cmd/result"), wait, ok)
+            .await
+            .is_some()
+    );
+
+    // The dashboard cannot command, the MES cannot forge a status.
+    grafana
+        .client
+        .publish(
+            format!("{root}/meter/enc1/cmd"),
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            r#"{"op":"clear","id":"g1"}"#,
+        )
+        .await
+        .unwrap();
+    mes.client
+        .publish(
+            format!("{root}/status"),
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            "offline",
+        )
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    assert!(
+        grafana
+            .on(&format!("{root}/meter/enc1/cmd/result"))
+            .is_empty()
+    );
+    assert!(
+        grafana
+            .on(&format!("{root}/status"))
+            .iter()
+            .all(|m| m.payload == "online"),
+        "{:?}",
+        grafana.on(&format!("{root}/status"))
+    );
+    assert!(
+        grafana.on("replies/mes/7").is_empty(),
+        "replies are the requester's"
+    );
+}
