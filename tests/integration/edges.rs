@@ -646,3 +646,54 @@ async fn the_readme_acl_lets_each_user_do_its_part_and_nothing_else() {
         "replies are the requester's"
     );
 }
+
+/// A scan over MQTT leaves a device with `commands = false` alone: its unit is neither asked nor
+/// named in the result; a device that takes commands is listed as configured as before.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_neither_asks_nor_names_a_device_with_commands_false() {
+    let broker = Broker::start();
+    let plant = plant(
+        "[buses.line1.devices.open]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.locked]\nunit = 2\nmodel = \"yl67\"\n",
+    )
+    .await;
+    let dir = temp_dir("scan-commands-false");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &[
+            ("line1", "open", 1, "yl67", "200ms"),
+            ("line1", "locked", 2, "yl67", "200ms"),
+        ],
+        "",
+    )
+    .replace(
+        "[buses.line1.devices.locked]\n",
+        "[buses.line1.devices.locked]\ncommands = false\n",
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    sub.expect_any("pulsegate/test/locked/enc0", Duration::from_secs(10))
+        .await;
+    sub.client
+        .publish(
+            "pulsegate/test/bus/line1/scan",
+            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+            false,
+            r#"{"units":"1-3","id":"s"}"#,
+        )
+        .await
+        .unwrap();
+    let result = sub
+        .wait_for(
+            "pulsegate/test/bus/line1/scan/result",
+            Duration::from_secs(30),
+            |m| m.json()["id"] == "s" && m.json().get("configured").is_some(),
+        )
+        .await
+        .expect("the scan's result")
+        .json();
+    assert_eq!(result["configured"], serde_json::json!([1]), "{result}");
+    assert_eq!(result["found"], serde_json::json!([]), "{result}");
+}
