@@ -19,7 +19,7 @@
 use bytes::Bytes;
 use tokio::time::Instant;
 
-use crate::config::{Config, Mqtt};
+use crate::config::Config;
 use crate::dispatch::Incoming;
 use crate::outbox::{Message, Will};
 use crate::reading::Output;
@@ -106,8 +106,8 @@ pub trait Format: Send + Sync {
 pub const NAMES: &[&str] = &["json"];
 
 /// The payload format named by the config (checked against [`NAMES`] when the config is read).
-pub fn build(config: &Mqtt) -> Box<dyn Format> {
-    match config.format.as_str() {
+pub fn build(config: &Config) -> Box<dyn Format> {
+    match config.mqtt.format.as_str() {
         "json" => Box::new(super::json::Json::new(config)),
         other => unreachable_format(other, config),
     }
@@ -115,7 +115,7 @@ pub fn build(config: &Mqtt) -> Box<dyn Format> {
 
 /// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
 /// between [`NAMES`] and [`build`], never a crash of the gateway).
-fn unreachable_format(name: &str, config: &Mqtt) -> Box<dyn Format> {
+fn unreachable_format(name: &str, config: &Config) -> Box<dyn Format> {
     tracing::error!("output format {name:?} is not built in; publishing JSON");
     Box::new(super::json::Json::new(config))
 }
@@ -127,7 +127,7 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     if config.homeassistant.discovery {
         formats.push(Box::new(super::discovery::Discovery::new(config)));
     }
-    formats.push(build(&config.mqtt));
+    formats.push(build(config));
     formats
 }
 

@@ -11,6 +11,7 @@ mod counters;
 mod dashboards;
 mod edges;
 mod faults;
+mod format_seam;
 mod hostile;
 mod local_socket;
 mod metrics;
