@@ -10,6 +10,7 @@ mod config_cases;
 mod counters;
 mod dashboards;
 mod edges;
+mod edges_local;
 mod faults;
 mod format_seam;
 mod hostile;
