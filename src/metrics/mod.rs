@@ -161,7 +161,8 @@ impl Metrics {
     }
 }
 
-/// What a config polls: enabled buses, their enabled devices and those devices' channels.
+/// What a config polls: enabled buses, their enabled devices and those devices' enabled
+/// channels.
 struct Present {
     buses: BTreeSet<String>,
     devices: BTreeSet<(String, String)>,
@@ -186,6 +187,7 @@ impl Present {
                     d.profile
                         .all_channels()
                         .into_iter()
+                        .filter(|c| d.channels.get(&c.name).is_none_or(|cc| cc.enabled))
                         .map(move |c| (b.name.clone(), d.name.clone(), c.name))
                 })
                 .collect(),

@@ -254,11 +254,14 @@ fn a_reload_forgets_every_series_of_a_device_channel_or_bus_that_is_gone() {
 
     let after = config(
         "[buses.line1]\nport = \"/dev/ttyUSB0\"\n\
-         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n",
+         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m1.channels.a1]\nenabled = false\n",
     );
+    let mut m1 = m.bus("line1").device("m1");
+    m1.reading(&reading("m1", "a1", 5, 1.0, false));
     m.retain(&after);
     let text = m.encode();
-    for gone in ["\"m3\"", "\"m9\"", "\"line2\""] {
+    for gone in ["\"m3\"", "\"m9\"", "\"line2\"", "\"a1\""] {
         assert!(!text.contains(gone), "{gone} is still exported:\n{text}");
     }
     assert!(
