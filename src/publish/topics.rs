@@ -112,8 +112,8 @@ impl ResponseRule {
     /// - nowhere a request is taken (a last level `cmd` or `scan`, of any gateway): a result
     ///   must not become a command.
     ///
-    /// Everything else is confined by the broker's ACL (the README's example lets the gateway
-    /// write its root and `replies/#` only).
+    /// Everything else is confined by the broker's ACL (the example in docs/security.md lets
+    /// the gateway write its root and `replies/#` only).
     pub fn check(&self, topic: &str) -> Result<(), &'static str> {
         let under = |prefix: &str| {
             topic == prefix

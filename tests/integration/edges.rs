@@ -1,5 +1,5 @@
 //! Edges a hostile or hurried world reaches over MQTT (issue 23): response topics into the
-//! gateway's own topics, the README's ACL, scans and `commands = false`, a device undoing an
+//! gateway's own topics, the documented ACL, scans and `commands = false`, a device undoing an
 //! inherited `min_interval`, and a broker that refuses MQTT 5. The local ones (metrics endpoint,
 //! state tools, spool fallback) are in `edges_local.rs`.
 
@@ -267,17 +267,18 @@ async fn a_broker_that_refuses_mqtt_5_is_named_with_the_setting_that_fixes_it() 
     );
 }
 
-/// The README's example ACL, run as written (with this test's gateway id): the gateway, a
-/// command sender (the MES), Home Assistant and a read-only dashboard each get what they need
+/// The example ACL of docs/security.md, run as written (with this test's gateway id): the
+/// gateway, a command sender (the MES), Home Assistant and a read-only dashboard each get what
+/// they need
 /// (readings, command and scan results, discovery, replies on their own response topic), and a
 /// user without command rights cannot command or forge a status.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_readme_acl_lets_each_user_do_its_part_and_nothing_else() {
-    let readme = include_str!("../../README.md");
-    let start = readme
+async fn the_documented_acl_lets_each_user_do_its_part_and_nothing_else() {
+    let page = include_str!("../../docs/security.md");
+    let start = page
         .find("# the gateway edge-01")
-        .expect("the README's ACL example");
-    let acl_text = &readme[start..start + readme[start..].find("```").unwrap()];
+        .expect("the ACL example of docs/security.md");
+    let acl_text = &page[start..start + page[start..].find("```").unwrap()];
     let dir = temp_dir("readme-acl");
     let acl = dir.join("acl");
     std::fs::write(&acl, acl_text.replace("edge-01", "test")).unwrap();
