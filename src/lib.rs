@@ -36,4 +36,5 @@ pub mod saved;
 pub mod setreading;
 pub mod sim;
 pub mod state;
+pub mod state_lock;
 pub mod systemd;
