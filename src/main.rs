@@ -261,20 +261,7 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             channel,
             value,
             wait,
-        } => {
-            let config = match load(&config) {
-                Ok(c) => c,
-                Err(code) => return Ok(code),
-            };
-            let result =
-                pulsegate::setreading::run(&config, &device, &channel, &value, wait.into()).await?;
-            println!("{result}");
-            Ok(if result["ok"] == true {
-                ExitCode::SUCCESS
-            } else {
-                ExitCode::FAILURE
-            })
-        }
+        } => set_reading(&config, &device, &channel, &value, wait.into()).await,
         Command::Simulate { config } => {
             let text = std::fs::read_to_string(&config)
                 .with_context(|| format!("reading {}", config.display()))?;
@@ -299,6 +286,27 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `pulsegate set-reading`: prints the gateway's result; exit 0 when it says ok.
+async fn set_reading(
+    config: &std::path::Path,
+    device: &str,
+    channel: &str,
+    value: &str,
+    wait: std::time::Duration,
+) -> anyhow::Result<ExitCode> {
+    let config = match load(config) {
+        Ok(c) => c,
+        Err(code) => return Ok(code),
+    };
+    let result = pulsegate::setreading::run(&config, device, channel, value, wait).await?;
+    println!("{result}");
+    Ok(if result["ok"] == true {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }
 
 /// `pulsegate state list|prune`.

@@ -201,6 +201,11 @@ impl BusTask {
         core.durable.collect(&core.devices, &self.out).await;
         if !core.poll_owed {
             core.owed = None;
+            // A meter reading set now is saved at once, not at the next periodic flush.
+            let op = |c: &BusCommand| matches!(c.request.op, crate::command::Op::SetReading(_));
+            if core.pending.iter().any(op) {
+                core.flush_at = Instant::now();
+            }
             let started = Instant::now();
             if let Some((from, readings)) =
                 run_one_command(&mut core.pending, &mut core.devices, &mut core.driver).await
