@@ -44,13 +44,14 @@ pub trait Format: Send + Sync {
 }
 
 /// The formats `mqtt.format` may name.
-pub const NAMES: &[&str] = &["json"];
+pub const NAMES: &[&str] = &["json", "sparkplug"];
 
-/// The payload format named by the config (checked against [`NAMES`] when the config is read).
-pub fn build(config: &Mqtt) -> Box<dyn Format> {
-    match config.format.as_str() {
-        "json" => Box::new(super::json::Json::new(config)),
-        other => unreachable_format(other, config),
+/// The payload format `name` (checked against [`NAMES`] when the config is read).
+pub fn build(config: &Config, name: &str) -> Box<dyn Format> {
+    match name {
+        "json" => Box::new(super::json::Json::new(&config.mqtt)),
+        "sparkplug" => Box::new(super::sparkplug::Sparkplug::new(config)),
+        other => unreachable_format(other, &config.mqtt),
     }
 }
 
@@ -68,7 +69,9 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     if config.homeassistant.discovery {
         formats.push(Box::new(super::discovery::Discovery::new(config)));
     }
-    formats.push(build(&config.mqtt));
+    for name in &config.mqtt.format {
+        formats.push(build(config, name));
+    }
     formats
 }
 

@@ -1,0 +1,442 @@
+//! The edge node as a value: sessions, births and deaths, `seq`, aliases, what the host's
+//! commands mean. Pure: events, connection changes and received bytes in, messages out; the
+//! bdSeq of each session comes from outside ([`super::bdseq`]).
+//!
+//! `seq` is given when a message goes to the wire ([`Node::outgoing`]), not when it is made:
+//! readings spooled while the broker was away go out after the next session's births, and the
+//! host must see one unbroken run 0..255 from the NBIRTH on. The same step marks what was
+//! stored before this session `is_historical` and turns DDATA names into the aliases this
+//! session's DBIRTH declared.
+
+use std::collections::{BTreeMap, HashSet};
+
+use bytes::Bytes;
+
+use super::metrics::{self, Aliases, ChannelShape};
+use super::proto::{Metric, Payload, Value, datatype};
+use super::topic::{Kind, Topics};
+use crate::dispatch::Incoming;
+use crate::outbox::Message;
+use crate::reading::{Output, Reading};
+
+/// The NBIRTH metric a host writes to ask for a rebirth.
+pub const REBIRTH: &str = "Node Control/Rebirth";
+/// The NBIRTH/NDEATH metric that pairs a death with its birth.
+pub const BD_SEQ: &str = "bdSeq";
+
+/// What the node knows of a device's availability.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Status {
+    /// Not heard of yet in this run: born with null values, so spooled data has a birth.
+    Unknown,
+    Online,
+    Offline,
+}
+
+/// One device of the node.
+#[derive(Debug)]
+struct DeviceNode {
+    shapes: Vec<ChannelShape>,
+    status: Status,
+    /// Its DBIRTH went out in this session; the metric names it declared.
+    declared: Option<HashSet<String>>,
+    /// The last reading of each channel, for the next birth.
+    last: BTreeMap<String, Reading>,
+}
+
+/// How the node is set up (from `[sparkplug]`, `[mqtt]` and the devices).
+#[derive(Debug, Clone)]
+pub struct Setup {
+    pub topics: Topics,
+    /// Where DCMD writes go: the JSON command topics the command router takes.
+    pub commands: crate::publish::topics::Topics,
+    pub primary_host: Option<String>,
+    /// QoS of births and data (the will is QoS 1).
+    pub qos: u8,
+    /// Devices in config order, with their channels.
+    pub devices: Vec<(String, Vec<ChannelShape>)>,
+}
+
+/// The edge node.
+#[derive(Debug)]
+pub struct Node {
+    setup: Setup,
+    devices: BTreeMap<String, DeviceNode>,
+    aliases: Aliases,
+    connected: bool,
+    /// The primary host said it is online (always, without a primary host).
+    host_online: bool,
+    /// The NBIRTH of this session went out.
+    born: bool,
+    /// The `seq` of the next numbered message.
+    seq: u8,
+    /// The session's bdSeq.
+    bd_seq: u8,
+}
+
+impl Node {
+    pub fn new(setup: Setup) -> Node {
+        let devices = setup
+            .devices
+            .iter()
+            .map(|(name, shapes)| {
+                let d = DeviceNode {
+                    shapes: shapes.clone(),
+                    status: Status::Unknown,
+                    declared: None,
+                    last: BTreeMap::new(),
+                };
+                (name.clone(), d)
+            })
+            .collect();
+        Node {
+            host_online: setup.primary_host.is_none(),
+            setup,
+            devices,
+            aliases: Aliases::default(),
+            connected: false,
+            born: false,
+            seq: 0,
+            bd_seq: 0,
+        }
+    }
+
+    /// The devices or their channels changed (a reload): the node describes the new ones, with
+    /// a rebirth when it is born.
+    pub fn reshape(&mut self, devices: Vec<(String, Vec<ChannelShape>)>, now_ms: u64) -> Vec<Message> {
+        let mut old = std::mem::take(&mut self.devices);
+        for (name, shapes) in &devices {
+            let kept = old.remove(name);
+            let d = DeviceNode {
+                shapes: shapes.clone(),
+                status: kept.as_ref().map_or(Status::Unknown, |d| d.status),
+                declared: None,
+                last: kept.map(|d| d.last).unwrap_or_default(),
+            };
+            self.devices.insert(name.clone(), d);
+        }
+        self.setup.devices = devices;
+        if self.connected && self.born {
+            self.births(now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// The filters the node reads: its NCMD and DCMDs, and its primary host's state.
+    pub fn subscriptions(&self, commands: bool) -> Vec<String> {
+        let t = &self.setup.topics;
+        let mut out = vec![t.node(Kind::NCmd)];
+        if commands {
+            out.push(t.device(Kind::DCmd, "+"));
+        }
+        if let Some(host) = &self.setup.primary_host {
+            out.push(Topics::state(host));
+        }
+        out
+    }
+
+    /// A new session starts with `bd_seq`; its will is the NDEATH carrying it.
+    pub fn will(&mut self, bd_seq: u8, now_ms: u64) -> (String, Bytes) {
+        self.bd_seq = bd_seq;
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics: vec![Metric::new(
+                BD_SEQ,
+                None,
+                datatype::INT64,
+                Some(Value::Long(bd_seq.into())),
+            )],
+            ..Payload::default()
+        };
+        (self.setup.topics.node(Kind::NDeath), payload.encode().into())
+    }
+
+    /// Connected: the births, unless the primary host is not online yet.
+    pub fn connected(&mut self, now_ms: u64) -> Vec<Message> {
+        self.connected = true;
+        if self.host_online {
+            self.births(now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// The session is over: everything is born again in the next one.
+    pub fn disconnected(&mut self) {
+        self.connected = false;
+        self.born = false;
+        for d in self.devices.values_mut() {
+            d.declared = None;
+        }
+    }
+
+    /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0.
+    pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
+        self.born = true;
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics: vec![
+                Metric::new(BD_SEQ, None, datatype::INT64, Some(Value::Long(self.bd_seq.into()))),
+                Metric::new(REBIRTH, None, datatype::BOOLEAN, Some(Value::Boolean(false))),
+            ],
+            seq: Some(self.number(Kind::NBirth)),
+            ..Payload::default()
+        };
+        let mut out = vec![self.message(self.setup.topics.node(Kind::NBirth), &payload)];
+        let names: Vec<String> = self.devices.keys().cloned().collect();
+        for name in names {
+            if self.devices[&name].status != Status::Offline {
+                let mut m = self.device_birth(&name, now_ms);
+                out.append(&mut m);
+            }
+        }
+        out
+    }
+
+    /// The DBIRTH of `device` (numbered now: births go straight to the wire).
+    fn device_birth(&mut self, device: &str, now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let metrics = metrics::birth(device, &d.shapes, &d.last, &mut self.aliases);
+        d.declared = Some(metrics.iter().filter_map(|m| m.name.clone()).collect());
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics,
+            seq: Some(self.number(Kind::DBirth)),
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DBirth, device);
+        vec![self.message(topic, &payload)]
+    }
+
+    /// The messages of one event of the buses.
+    pub fn event(&mut self, event: &Output, now_ms: u64) -> Vec<Message> {
+        match event {
+            Output::Reading(r) => self.readings(&r.device, std::slice::from_ref(r), now_ms),
+            Output::DeviceReadings { device, readings } => self.readings(device, readings, now_ms),
+            Output::DeviceStatus { device, online } => {
+                if *online {
+                    self.online(device, now_ms)
+                } else {
+                    self.offline(device)
+                }
+            }
+            Output::DeviceProblem { device, status } if *status == "wrong_model" => {
+                self.offline(device)
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// A device answers: its DBIRTH when the session has none for it.
+    fn online(&mut self, device: &str, now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        d.status = Status::Online;
+        if self.connected && self.born && d.declared.is_none() {
+            self.device_birth(device, now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// A device is lost (offline, or the wrong model): its DDEATH when it was born.
+    fn offline(&mut self, device: &str) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        d.status = Status::Offline;
+        if d.declared.take().is_none() || !self.connected {
+            return Vec::new();
+        }
+        let payload = Payload {
+            timestamp: Some(crate::reading::unix_ms(std::time::SystemTime::now())),
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DDeath, device);
+        vec![self.message(topic, &payload)]
+    }
+
+    /// One DDATA with the readings of one poll (after a DBIRTH when the device needs one:
+    /// first reading of the session, or a channel that changed its kind).
+    fn readings(&mut self, device: &str, readings: &[Reading], now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let mut metrics = Vec::new();
+        for r in readings {
+            let Some(shape) = d.shapes.iter_mut().find(|s| *s.name == *r.channel) else {
+                continue;
+            };
+            if shape.kind != r.kind {
+                shape.kind = r.kind; // a mode change: its total changes type
+                d.declared = None;
+            }
+            metrics.extend(metrics::data(r, shape, &mut self.aliases));
+            d.last.insert(r.channel.to_string(), r.clone());
+        }
+        if metrics.is_empty() {
+            return Vec::new();
+        }
+        let mut out = self.online(device, now_ms);
+        let payload = Payload {
+            timestamp: readings.iter().map(|r| crate::reading::unix_ms(r.ts)).max(),
+            metrics,
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DData, device);
+        out.push(self.message(topic, &payload));
+        out
+    }
+
+    fn message(&self, topic: String, payload: &Payload) -> Message {
+        Message::new(topic, payload.encode(), self.setup.qos, false)
+    }
+
+    /// The `seq` of the next message of `kind`: an NBIRTH starts again at 0.
+    fn number(&mut self, kind: Kind) -> u64 {
+        if kind == Kind::NBirth {
+            self.seq = 0;
+        }
+        let n = self.seq;
+        self.seq = n.wrapping_add(1);
+        n.into()
+    }
+
+    /// A message of the outbox goes to the wire: the node's own are numbered, DDATA gets the
+    /// aliases this session declared, and what was stored before this session (`replay`) is
+    /// marked historical. `None` for what is not the node's (or cannot be read: sent as is).
+    pub fn outgoing(&mut self, topic: &str, payload: &[u8], replay: bool) -> Option<Bytes> {
+        let (kind, device) = self.setup.topics.parse(topic)?;
+        if !kind.numbered() {
+            return None;
+        }
+        let mut p = Payload::decode(payload).ok()?;
+        p.seq = Some(self.number(kind));
+        match kind {
+            Kind::NBirth => {
+                for m in p.metrics.iter_mut().filter(|m| m.name.as_deref() == Some(BD_SEQ)) {
+                    m.value = Some(Value::Long(self.bd_seq.into()));
+                }
+            }
+            Kind::DData | Kind::NData => {
+                let declared = device
+                    .and_then(|d| self.devices.get(d))
+                    .and_then(|d| d.declared.as_ref());
+                for m in &mut p.metrics {
+                    alias_only(m, declared);
+                    if replay {
+                        m.is_historical = Some(true);
+                    }
+                }
+            }
+            _ => {}
+        }
+        Some(p.encode().into())
+    }
+
+    /// A message on one of the node's subscriptions: births for a rebirth request or the
+    /// primary host coming online, commands for DCMD writes. Anything else is not the node's.
+    pub fn received(
+        &mut self,
+        topic: &str,
+        payload: &[u8],
+        now_ms: u64,
+    ) -> (Vec<Message>, Vec<Incoming>) {
+        if let Some(host) = &self.setup.primary_host
+            && topic == Topics::state(host)
+        {
+            return (self.host_state(payload, now_ms), Vec::new());
+        }
+        match self.setup.topics.parse(topic) {
+            Some((Kind::NCmd, None)) => (self.node_command(payload, now_ms), Vec::new()),
+            Some((Kind::DCmd, Some(device))) => (Vec::new(), self.device_command(device, payload)),
+            _ => (Vec::new(), Vec::new()),
+        }
+    }
+
+    /// `spBv1.0/STATE/<host>`: births when it comes online (and the session has none yet);
+    /// when it goes offline, the next births wait for it again.
+    fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
+        let Some(online) = super::command::host_online(payload) else {
+            tracing::warn!("primary host STATE payload is not {{\"online\":bool,…}}: ignored");
+            return Vec::new();
+        };
+        let was = self.host_online;
+        self.host_online = online;
+        if online && !was && self.connected && !self.born {
+            tracing::info!("Sparkplug primary host online: publishing births");
+            return self.births(now_ms);
+        }
+        if !online && was {
+            tracing::warn!("Sparkplug primary host offline: births wait for it");
+            self.born = false;
+            for d in self.devices.values_mut() {
+                d.declared = None;
+            }
+        }
+        Vec::new()
+    }
+
+    /// NCMD: `Node Control/Rebirth` = true is answered with every birth again.
+    fn node_command(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
+        match super::command::node(payload) {
+            Ok(true) if self.connected && self.host_online => {
+                tracing::info!("Sparkplug host asked for a rebirth");
+                self.births(now_ms)
+            }
+            Ok(_) => Vec::new(),
+            Err(e) => {
+                tracing::warn!("Sparkplug NCMD refused: {e}");
+                Vec::new()
+            }
+        }
+    }
+
+    /// DCMD: writes to `<c>/Clear` and `<c>/Preset`, as commands for the command router.
+    fn device_command(&self, device: &str, payload: &[u8]) -> Vec<Incoming> {
+        let Some(d) = self.devices.get(device) else {
+            tracing::warn!(device, "Sparkplug DCMD for a device this node does not have: ignored");
+            return Vec::new();
+        };
+        let names = |alias: u64| {
+            d.declared
+                .iter()
+                .flatten()
+                .find(|n| self.aliases.get(device, n) == Some(alias))
+                .cloned()
+        };
+        match super::command::device(payload, names) {
+            Ok(writes) => writes
+                .into_iter()
+                .map(|w| w.incoming(&self.setup.commands, device))
+                .collect(),
+            Err(e) => {
+                tracing::warn!(device, "Sparkplug DCMD refused: {e}");
+                Vec::new()
+            }
+        }
+    }
+}
+
+/// A DDATA metric as it goes out: its alias alone when this session's DBIRTH declared its name,
+/// else its name alone (a host reads either; an alias the host never saw would be an error).
+fn alias_only(m: &mut Metric, declared: Option<&HashSet<String>>) {
+    let known = match (&m.name, declared) {
+        (Some(name), Some(set)) => set.contains(name),
+        _ => false,
+    };
+    if known && m.alias.is_some() {
+        m.name = None;
+        m.datatype = None;
+    } else if m.name.is_some() {
+        m.alias = None;
+    }
+}
+
+#[cfg(test)]
+#[path = "node_tests.rs"]
+mod tests;
