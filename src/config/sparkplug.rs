@@ -19,7 +19,9 @@ pub struct Sparkplug {
 pub fn is_sparkplug_id(id: &str) -> bool {
     !id.is_empty()
         && id.len() <= 64
-        && !id.chars().any(|c| matches!(c, '/' | '+' | '#') || c.is_control())
+        && !id
+            .chars()
+            .any(|c| matches!(c, '/' | '+' | '#') || c.is_control())
 }
 
 /// Reads `[sparkplug]`; `None` when it is absent or broken (every problem in `errs`).
@@ -76,7 +78,10 @@ pub(crate) fn formats(t: &mut Table<'_>, names: &[&str], errs: &mut Errors) -> O
     }
     for (i, name) in list.iter().enumerate() {
         if !names.contains(&name.as_str()) {
-            let why = format!("unknown output format {name:?}: one of {}", names.join(", "));
+            let why = format!(
+                "unknown output format {name:?}: one of {}",
+                names.join(", ")
+            );
             errs.push(&path, t.origin(), why);
             ok = false;
         } else if list[..i].contains(name) {

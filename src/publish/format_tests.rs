@@ -167,7 +167,10 @@ fn every_format_name_the_config_takes_is_built() {
         let mut built = build(&c, name);
         let mut r = reading(1);
         (r.device, r.channel) = ("d".into(), "a0".into());
-        assert!(!render(&mut *built, &Output::Reading(r)).is_empty(), "{name}");
+        assert!(
+            !render(&mut *built, &Output::Reading(r)).is_empty(),
+            "{name}"
+        );
     }
 }
 

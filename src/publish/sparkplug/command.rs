@@ -17,7 +17,9 @@ pub enum CommandError {
     Undecodable(String),
     #[error("{0} metrics in one command (at most {MAX_METRICS})")]
     TooMany(usize),
-    #[error("metric {0:?} is not a writable metric of this device (<channel>/Clear, <channel>/Preset)")]
+    #[error(
+        "metric {0:?} is not a writable metric of this device (<channel>/Clear, <channel>/Preset)"
+    )]
     NotWritable(String),
     #[error("metric alias {0} was not declared in this device's birth")]
     UnknownAlias(u64),

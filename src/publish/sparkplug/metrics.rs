@@ -75,9 +75,21 @@ pub fn values(r: &Reading, shape: &ChannelShape) -> Vec<(String, u32, Option<Val
     };
     let round = crate::publish::payload::round3;
     let mut out = vec![
-        (format!("{c}/Total"), shape.total_type(), Some(Value::Long(total))),
-        (format!("{c}/Count"), datatype::INT64, Some(Value::Long(r.count as u64))),
-        (format!("{c}/Delta"), datatype::INT64, Some(Value::Long(r.update.delta as u64))),
+        (
+            format!("{c}/Total"),
+            shape.total_type(),
+            Some(Value::Long(total)),
+        ),
+        (
+            format!("{c}/Count"),
+            datatype::INT64,
+            Some(Value::Long(r.count as u64)),
+        ),
+        (
+            format!("{c}/Delta"),
+            datatype::INT64,
+            Some(Value::Long(r.update.delta as u64)),
+        ),
         (
             format!("{c}/Rate"),
             datatype::DOUBLE,
@@ -149,10 +161,23 @@ pub fn birth(
         }
         if shape.writable {
             for (name, dt, v) in [
-                (format!("{}/Clear", shape.name), datatype::BOOLEAN, Value::Boolean(false)),
-                (format!("{}/Preset", shape.name), datatype::INT64, Value::Long(0)),
+                (
+                    format!("{}/Clear", shape.name),
+                    datatype::BOOLEAN,
+                    Value::Boolean(false),
+                ),
+                (
+                    format!("{}/Preset", shape.name),
+                    datatype::INT64,
+                    Value::Long(0),
+                ),
             ] {
-                out.push(Metric::new(&name, Some(aliases.of(device, &name)), dt, Some(v)));
+                out.push(Metric::new(
+                    &name,
+                    Some(aliases.of(device, &name)),
+                    dt,
+                    Some(v),
+                ));
             }
         }
     }

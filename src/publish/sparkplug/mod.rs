@@ -55,7 +55,11 @@ fn now_ms() -> u64 {
 /// `[sparkplug]`; a config built another way gets the gateway id as group and node.
 fn setup(config: &Config) -> Setup {
     let (group, node, host) = match &config.sparkplug {
-        Some(s) => (s.group_id.clone(), s.edge_node_id.clone(), s.primary_host.clone()),
+        Some(s) => (
+            s.group_id.clone(),
+            s.edge_node_id.clone(),
+            s.primary_host.clone(),
+        ),
         None => {
             tracing::error!("Sparkplug output without [sparkplug]: using the gateway id as group");
             (config.gateway.id.clone(), config.gateway.id.clone(), None)

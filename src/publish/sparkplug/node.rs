@@ -103,7 +103,11 @@ impl Node {
 
     /// The devices or their channels changed (a reload): the node describes the new ones, with
     /// a rebirth when it is born.
-    pub fn reshape(&mut self, devices: Vec<(String, Vec<ChannelShape>)>, now_ms: u64) -> Vec<Message> {
+    pub fn reshape(
+        &mut self,
+        devices: Vec<(String, Vec<ChannelShape>)>,
+        now_ms: u64,
+    ) -> Vec<Message> {
         let mut old = std::mem::take(&mut self.devices);
         for (name, shapes) in &devices {
             let kept = old.remove(name);
@@ -149,7 +153,10 @@ impl Node {
             )],
             ..Payload::default()
         };
-        (self.setup.topics.node(Kind::NDeath), payload.encode().into())
+        (
+            self.setup.topics.node(Kind::NDeath),
+            payload.encode().into(),
+        )
     }
 
     /// Connected: the births, unless the primary host is not online yet.
@@ -177,8 +184,18 @@ impl Node {
         let payload = Payload {
             timestamp: Some(now_ms),
             metrics: vec![
-                Metric::new(BD_SEQ, None, datatype::INT64, Some(Value::Long(self.bd_seq.into()))),
-                Metric::new(REBIRTH, None, datatype::BOOLEAN, Some(Value::Boolean(false))),
+                Metric::new(
+                    BD_SEQ,
+                    None,
+                    datatype::INT64,
+                    Some(Value::Long(self.bd_seq.into())),
+                ),
+                Metric::new(
+                    REBIRTH,
+                    None,
+                    datatype::BOOLEAN,
+                    Some(Value::Boolean(false)),
+                ),
             ],
             seq: Some(self.number(Kind::NBirth)),
             ..Payload::default()
@@ -318,7 +335,11 @@ impl Node {
         p.seq = Some(self.number(kind));
         match kind {
             Kind::NBirth => {
-                for m in p.metrics.iter_mut().filter(|m| m.name.as_deref() == Some(BD_SEQ)) {
+                for m in p
+                    .metrics
+                    .iter_mut()
+                    .filter(|m| m.name.as_deref() == Some(BD_SEQ))
+                {
                     m.value = Some(Value::Long(self.bd_seq.into()));
                 }
             }
@@ -399,7 +420,10 @@ impl Node {
     /// DCMD: writes to `<c>/Clear` and `<c>/Preset`, as commands for the command router.
     fn device_command(&self, device: &str, payload: &[u8]) -> Vec<Incoming> {
         let Some(d) = self.devices.get(device) else {
-            tracing::warn!(device, "Sparkplug DCMD for a device this node does not have: ignored");
+            tracing::warn!(
+                device,
+                "Sparkplug DCMD for a device this node does not have: ignored"
+            );
             return Vec::new();
         };
         let names = |alias: u64| {

@@ -157,8 +157,13 @@ mod tests {
         let p = Payload {
             timestamp: Some(1_700_000_000_000),
             metrics: vec![
-                Metric::new("a0/Total", Some(3), datatype::INT64, Some(Value::Long(-5i64 as u64)))
-                    .with_property("engineering_unit", "kWh"),
+                Metric::new(
+                    "a0/Total",
+                    Some(3),
+                    datatype::INT64,
+                    Some(Value::Long(-5i64 as u64)),
+                )
+                .with_property("engineering_unit", "kWh"),
                 Metric::new("a0/Rate", Some(4), datatype::DOUBLE, None),
             ],
             seq: Some(255),

@@ -112,13 +112,19 @@ mod tests {
     fn topics_are_written_and_read_back() {
         let t = Topics::new("plant", "edge1");
         assert_eq!(t.node(Kind::NBirth), "spBv1.0/plant/NBIRTH/edge1");
-        assert_eq!(t.device(Kind::DCmd, "press"), "spBv1.0/plant/DCMD/edge1/press");
+        assert_eq!(
+            t.device(Kind::DCmd, "press"),
+            "spBv1.0/plant/DCMD/edge1/press"
+        );
         assert_eq!(Topics::state("scada"), "spBv1.0/STATE/scada");
         assert_eq!(
             t.parse("spBv1.0/plant/DCMD/edge1/press"),
             Some((Kind::DCmd, Some("press")))
         );
-        assert_eq!(t.parse("spBv1.0/plant/NCMD/edge1"), Some((Kind::NCmd, None)));
+        assert_eq!(
+            t.parse("spBv1.0/plant/NCMD/edge1"),
+            Some((Kind::NCmd, None))
+        );
     }
 
     #[test]
