@@ -1,6 +1,8 @@
 //! `[sparkplug]`: the gateway as a Sparkplug B edge node (selected by `mqtt.format`), and the
 //! `mqtt.format` key itself (one name or a list).
 
+use config::ValueKind;
+
 use super::walk::{Errors, Table, join};
 
 /// `[sparkplug]`, checked.
@@ -57,20 +59,26 @@ fn checked_id(t: &Table<'_>, key: &str, value: String, errs: &mut Errors) -> Opt
     None
 }
 
-/// `mqtt.format`: one name or a list of names, each in `names`, none twice.
-#[derive(serde::Deserialize)]
-#[serde(untagged)]
-enum OneOrMany {
-    One(String),
-    Many(Vec<String>),
-}
-
-/// Reads `mqtt.format`; `None` when absent (or broken: the error is in `errs`).
+/// Reads `mqtt.format`: one name or a list of names, each in `names`, none twice; `None` when
+/// absent (or broken: the error is in `errs`).
 pub(crate) fn formats(t: &mut Table<'_>, names: &[&str], errs: &mut Errors) -> Option<Vec<String>> {
     let path = join(&t.path, "format");
-    let list = match t.opt::<OneOrMany>("format", errs)? {
-        OneOrMany::One(name) => vec![name],
-        OneOrMany::Many(list) => list,
+    let value = t.raw("format")?;
+    let list: Option<Vec<String>> = match &value.kind {
+        ValueKind::String(name) => Some(vec![name.clone()]),
+        ValueKind::Array(items) => items
+            .iter()
+            .map(|v| match &v.kind {
+                ValueKind::String(name) => Some(name.clone()),
+                _ => None,
+            })
+            .collect(),
+        _ => None,
+    };
+    let Some(list) = list else {
+        let why = "expected a format name or a list of names (\"json\", [\"json\", \"sparkplug\"])";
+        errs.push(&path, value.origin(), why);
+        return None;
     };
     let mut ok = !list.is_empty();
     if list.is_empty() {
