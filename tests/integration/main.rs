@@ -17,4 +17,5 @@ mod pipeline;
 mod plants;
 mod protocol;
 mod service;
+mod sparkplug;
 mod support;
