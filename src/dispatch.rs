@@ -16,6 +16,7 @@ use crate::bus::BusCommand;
 use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
+use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
 use crate::reading::Output;
 
 fn targets_of(
@@ -114,12 +115,15 @@ impl Router {
             topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        let refuse = |reply: &Reply, error: &str, message: String| {
+        let refuse = |reply: &Reply, code: &'static str, message: String| {
             self.warn(&msg.topic, &format!("scan refused: {message}"));
-            self.send(
-                reply,
-                serde_json::json!({"bus": bus, "error": error, "message": message}),
-            );
+            let refused = ScanOutcome::Refused {
+                bus: bus.to_string(),
+                id: None,
+                code,
+                message,
+            };
+            self.send(reply, Outcome::Scan(refused));
         };
         // The same checks as for commands: nothing unsendable reaches the spool.
         if msg.payload.len() > command::MAX_PAYLOAD {
@@ -223,14 +227,14 @@ impl Router {
             });
         }
         if let Some(id) = id {
-            let seen = lock(&self.dedupe).check(&msg.topic, id, std::time::Instant::now());
+            let seen = lock(&self.dedupe).check(&msg.topic, id, Instant::now());
             match seen {
                 Seen::New => {}
                 Seen::InFlight => return,
-                Seen::Answered(result) => return self.send(&reply, result),
+                Seen::Answered(result) => return self.send(&reply, Outcome::Command(result)),
             }
         }
-        if let Err(e) = lock(&self.admission).admit(device, std::time::Instant::now()) {
+        if let Err(e) = lock(&self.admission).admit(device, Instant::now()) {
             if let Some(id) = id {
                 lock(&self.dedupe).forget(&msg.topic, id);
             }
@@ -282,14 +286,18 @@ impl Router {
                 .await
                 .unwrap_or_else(|_| Err(CommandError::Offline("gateway stopping".into())));
             lock(&admission).done(&device);
-            let json = command::result_json(id.as_deref(), Some(op), &outcome);
-            if let Some(id) = &id {
-                lock(&dedupe).answered(&topic, id, json.clone());
+            let outcome = CommandOutcome {
+                op: Some(op.to_string()),
+                id,
+                result: outcome,
+            };
+            if let Some(id) = &outcome.id {
+                lock(&dedupe).answered(&topic, id, outcome.clone());
             }
             let _ = out.send(Output::CommandResult {
                 topics: reply.topics,
                 correlation: reply.correlation,
-                payload: json,
+                outcome: Outcome::Command(outcome),
             });
         });
     }
@@ -304,12 +312,17 @@ impl Router {
         e: CommandError,
     ) {
         self.warn(topic, &format!("command refused: {e}"));
-        self.send(reply, command::result_json(id, op, &Err(e)));
+        let outcome = CommandOutcome {
+            id: id.map(str::to_string),
+            op: op.map(str::to_string),
+            result: Err(e),
+        };
+        self.send(reply, Outcome::Command(outcome));
     }
 
     /// A warning about a command message, at most 20 lines a minute (a flood is counted).
     fn warn(&self, topic: &str, text: &str) {
-        let (allowed, suppressed) = lock(&self.log_budget).allow(std::time::Instant::now());
+        let (allowed, suppressed) = lock(&self.log_budget).allow(Instant::now());
         if let Some(n) = suppressed {
             tracing::warn!(
                 "{n} more command messages were refused in the last minute (not logged one by one)"
@@ -333,18 +346,22 @@ impl Router {
         if let Err(e) = outcome {
             self.warn(topic, &format!("command failed: {e}"));
         }
-        let json = command::result_json(id, Some(op), outcome);
+        let outcome = CommandOutcome {
+            id: id.map(str::to_string),
+            op: Some(op.to_string()),
+            result: outcome.clone(),
+        };
         if let Some(id) = id {
-            lock(&self.dedupe).answered(topic, id, json.clone());
+            lock(&self.dedupe).answered(topic, id, outcome.clone());
         }
-        self.send(reply, json);
+        self.send(reply, Outcome::Command(outcome));
     }
 
-    fn send(&self, reply: &Reply, payload: serde_json::Value) {
+    fn send(&self, reply: &Reply, outcome: Outcome) {
         let _ = self.out.send(Output::CommandResult {
             topics: reply.topics.clone(),
             correlation: reply.correlation.clone(),
-            payload,
+            outcome,
         });
     }
 }

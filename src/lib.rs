@@ -25,6 +25,7 @@ pub mod dispatch;
 pub mod health;
 pub mod metrics;
 pub mod outbox;
+pub mod outcome;
 pub mod plan;
 pub mod profile;
 pub mod publish;

@@ -39,6 +39,10 @@ pub struct BusState {
 /// A state file could not be read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum StateError {
+    #[error(
+        "save put off: the readings before it are not durable yet (neither acknowledged by the MQTT broker nor synced in the spool)"
+    )]
+    NotDurable,
     #[error("state file {path}: {source}")]
     Io {
         path: String,

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use serde_json::{Value, json};
+use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -14,6 +14,7 @@ use tokio_util::sync::CancellationToken;
 use super::link::Link;
 use crate::command::Reply;
 use crate::commission::scan::{Found, describe, parse_units};
+use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
 
@@ -113,20 +114,17 @@ impl Survey {
         self.pending.is_empty() || now - self.started >= SCAN_LIMIT
     }
 
-    /// The result message.
-    pub fn result(&self, bus: &str, now: Instant) -> Value {
-        let mut v = json!({
-            "bus": bus,
-            "found": self.found,
-            "configured": self.configured,
-            "asked": self.asked,
-            "complete": self.pending.is_empty(),
-            "elapsed_ms": (now - self.started).as_millis() as u64,
-        });
-        if let Some(id) = &self.request.id {
-            v["id"] = json!(id);
-        }
-        v
+    /// The report.
+    pub fn result(&self, bus: &str, now: Instant) -> ScanOutcome {
+        ScanOutcome::Report(ScanReport {
+            bus: bus.to_string(),
+            found: self.found.clone(),
+            configured: self.configured.clone(),
+            asked: self.asked,
+            complete: self.pending.is_empty(),
+            elapsed_ms: (now - self.started).as_millis() as u64,
+            id: self.request.id.clone(),
+        })
     }
 
     pub fn reply(&self) -> &Reply {
@@ -150,10 +148,12 @@ pub async fn idle_step(
     if let Some(rx) = requests.as_mut() {
         while let Ok(req) = rx.try_recv() {
             if survey.is_some() {
-                let mut busy = json!({"bus": bus, "error": "busy", "message": "a scan of this bus is under way"});
-                if let Some(id) = &req.id {
-                    busy["id"] = json!(id);
-                }
+                let busy = ScanOutcome::Refused {
+                    bus: bus.to_string(),
+                    id: req.id.clone(),
+                    code: "busy",
+                    message: "a scan of this bus is under way".into(),
+                };
                 send(out, &req.reply, busy);
             } else {
                 tracing::info!(
@@ -208,11 +208,11 @@ pub async fn idle_step(
     used
 }
 
-fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, payload: Value) {
+fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome: ScanOutcome) {
     let _ = out.send(Output::CommandResult {
         topics: reply.topics.clone(),
         correlation: reply.correlation.clone(),
-        payload,
+        outcome: Outcome::Scan(outcome),
     });
 }
 
@@ -269,7 +269,8 @@ mod tests {
             s.record(None);
         }
         assert_eq!(asked, [1, 3, 4]);
-        let r = s.result("line1", t);
+        let r = Outcome::Scan(s.result("line1", t)).to_json();
+        use serde_json::json;
         assert_eq!(
             (
                 r["configured"].clone(),

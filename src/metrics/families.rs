@@ -36,6 +36,9 @@ pub(super) struct Families {
     pub spool_messages: IntGauge,
     pub spool_bytes: IntGauge,
     pub spool_dropped: IntCounter,
+    pub spool_written: IntCounter,
+    pub chatter_messages: IntGauge,
+    pub chatter_dropped: IntCounter,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -143,6 +146,18 @@ const SPOOL_DROPPED: Family = (
     "pulsegate_spool_dropped_messages_total",
     "Oldest messages dropped because the spool was full.",
 );
+const SPOOL_WRITTEN: Family = (
+    "pulsegate_spool_written_bytes_total",
+    "Bytes written to the spool's files (while the broker is away, and at checkpoints a stalled broker leaves unacknowledged).",
+);
+const CHATTER_MESSAGES: Family = (
+    "pulsegate_mqtt_chatter_messages",
+    "Messages the gateway can make again (discovery configs, results, bus stats) waiting for the broker.",
+);
+const CHATTER_DROPPED: Family = (
+    "pulsegate_mqtt_chatter_dropped_total",
+    "Oldest chatter messages dropped to keep their bound (readings are never dropped for them).",
+);
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
     "Commands answered (a retained command message is ignored, not counted).",
@@ -190,6 +205,9 @@ impl Families {
             spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
             spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
             spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
+            spool_written: family!(r, IntCounter, SPOOL_WRITTEN),
+            chatter_messages: family!(r, IntGauge, CHATTER_MESSAGES),
+            chatter_dropped: family!(r, IntCounter, CHATTER_DROPPED),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

@@ -92,16 +92,29 @@ impl Metrics {
         }
     }
 
-    /// A command was answered with `payload` (`{"ok":true,…}` or `{"ok":false,"error":CODE}`).
-    pub fn command_result(&self, payload: &serde_json::Value) {
+    /// The chatter queue (waiting, dropped since start) and the spool's bytes written to disk
+    /// since start.
+    pub fn chatter(&self, waiting: usize, dropped: u64, spool_written: u64) {
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
+        f.chatter_messages.set(waiting as i64);
+        for (counter, now) in [
+            (&f.chatter_dropped, dropped),
+            (&f.spool_written, spool_written),
+        ] {
+            let seen = counter.get();
+            if now > seen {
+                counter.inc_by(now - seen);
+            }
+        }
+    }
+
+    /// A command or scan was answered: counted, and its refusal by code.
+    pub fn command_result(&self, outcome: &crate::outcome::Outcome) {
         let Some(e) = &self.inner else { return };
         let f = &e.families;
         f.commands_received.inc();
-        if payload.get("ok").and_then(|v| v.as_bool()) != Some(true) {
-            let code = payload
-                .get("error")
-                .and_then(|v| v.as_str())
-                .unwrap_or("unknown");
+        if let Some(code) = outcome.refusal() {
             f.commands_refused.with_label_values(&[code]).inc();
         }
     }

@@ -137,11 +137,34 @@ fn inputs_are_counters_and_encoders_are_positions_that_may_go_negative() {
 #[test]
 fn refused_commands_are_counted_by_error_code() {
     let m = Metrics::new();
-    m.command_result(&serde_json::json!({"op":"clear","ok":true}));
-    m.command_result(&serde_json::json!({"op":"clear","ok":false,"error":"offline"}));
-    m.command_result(&serde_json::json!({"ok":false,"error":"bad_json"}));
+    use crate::command::CommandError;
+    use crate::outcome::{CommandOutcome, Outcome, ScanOutcome, ScanReport};
+    let command = |result| {
+        Outcome::Command(CommandOutcome {
+            id: None,
+            op: Some("clear".into()),
+            result,
+        })
+    };
+    m.command_result(&command(Ok(None)));
+    m.command_result(&command(Err(CommandError::Offline("press1".into()))));
+    m.command_result(&command(Err(CommandError::NotJson("x".into()))));
+    // A scan's report has no `ok` key: read as JSON, it once counted as a refusal.
+    m.command_result(&Outcome::Scan(ScanOutcome::Report(ScanReport {
+        bus: "line1".into(),
+        found: Vec::new(),
+        configured: Vec::new(),
+        asked: 247,
+        complete: true,
+        elapsed_ms: 9000,
+        id: None,
+    })));
     let text = m.encode();
-    assert!(text.contains("pulsegate_commands_received_total 3"));
+    assert!(text.contains("pulsegate_commands_received_total 4"));
+    assert!(
+        !text.contains("code=\"unknown\""),
+        "a successful scan moves no refusal counter: {text}"
+    );
     assert!(text.contains("pulsegate_commands_refused_total{code=\"offline\"} 1"));
     assert!(text.contains("pulsegate_commands_refused_total{code=\"bad_json\"} 1"));
 }

@@ -103,7 +103,11 @@ fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
     let result = Output::CommandResult {
         topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
         correlation: Some(bytes::Bytes::from_static(b"c-1")),
-        payload: serde_json::json!({"ok": true}),
+        outcome: crate::outcome::Outcome::Command(crate::outcome::CommandOutcome {
+            id: None,
+            op: None,
+            result: Ok(None),
+        }),
     };
     let m = render(&mut *json, &result);
     assert_eq!(m.len(), 2);
@@ -136,14 +140,14 @@ fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchang
     let mut packed = PackedTotals {
         topics: Topics::new("pg/e1"),
     };
-    let now = std::time::Instant::now();
+    let now = tokio::time::Instant::now();
     let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
     outbox.connected(None, now);
     for m in render(&mut packed, &Output::Reading(reading(-2))) {
         outbox.enqueue(m).unwrap();
     }
     assert_eq!(outbox.store().len(), 1);
-    let Some(Step::Send(e)) = outbox.next(now) else {
+    let Some(Step::Send { entry: e, .. }) = outbox.next(now) else {
         panic!("nothing to send")
     };
     assert_eq!(e.topic, "pg/e1/press1/enc0/total");

@@ -45,8 +45,6 @@ pub struct Settings<'a> {
     /// protocol's 65535 and builds its in-flight table at that size up front (~14 MB resident,
     /// half the gateway's memory at 1000 devices); the outbox never has more than its window out.
     pub inflight: u16,
-    /// Last will: topic and payload (QoS 1, retained).
-    pub will: (String, &'static str),
     pub login: Option<(String, String)>,
     pub transport: Option<Transport>,
 }
@@ -59,13 +57,6 @@ impl Options {
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(Some(s.max_incoming));
                 o.set_outgoing_inflight_upper_limit(s.inflight);
-                o.set_last_will(v5::mqttbytes::v5::LastWill::new(
-                    s.will.0,
-                    s.will.1,
-                    v5::mqttbytes::QoS::AtLeastOnce,
-                    true,
-                    None,
-                ));
                 if let Some((u, p)) = s.login {
                     o.set_credentials(u, p);
                 }
@@ -79,12 +70,6 @@ impl Options {
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(s.max_incoming as usize, V311_MAX_OUT as usize);
                 o.set_inflight(s.inflight);
-                o.set_last_will(rumqttc::LastWill::new(
-                    s.will.0,
-                    s.will.1,
-                    rumqttc::QoS::AtLeastOnce,
-                    true,
-                ));
                 if let Some((u, p)) = s.login {
                     o.set_credentials(u, p);
                 }
@@ -96,15 +81,43 @@ impl Options {
         }
     }
 
-    /// A fresh client and its event loop (nothing of an earlier one carries over).
-    pub fn connect(&self, cap: usize) -> (Client, EventLoop) {
-        match self {
+    /// The same options with `will` as the last will: a format's will may change from one
+    /// connection to the next (Sparkplug's NDEATH carries the connection's bdSeq).
+    fn with_will(&self, will: Option<&crate::outbox::Will>) -> Options {
+        let mut o = self.clone();
+        match (&mut o, will) {
+            (Options::V5(o), Some(w)) => {
+                o.set_last_will(v5::mqttbytes::v5::LastWill::new(
+                    w.topic.clone(),
+                    w.payload.clone(),
+                    v5_qos(w.qos),
+                    w.retain,
+                    None,
+                ));
+            }
+            (Options::V311(o), Some(w)) => {
+                o.set_last_will(rumqttc::LastWill::new(
+                    w.topic.clone(),
+                    w.payload.clone(),
+                    v311_qos(w.qos),
+                    w.retain,
+                ));
+            }
+            (_, None) => {}
+        }
+        o
+    }
+
+    /// A fresh client and its event loop (nothing of an earlier one carries over), leaving
+    /// `will` with the broker.
+    pub fn connect(&self, will: Option<&crate::outbox::Will>, cap: usize) -> (Client, EventLoop) {
+        match self.with_will(will) {
             Options::V5(o) => {
-                let (c, e) = v5::AsyncClient::new(o.clone(), cap);
+                let (c, e) = v5::AsyncClient::new(o, cap);
                 (Client::V5(c), EventLoop::V5(e))
             }
             Options::V311(o) => {
-                let (c, e) = rumqttc::AsyncClient::new(o.clone(), cap);
+                let (c, e) = rumqttc::AsyncClient::new(o, cap);
                 (Client::V311(c), EventLoop::V311(e))
             }
         }
@@ -346,7 +359,6 @@ mod tests {
             keep_alive: std::time::Duration::from_secs(30),
             max_incoming: 65536,
             inflight: 164,
-            will: ("pg/t/status".into(), "offline"),
             login: None,
             transport: None,
         }
