@@ -64,6 +64,13 @@ pub trait Format: Send + Sync {
         Reaction::default()
     }
 
+    /// The same for a retained message: what the broker kept, not what was just sent. By
+    /// default the same as [`Format::received`]; a format whose subscriptions carry commands
+    /// ignores retained ones (a stale retained clear must not fire at every connection).
+    fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.received(topic, payload)
+    }
+
     /// The gateway's config was reloaded (SIGHUP).
     fn reload(&mut self, _config: &Config) -> Vec<Message> {
         Vec::new()
@@ -128,7 +135,11 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     if config.homeassistant.discovery {
         formats.push(Box::new(super::discovery::Discovery::new(config)));
     }
-    for name in &config.mqtt.format {
+    // Sparkplug first: its NDEATH must be the will (a connection has one), before JSON's
+    // `offline` status.
+    let mut names: Vec<&String> = config.mqtt.format.iter().collect();
+    names.sort_by_key(|n| n.as_str() != "sparkplug");
+    for name in names {
         formats.push(build(config, name));
     }
     formats
@@ -167,10 +178,14 @@ impl Stage {
     }
 
     /// A message on one of the subscriptions, offered to every format.
-    pub fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+    pub fn received(&mut self, topic: &str, payload: &[u8], retained: bool) -> Reaction {
         let mut out = Reaction::default();
         for format in &mut self.formats {
-            let r = format.received(topic, payload);
+            let r = if retained {
+                format.received_retained(topic, payload)
+            } else {
+                format.received(topic, payload)
+            };
             out.messages.extend(r.messages);
             out.commands.extend(r.commands);
         }

@@ -18,8 +18,10 @@ use std::collections::BTreeSet;
 use std::time::SystemTime;
 
 use crate::config::Config;
-use crate::outbox::Message;
-use crate::publish::format::Format;
+use bytes::Bytes;
+
+use crate::outbox::{Message, Will};
+use crate::publish::format::{Format, Reaction};
 use crate::reading::{Output, unix_ms};
 use metrics::ChannelShape;
 use node::{Node, Setup};
@@ -116,9 +118,19 @@ impl Format for Sparkplug {
         self.node.subscriptions(self.commands)
     }
 
-    fn received(&mut self, topic: &str, payload: &[u8]) -> Vec<Message> {
-        let (messages, _commands) = self.node.received(topic, payload, now_ms());
-        messages
+    fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        let (messages, commands) = self.node.received(topic, payload, now_ms());
+        Reaction { messages, commands }
+    }
+
+    /// A retained NCMD or DCMD is stale (the spec forbids retaining them): ignored. The
+    /// primary host's retained STATE is what it is there for.
+    fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        if self.node.is_command(topic) {
+            tracing::warn!(%topic, "retained Sparkplug command ignored");
+            return Reaction::default();
+        }
+        self.received(topic, payload)
     }
 
     /// Devices or channels changed: the node is born again with them (same session and bdSeq).
@@ -129,6 +141,35 @@ impl Format for Sparkplug {
         }
         self.devices = fresh.devices.clone();
         self.node.reshape(fresh.devices, now_ms())
+    }
+
+    /// The births, straight to the wire before the backlog.
+    fn connected(&mut self) -> Vec<Message> {
+        self.node.connected(now_ms())
+    }
+
+    fn disconnected(&mut self) {
+        self.node.disconnected();
+    }
+
+    /// The NDEATH of the next connection, with its own bdSeq (taken and saved now).
+    fn will(&mut self) -> Option<Will> {
+        let (topic, payload) = self.node.will(self.bd_seq.take(), now_ms());
+        Some(Will {
+            topic,
+            payload,
+            qos: 1,
+            retain: false,
+        })
+    }
+
+    /// A clean stop says what the will would have said.
+    fn stopping(&mut self) -> Vec<Message> {
+        vec![self.node.death(now_ms())]
+    }
+
+    fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {
+        self.node.outgoing(topic, payload, replay)
     }
 }
 

@@ -159,6 +159,21 @@ impl Node {
         )
     }
 
+    /// The NDEATH of this session, for a clean stop (the broker sends the will otherwise).
+    pub fn death(&mut self, now_ms: u64) -> Message {
+        let (topic, payload) = self.will(self.bd_seq, now_ms);
+        self.born = false;
+        Message::new(topic, payload, 1, false)
+    }
+
+    /// A command topic of this node (NCMD, DCMD).
+    pub fn is_command(&self, topic: &str) -> bool {
+        matches!(
+            self.setup.topics.parse(topic),
+            Some((Kind::NCmd | Kind::DCmd, _))
+        )
+    }
+
     /// Connected: the births, unless the primary host is not online yet.
     pub fn connected(&mut self, now_ms: u64) -> Vec<Message> {
         self.connected = true;
