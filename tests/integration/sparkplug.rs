@@ -252,7 +252,7 @@ async fn a_sparkplug_host_reads_births_and_data_that_match_the_json_readings() {
             matched += 1;
         }
     }
-    assert!(matched > 100, "{matched} JSON readings compared");
+    assert!(matched > 40, "{matched} JSON readings compared");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
