@@ -281,6 +281,12 @@ impl<S: Store> Outbox<S> {
         self.window.iter().filter(|s| s.owed()).count()
     }
 
+    /// A window kept something back: the owed window is full, or chatter waits (its window
+    /// full, or the client's queue). The next acknowledgement should let more out.
+    pub fn backlogged(&self) -> bool {
+        self.owed_in_flight() >= self.capacity || !self.chatter.is_empty()
+    }
+
     /// The chatter waiting (and what it dropped).
     pub fn chatter(&self) -> &Chatter {
         &self.chatter

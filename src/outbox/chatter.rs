@@ -8,14 +8,15 @@ use std::collections::VecDeque;
 
 use super::Message;
 
-/// Most chatter messages waiting at once.
-pub const CHATTER_MESSAGES: usize = 2048;
+/// Most chatter messages waiting at once: a burst of ten thousand refused commands is still
+/// answered in full while the broker keeps up; a flood beyond it costs only its oldest answers.
+pub const CHATTER_MESSAGES: usize = 16 * 1024;
 
 /// Most bytes (topics and payloads) of chatter waiting at once.
-pub const CHATTER_BYTES: usize = 2 << 20;
+pub const CHATTER_BYTES: usize = 4 << 20;
 
 /// Chatter messages the client may hold at once, beside the owed messages' window.
-pub const CHATTER_WINDOW: usize = 16;
+pub const CHATTER_WINDOW: usize = 64;
 
 /// The chatter queue.
 #[derive(Debug, Default)]

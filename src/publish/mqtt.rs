@@ -47,9 +47,10 @@ pub use crate::outbox::unsendable;
 /// Messages handed to rumqttc before their acknowledgement.
 const WINDOW: usize = 100;
 
-/// rumqttc's own in-flight limit: the outbox's window plus room for the messages that bypass it
-/// (command results, subscriptions), so rumqttc never has to hold one back.
-const INFLIGHT: u16 = WINDOW as u16 + 64;
+/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
+/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
+/// hold one back.
+const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
 
 /// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
 /// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
@@ -106,7 +107,7 @@ impl Shell {
                 }
             }
         }
-        self.backlog |= self.outbox.in_flight() >= WINDOW;
+        self.backlog |= self.outbox.backlogged();
     }
 
     /// Into the outbox (and its spool) without handing anything to rumqttc yet.
@@ -159,7 +160,7 @@ impl Shell {
     fn on_lost(&mut self, options: &Options, stage: &mut Stage) -> EventLoop {
         self.outbox.lost();
         stage.disconnected();
-        let (client, fresh) = options.connect(stage.will().as_ref(), WINDOW + 64);
+        let (client, fresh) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
         self.client = client;
         fresh
     }
@@ -238,7 +239,7 @@ pub async fn run(
         return;
     };
     let mut stage = Stage::new(std::mem::take(&mut task.formats));
-    let (client, eventloop) = options.connect(stage.will().as_ref(), WINDOW + 64);
+    let (client, eventloop) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
     let routes = Routes {

@@ -26,7 +26,7 @@ fn shell(name: &str) -> (Shell, EventLoop) {
         login: None,
         transport: None,
     })
-    .connect(None, 10);
+    .connect(None, 1 << 20);
     let mut shell = Shell::new(
         Spool::open(&dir, 1 << 20).unwrap(),
         client,
@@ -81,11 +81,17 @@ fn a_message_larger_than_the_broker_takes_can_never_be_sent() {
     assert!(unsendable("t", 200, 0, Some(1024)).is_none());
 }
 
-fn task(name: &str) -> Task {
-    let text = "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
+/// The config of the task's tests: one device `d`, plus `extra` TOML.
+fn config(extra: &str) -> Config {
+    let text = format!(
+        "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n{extra}"
+    );
     let env = Some(std::collections::HashMap::new());
-    let config = crate::config::Config::from_toml(text, std::path::Path::new("x.toml"), env)
-        .expect("config");
+    Config::from_toml(&text, std::path::Path::new("x.toml"), env).expect("config")
+}
+
+fn task(name: &str) -> Task {
+    let config = config("");
     let health = Arc::new(crate::health::Health::default());
     Task {
         spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
@@ -263,3 +269,6 @@ async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
     );
     assert!(p.batch_due.is_none(), "and the timer with them");
 }
+
+#[path = "mqtt_paused_tests.rs"]
+mod paused;

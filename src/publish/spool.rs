@@ -216,6 +216,11 @@ impl Spool {
         })
     }
 
+    /// The directory of the spool's files.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
     /// Messages waiting (in memory and on disk).
     pub fn len(&self) -> u64 {
         self.mem.iter().filter(|m| !m.on_disk).count() as u64

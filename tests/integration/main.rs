@@ -16,6 +16,7 @@ mod metrics;
 mod pipeline;
 mod plants;
 mod protocol;
+mod readings_first;
 mod service;
 mod sparkplug;
 mod support;
