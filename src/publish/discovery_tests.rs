@@ -367,9 +367,7 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     let mut stage = Stage::new(chosen(&config(CONFIG)));
     let mut announced = stage.start().len();
     announced += stage.render(&Output::Reading(reading("press", "a0"))).len() - 1;
-    let again = stage
-        .received("homeassistant/status", b"online", false)
-        .messages;
+    let again = stage.received("homeassistant/status", b"online").messages;
     assert_eq!(
         again.len(),
         announced,
@@ -377,22 +375,18 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     );
     assert!(
         stage
-            .received("homeassistant/status", b"offline", false)
+            .received("homeassistant/status", b"offline")
             .messages
             .is_empty()
     );
     assert!(
         stage
-            .received("pulsegate/edge/meter/cmd", b"{}", false)
+            .received("pulsegate/edge/meter/cmd", b"{}")
             .messages
             .is_empty()
     );
     let stale = stage
-        .received(
-            "homeassistant/sensor/edge/line9_u1_a0_total/config",
-            b"{}",
-            true,
-        )
+        .received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}")
         .messages;
     assert_eq!(stale.len(), 1);
     assert!(stale[0].payload.is_empty() && stale[0].retain, "cleared");

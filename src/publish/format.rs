@@ -178,14 +178,19 @@ impl Stage {
     }
 
     /// A message on one of the subscriptions, offered to every format.
-    pub fn received(&mut self, topic: &str, payload: &[u8], retained: bool) -> Reaction {
+    pub fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.react(|f| f.received(topic, payload))
+    }
+
+    /// A retained message on one of the subscriptions, offered to every format.
+    pub fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.react(|f| f.received_retained(topic, payload))
+    }
+
+    fn react(&mut self, mut f: impl FnMut(&mut dyn Format) -> Reaction) -> Reaction {
         let mut out = Reaction::default();
         for format in &mut self.formats {
-            let r = if retained {
-                format.received_retained(topic, payload)
-            } else {
-                format.received(topic, payload)
-            };
+            let r = f(&mut **format);
             out.messages.extend(r.messages);
             out.commands.extend(r.commands);
         }

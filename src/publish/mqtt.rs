@@ -512,7 +512,11 @@ impl Publisher<'_> {
             self.watch.marker(payload, &self.link);
             return;
         }
-        let reaction = self.stage.received(&topic, payload, retained);
+        let reaction = if retained {
+            self.stage.received_retained(&topic, payload)
+        } else {
+            self.stage.received(&topic, payload)
+        };
         for m in reaction.messages {
             self.shell.queue(m);
         }
