@@ -32,13 +32,17 @@ pub struct Reaction {
     /// For the command router, as if they had arrived on a command topic (with all its
     /// checks and admission).
     pub commands: Vec<Incoming>,
+    /// Published at once, ahead of the outbox's backlog, and not stored, like what
+    /// [`Format::connected`] returns (Sparkplug's births when its primary host comes online,
+    /// before what was held for it).
+    pub at_once: Vec<Message>,
 }
 
 impl From<Vec<Message>> for Reaction {
     fn from(messages: Vec<Message>) -> Reaction {
         Reaction {
             messages,
-            commands: Vec::new(),
+            ..Reaction::default()
         }
     }
 }
@@ -99,6 +103,13 @@ pub trait Format: Send + Sync {
     /// About once a second, on tokio's clock: work the format put off (coalescing).
     fn tick(&mut self, _now: Instant) -> Vec<Message> {
         Vec::new()
+    }
+
+    /// While a format holds, the outbox hands nothing stored to the client: it is kept (and
+    /// spooled) as during an outage. Sparkplug holds while its primary host is offline (the
+    /// spec has the node go quiet then).
+    fn holding(&self) -> bool {
+        false
     }
 
     /// A stored message of this format leaves for the broker now, in wire order: `Some`
@@ -193,8 +204,14 @@ impl Stage {
             let r = f(&mut **format);
             out.messages.extend(r.messages);
             out.commands.extend(r.commands);
+            out.at_once.extend(r.at_once);
         }
         out
+    }
+
+    /// Some format holds the outbox ([`Format::holding`]).
+    pub fn holding(&self) -> bool {
+        self.formats.iter().any(|f| f.holding())
     }
 
     pub fn reload(&mut self, config: &Config) -> Vec<Message> {

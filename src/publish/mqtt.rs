@@ -85,6 +85,9 @@ impl Shell {
     fn pump(&mut self, stage: &mut Stage) {
         let now = Instant::now();
         self.backlog = false;
+        if stage.holding() {
+            return;
+        }
         while let Some(step) = self.outbox.next(now) {
             match step {
                 Step::Send { entry: e, replay } => {
@@ -517,6 +520,9 @@ impl Publisher<'_> {
         } else {
             self.stage.received(&topic, payload)
         };
+        for m in reaction.at_once {
+            self.shell.publish_direct(m);
+        }
         for m in reaction.messages {
             self.shell.queue(m);
         }

@@ -104,9 +104,21 @@ impl Drop for Host {
 
 /// The gateway's config: JSON and Sparkplug side by side, a scaled channel.
 fn config(plant: &Plant, port: u16, dir: &std::path::Path) -> std::path::PathBuf {
-    let extra = "[sparkplug]\ngroup_id = \"plant\"\n\
-                 [buses.line1.devices.wj.channels.a0]\nscale = 0.001\nunit = \"kWh\"\n";
-    let text = gateway_toml(plant, port, dir, &DEVICES, extra).replacen(
+    config_with(plant, port, dir, "")
+}
+
+/// The same with more `[sparkplug]` keys.
+fn config_with(
+    plant: &Plant,
+    port: u16,
+    dir: &std::path::Path,
+    sparkplug: &str,
+) -> std::path::PathBuf {
+    let extra = format!(
+        "[sparkplug]\ngroup_id = \"plant\"\n{sparkplug}\
+         [buses.line1.devices.wj.channels.a0]\nscale = 0.001\nunit = \"kWh\"\n"
+    );
+    let text = gateway_toml(plant, port, dir, &DEVICES, &extra).replacen(
         "[mqtt]\n",
         "[mqtt]\nformat = [\"json\", \"sparkplug\"]\n",
         1,
@@ -323,6 +335,61 @@ async fn the_host_asks_for_a_rebirth_and_clears_a_count_with_a_dcmd() {
     assert!(shown < 1000, "the host sees the cleared count: {d}");
     no_errors(&lines);
     assert_seq_unbroken(&lines);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
+    let broker = Broker::start();
+    let mut host = Host::start(broker.port, false);
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("sparkplug-primary");
+    let config = config_with(&plant, broker.port, &dir, "primary_host = \"scada\"\n");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let _gw = Gateway::start(&config);
+    sub.expect_any("pulsegate/test/status", Duration::from_secs(10))
+        .await;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let quiet = host.lines();
+    assert!(
+        quiet.iter().all(|l| l["type"] == "READY"),
+        "nothing before the host is online: {quiet:?}"
+    );
+
+    host.send(json!({"state": "scada", "online": true}));
+    host.wait(Duration::from_secs(10), "births, then live data", |l| {
+        of_type(l, "DBIRTH").count() == 2
+            && l.iter()
+                .any(|x| x["type"] == "DDATA" && x["metrics"][0]["is_historical"] == false)
+    })
+    .await;
+    let lines = host.lines();
+    let first = lines.iter().position(|l| l["type"] == "NBIRTH").unwrap();
+    let data = lines.iter().position(|l| l["type"] == "DDATA").unwrap();
+    assert!(first < data, "the births first");
+    let held = of_type(&lines, "DDATA")
+        .take_while(|l| l["metrics"][0]["is_historical"] == true)
+        .count();
+    assert!(
+        held > 10,
+        "what was polled while waiting follows, as history: {held}"
+    );
+    assert_seq_unbroken(&lines);
+    no_errors(&lines);
+    let birth = lines[first].clone();
+
+    host.send(json!({"state": "scada", "online": false}));
+    host.wait(Duration::from_secs(10), "an NDEATH", |l| {
+        of_type(l, "NDEATH").count() == 1
+    })
+    .await;
+    let death = of_type(&host.lines(), "NDEATH").next().unwrap().clone();
+    assert_eq!(bd_seq(&death), bd_seq(&birth));
+    host.send(json!({"state": "scada", "online": true}));
+    host.wait(Duration::from_secs(10), "born again", |l| {
+        of_type(l, "NBIRTH").count() == 2
+    })
+    .await;
+    no_errors(&host.lines());
 }
 
 /// The one long outage: 30 s without a broker, then the readings of that time arrive after the

@@ -119,8 +119,7 @@ impl Format for Sparkplug {
     }
 
     fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
-        let (messages, commands) = self.node.received(topic, payload, now_ms());
-        Reaction { messages, commands }
+        self.node.received(topic, payload, now_ms())
     }
 
     /// A retained NCMD or DCMD is stale (the spec forbids retaining them): ignored. The
@@ -166,6 +165,10 @@ impl Format for Sparkplug {
     /// A clean stop says what the will would have said.
     fn stopping(&mut self) -> Vec<Message> {
         vec![self.node.death(now_ms())]
+    }
+
+    fn holding(&self) -> bool {
+        self.node.holding()
     }
 
     fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {

@@ -17,6 +17,7 @@ use super::proto::{Metric, Payload, Value, datatype};
 use super::topic::{Kind, Topics};
 use crate::dispatch::Incoming;
 use crate::outbox::Message;
+use crate::publish::format::Reaction;
 use crate::reading::{Output, Reading};
 
 /// The NBIRTH metric a host writes to ask for a rebirth.
@@ -313,6 +314,12 @@ impl Node {
         if metrics.is_empty() {
             return Vec::new();
         }
+        // Made while the host cannot see it (away, or held for the primary host): history.
+        if !(self.connected && self.born) {
+            for m in &mut metrics {
+                m.is_historical = Some(true);
+            }
+        }
         let mut out = self.online(device, now_ms);
         let payload = Payload {
             timestamp: readings.iter().map(|r| crate::reading::unix_ms(r.ts)).max(),
@@ -376,45 +383,57 @@ impl Node {
 
     /// A message on one of the node's subscriptions: births for a rebirth request or the
     /// primary host coming online, commands for DCMD writes. Anything else is not the node's.
-    pub fn received(
-        &mut self,
-        topic: &str,
-        payload: &[u8],
-        now_ms: u64,
-    ) -> (Vec<Message>, Vec<Incoming>) {
+    pub fn received(&mut self, topic: &str, payload: &[u8], now_ms: u64) -> Reaction {
         if let Some(host) = &self.setup.primary_host
             && topic == Topics::state(host)
         {
-            return (self.host_state(payload, now_ms), Vec::new());
+            return self.host_state(payload, now_ms);
         }
         match self.setup.topics.parse(topic) {
-            Some((Kind::NCmd, None)) => (self.node_command(payload, now_ms), Vec::new()),
-            Some((Kind::DCmd, Some(device))) => (Vec::new(), self.device_command(device, payload)),
-            _ => (Vec::new(), Vec::new()),
+            Some((Kind::NCmd, None)) => self.node_command(payload, now_ms).into(),
+            Some((Kind::DCmd, Some(device))) => Reaction {
+                commands: self.device_command(device, payload),
+                ..Reaction::default()
+            },
+            _ => Reaction::default(),
         }
     }
 
-    /// `spBv1.0/STATE/<host>`: births when it comes online (and the session has none yet);
-    /// when it goes offline, the next births wait for it again.
-    fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
+    /// Connected and waiting for the primary host: the MQTT task keeps the outbox (what it
+    /// holds goes out after the births, flagged historical).
+    pub fn holding(&self) -> bool {
+        self.connected && !self.born
+    }
+
+    /// `spBv1.0/STATE/<host>`: online, the births at once (ahead of what was held for them);
+    /// offline, an NDEATH and quiet until the host is back (the spec's node disconnects; this
+    /// one keeps its connection for the other formats and holds its output).
+    fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Reaction {
         let Some(online) = super::command::host_online(payload) else {
             tracing::warn!("primary host STATE payload is not {{\"online\":bool,…}}: ignored");
-            return Vec::new();
+            return Reaction::default();
         };
         let was = self.host_online;
         self.host_online = online;
+        let mut at_once = Vec::new();
         if online && !was && self.connected && !self.born {
             tracing::info!("Sparkplug primary host online: publishing births");
-            return self.births(now_ms);
+            at_once = self.births(now_ms);
         }
         if !online && was {
-            tracing::warn!("Sparkplug primary host offline: births wait for it");
+            tracing::warn!("Sparkplug primary host offline: output held until it is back");
+            if self.connected && self.born {
+                at_once.push(self.death(now_ms));
+            }
             self.born = false;
             for d in self.devices.values_mut() {
                 d.declared = None;
             }
         }
-        Vec::new()
+        Reaction {
+            at_once,
+            ..Reaction::default()
+        }
     }
 
     /// NCMD: `Node Control/Rebirth` = true is answered with every birth again.

@@ -329,7 +329,8 @@ fn ncmd_rebirth_births_everything_again_from_seq_zero_with_the_same_bdseq() {
         datatype::BOOLEAN,
         Some(Value::Boolean(true)),
     )]);
-    let (births, commands) = node.received("spBv1.0/plant/NCMD/e1", &ask, 9);
+    let r = node.received("spBv1.0/plant/NCMD/e1", &ask, 9);
+    let (births, commands) = (r.messages, r.commands);
     assert!(commands.is_empty());
     let sent = wire(&mut node, &births, false);
     let topics: Vec<&str> = sent.iter().map(|(t, _)| t.as_str()).collect();
@@ -343,8 +344,8 @@ fn ncmd_rebirth_births_everything_again_from_seq_zero_with_the_same_bdseq() {
     );
     assert_eq!(sent[0].1.seq, Some(0));
     assert_eq!(value_of(&sent[0].1, BD_SEQ), Some(&Value::Long(4)));
-    let other_node = node.received("spBv1.0/plant/NCMD/e2", &ask, 9);
-    assert!(other_node.0.is_empty(), "another node's command");
+    let other_node = node.received("spBv1.0/plant/NCMD/e2", &ask, 9).messages;
+    assert!(other_node.is_empty(), "another node's command");
 }
 
 #[test]
@@ -372,7 +373,8 @@ fn dcmd_writes_become_json_commands_on_the_channel_topic() {
         ),
         by_alias,
     ]);
-    let (msgs, commands) = node.received("spBv1.0/plant/DCMD/e1/press", &write, 9);
+    let r = node.received("spBv1.0/plant/DCMD/e1/press", &write, 9);
+    let (msgs, commands) = (r.messages, r.commands);
     assert!(msgs.is_empty());
     let got: Vec<(&str, &[u8])> = commands
         .iter()
@@ -414,12 +416,18 @@ fn a_dcmd_with_one_bad_write_is_refused_whole() {
             Some(Value::String("yes".into())),
         ),
     ] {
-        let (_, commands) = node.received(topic, &dcmd(vec![clear.clone(), bad.clone()]), 9);
+        let commands = node
+            .received(topic, &dcmd(vec![clear.clone(), bad.clone()]), 9)
+            .commands;
         assert!(commands.is_empty(), "{bad:?}");
     }
-    let (_, commands) = node.received(topic, b"\xff\xff\xff not protobuf", 9);
+    let commands = node
+        .received(topic, b"\xff\xff\xff not protobuf", 9)
+        .commands;
     assert!(commands.is_empty());
-    let (_, commands) = node.received("spBv1.0/plant/DCMD/e1/ghost", &dcmd(vec![clear]), 9);
+    let commands = node
+        .received("spBv1.0/plant/DCMD/e1/ghost", &dcmd(vec![clear]), 9)
+        .commands;
     assert!(commands.is_empty(), "a device the node does not have");
     let many = vec![
         Metric::new(
@@ -430,7 +438,7 @@ fn a_dcmd_with_one_bad_write_is_refused_whole() {
         );
         65
     ];
-    let (_, commands) = node.received(topic, &dcmd(many), 9);
+    let commands = node.received(topic, &dcmd(many), 9).commands;
     assert!(commands.is_empty());
 }
 
@@ -446,22 +454,30 @@ fn with_a_primary_host_births_wait_for_its_state_online_and_follow_it() {
         "the host is not online yet"
     );
     let state = "spBv1.0/STATE/scada";
-    let (births, _) = node.received(state, br#"{"online":true,"timestamp":5}"#, 9);
-    assert_eq!(births.len(), 3);
+    assert!(node.holding(), "connected, waiting: the outbox is held");
+    let held = node.event(&Output::Reading(reading("press", "a0", 1, 3)), 3);
     assert!(
-        node.received(state, br#"{"online":true,"timestamp":6}"#, 9)
-            .0
-            .is_empty()
+        decode(&held[0])
+            .metrics
+            .iter()
+            .all(|m| m.is_historical == Some(true)),
+        "made while held: history"
     );
-    assert!(
-        node.received(state, br#"{"online":false,"timestamp":7}"#, 9)
-            .0
-            .is_empty()
-    );
-    let (again, _) = node.received(state, br#"{"online":true,"timestamp":8}"#, 9);
-    assert_eq!(again.len(), 3, "born again when the host is back");
-    assert_eq!(decode(&again[0]).seq, Some(0));
-    assert!(node.received(state, b"garbage", 9).0.is_empty());
+    let births = node.received(state, br#"{"online":true,"timestamp":5}"#, 9);
+    assert_eq!(births.at_once.len(), 3, "at once, ahead of what was held");
+    assert!(!node.holding());
+    let sent = wire(&mut node, &held, false);
+    assert_eq!(sent[0].1.seq, Some(3), "the held data after the births");
+    let again = node.received(state, br#"{"online":true,"timestamp":6}"#, 9);
+    assert!(again.at_once.is_empty() && again.messages.is_empty());
+    let gone = node.received(state, br#"{"online":false,"timestamp":7}"#, 9);
+    let topics: Vec<&str> = gone.at_once.iter().map(|m| m.topic.as_str()).collect();
+    assert_eq!(topics, ["spBv1.0/plant/NDEATH/e1"], "a death, then quiet");
+    assert!(node.holding());
+    let back = node.received(state, br#"{"online":true,"timestamp":8}"#, 9);
+    assert_eq!(back.at_once.len(), 3, "born again when the host is back");
+    assert_eq!(decode(&back.at_once[0]).seq, Some(0));
+    assert!(node.received(state, b"garbage", 9).at_once.is_empty());
 }
 
 #[test]
