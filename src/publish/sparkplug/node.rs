@@ -73,6 +73,8 @@ pub struct Node {
     seq: u8,
     /// The session's bdSeq.
     bd_seq: u8,
+    /// Refused commands logged per minute.
+    log_budget: crate::admission::LogBudget,
 }
 
 impl Node {
@@ -99,6 +101,7 @@ impl Node {
             born: false,
             seq: 0,
             bd_seq: 0,
+            log_budget: crate::admission::LogBudget::new(20),
         }
     }
 
@@ -410,7 +413,7 @@ impl Node {
     /// one keeps its connection for the other formats and holds its output).
     fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Reaction {
         let Some(online) = super::command::host_online(payload) else {
-            tracing::warn!("primary host STATE payload is not {{\"online\":bool,…}}: ignored");
+            self.refused("primary host STATE", "not {\"online\": bool, …}");
             return Reaction::default();
         };
         let was = self.host_online;
@@ -445,37 +448,51 @@ impl Node {
             }
             Ok(_) => Vec::new(),
             Err(e) => {
-                tracing::warn!("Sparkplug NCMD refused: {e}");
+                self.refused("NCMD", &e.to_string());
                 Vec::new()
             }
         }
     }
 
     /// DCMD: writes to `<c>/Clear` and `<c>/Preset`, as commands for the command router.
-    fn device_command(&self, device: &str, payload: &[u8]) -> Vec<Incoming> {
-        let Some(d) = self.devices.get(device) else {
-            tracing::warn!(
-                device,
-                "Sparkplug DCMD for a device this node does not have: ignored"
-            );
-            return Vec::new();
+    fn device_command(&mut self, device: &str, payload: &[u8]) -> Vec<Incoming> {
+        let writes = match self.devices.get(device) {
+            None => Err(format!("{device:?} is not a device of this node")),
+            Some(d) => {
+                let names = |alias: u64| {
+                    d.declared
+                        .iter()
+                        .flatten()
+                        .find(|n| self.aliases.get(device, n) == Some(alias))
+                        .cloned()
+                };
+                super::command::device(payload, names).map_err(|e| format!("{device}: {e}"))
+            }
         };
-        let names = |alias: u64| {
-            d.declared
-                .iter()
-                .flatten()
-                .find(|n| self.aliases.get(device, n) == Some(alias))
-                .cloned()
-        };
-        match super::command::device(payload, names) {
+        match writes {
             Ok(writes) => writes
                 .into_iter()
                 .map(|w| w.incoming(&self.setup.commands, device))
                 .collect(),
-            Err(e) => {
-                tracing::warn!(device, "Sparkplug DCMD refused: {e}");
+            Err(why) => {
+                self.refused("DCMD", &why);
                 Vec::new()
             }
+        }
+    }
+
+    /// Logs a refused command or state, within the budget (a flood of bad commands is counted, not
+    /// logged line by line).
+    fn refused(&mut self, what: &str, why: &str) {
+        let (log, suppressed) = self.log_budget.allow(tokio::time::Instant::now());
+        if let Some(n) = suppressed {
+            tracing::warn!(
+                suppressed = n,
+                "Sparkplug commands refused in the last minute, not logged one by one"
+            );
+        }
+        if log {
+            tracing::warn!("Sparkplug {what} refused: {why}");
         }
     }
 }

@@ -4,8 +4,10 @@ use super::*;
 use crate::profile::ChannelKind;
 
 fn config(extra: &str) -> Config {
+    let state = std::env::temp_dir().join(format!("pg-sparkplug-{}", std::process::id()));
+    std::fs::create_dir_all(&state).unwrap();
     let text = format!(
-        "[gateway]\nid = \"e1\"\nstate_dir = \"/tmp\"\n[mqtt]\nformat = [\"json\", \"sparkplug\"]\n\
+        "[gateway]\nid = \"e1\"\nstate_dir = {state:?}\n[mqtt]\nformat = [\"json\", \"sparkplug\"]\n\
          [sparkplug]\ngroup_id = \"plant\"\n\
          [buses.l]\nhost = \"127.0.0.1\"\nport = 502\n\
          [buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n{extra}"
@@ -46,4 +48,31 @@ fn the_edge_node_id_defaults_to_the_gateway_id() {
     assert_eq!(s.primary_host, None);
     let subs = Sparkplug::new(&c).subscriptions();
     assert_eq!(subs, ["spBv1.0/plant/NCMD/e1", "spBv1.0/plant/DCMD/e1/+"]);
+}
+
+#[test]
+fn a_retained_dcmd_is_stale_and_ignored_a_fresh_one_is_a_command() {
+    use proto::{Metric, Value, datatype};
+    let mut f = Sparkplug::new(&config(""));
+    let topic = "spBv1.0/plant/DCMD/e1/d";
+    let clear = Metric::new(
+        "a0/Clear",
+        None,
+        datatype::BOOLEAN,
+        Some(Value::Boolean(true)),
+    );
+    let payload = command::dcmd(vec![clear]);
+    assert!(f.received_retained(topic, &payload).commands.is_empty());
+    let fresh = f.received(topic, &payload).commands;
+    assert_eq!(fresh.len(), 1);
+    assert_eq!(fresh[0].topic, "pulsegate/e1/d/a0/cmd");
+}
+
+#[test]
+fn with_both_formats_the_will_is_the_ndeath() {
+    let c = config("");
+    let mut stage = crate::publish::format::Stage::new(crate::publish::format::chosen(&c));
+    let will = stage.will().unwrap();
+    assert_eq!(will.topic, "spBv1.0/plant/NDEATH/e1");
+    assert!(!will.retain);
 }
