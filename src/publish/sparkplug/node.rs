@@ -75,6 +75,8 @@ pub struct Node {
     bd_seq: u8,
     /// Refused commands logged per minute.
     log_budget: crate::admission::LogBudget,
+    /// The last message numbered: its topic, stored and sent bytes.
+    last_out: Option<(String, Bytes, Bytes)>,
 }
 
 impl Node {
@@ -102,6 +104,7 @@ impl Node {
             seq: 0,
             bd_seq: 0,
             log_budget: crate::admission::LogBudget::new(20),
+            last_out: None,
         }
     }
 
@@ -192,6 +195,7 @@ impl Node {
     pub fn disconnected(&mut self) {
         self.connected = false;
         self.born = false;
+        self.last_out = None;
         for d in self.devices.values_mut() {
             d.declared = None;
         }
@@ -200,6 +204,7 @@ impl Node {
     /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0.
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
         self.born = true;
+        self.last_out = None;
         let payload = Payload {
             timestamp: Some(now_ms),
             metrics: vec![
@@ -356,6 +361,32 @@ impl Node {
         if !kind.numbered() {
             return None;
         }
+        // The client refused the last one (its queue was full) and it is offered again: the
+        // same number, or the host would see a gap.
+        if let Some((t, stored, sent)) = &self.last_out
+            && t == topic
+            && stored[..] == *payload
+        {
+            return Some(sent.clone());
+        }
+        let sent = self.number_on_the_wire(kind, device, payload, replay)?;
+        self.last_out = (kind != Kind::NBirth).then(|| {
+            (
+                topic.to_string(),
+                Bytes::copy_from_slice(payload),
+                sent.clone(),
+            )
+        });
+        Some(sent)
+    }
+
+    fn number_on_the_wire(
+        &mut self,
+        kind: Kind,
+        device: Option<&str>,
+        payload: &[u8],
+        replay: bool,
+    ) -> Option<Bytes> {
         let mut p = Payload::decode(payload).ok()?;
         p.seq = Some(self.number(kind));
         match kind {

@@ -493,3 +493,24 @@ fn events_and_writes_show_up_in_the_next_ddata() {
         Some(&Value::String("cleared".into()))
     );
 }
+
+#[test]
+fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
+    let mut node = Node::new(setup(None));
+    session(&mut node, 0);
+    let data = node.event(&Output::Reading(reading("press", "a0", 1, 5)), 5);
+    let first = node
+        .outgoing(&data[0].topic, &data[0].payload, false)
+        .unwrap();
+    let again = node
+        .outgoing(&data[0].topic, &data[0].payload, false)
+        .unwrap();
+    assert_eq!(first, again);
+    let next = node.event(&Output::Reading(reading("press", "a0", 2, 6)), 6);
+    let (_, p) = wire(&mut node, &next, false).remove(0);
+    assert_eq!(
+        p.seq,
+        Some(4),
+        "no gap: NBIRTH 0, DBIRTHs 1 and 2, then 3 and 4"
+    );
+}
