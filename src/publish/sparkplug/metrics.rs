@@ -145,10 +145,16 @@ pub fn birth(
 ) -> Vec<Metric> {
     let mut out = Vec::new();
     for shape in shapes {
-        let named = match last.get(&shape.name) {
+        let mut named = match last.get(&shape.name) {
             Some(r) => values(r, shape),
             None => null_values(shape),
         };
+        // An event belongs to its reading: a birth does not repeat it.
+        for (name, _, v) in &mut named {
+            if name.ends_with("/Event") {
+                *v = None;
+            }
+        }
         for (name, dt, v) in named {
             let mut m = Metric::new(&name, Some(aliases.of(device, &name)), dt, v);
             if let (true, Some(Some(unit))) = (name.ends_with("/Value"), &shape.value_unit) {
