@@ -514,3 +514,21 @@ fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
         "no gap: NBIRTH 0, DBIRTHs 1 and 2, then 3 and 4"
     );
 }
+
+#[test]
+fn the_readings_of_one_poll_are_one_ddata() {
+    let mut node = Node::new(setup(None));
+    session(&mut node, 0);
+    let poll = Output::DeviceReadings {
+        device: "press".into(),
+        readings: vec![
+            reading("press", "a0", 1, 9),
+            reading("press", "enc0", -1, 9),
+        ],
+    };
+    let out = node.event(&poll, 9);
+    assert_eq!(out.len(), 1);
+    let p = decode(&out[0]);
+    assert!(value_of(&p, "a0/Total").is_some() && value_of(&p, "enc0/Total").is_some());
+    assert_eq!(p.timestamp, Some(9));
+}
