@@ -30,17 +30,16 @@ pub struct Reading {
 /// Everything a bus task reports.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output {
+    /// One channel's reading on its own.
     Reading(Reading),
-    /// The readings of one device's poll, published as one message (`payload = "device"`).
+    /// The readings of one device's poll (or command) that its publish policy lets through;
+    /// the format decides whether they go as one message (`payload = "device"`) or one each.
     DeviceReadings {
         device: Arc<str>,
         readings: Vec<Reading>,
     },
     /// A device became available (first good read) or stopped answering.
-    DeviceStatus {
-        device: Arc<str>,
-        online: bool,
-    },
+    DeviceStatus { device: Arc<str>, online: bool },
     /// The device has a problem that stops some or all of its readings:
     /// `<root>/<device>/status` = `status` (`wrong_model`, `mode_mismatch`).
     DeviceProblem {

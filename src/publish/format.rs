@@ -19,7 +19,7 @@
 use bytes::Bytes;
 use tokio::time::Instant;
 
-use crate::config::{Config, Mqtt};
+use crate::config::Config;
 use crate::dispatch::Incoming;
 use crate::outbox::{Message, Will};
 use crate::reading::Output;
@@ -126,15 +126,15 @@ pub const NAMES: &[&str] = &["json", "sparkplug"];
 /// The payload format `name` (checked against [`NAMES`] when the config is read).
 pub fn build(config: &Config, name: &str) -> Box<dyn Format> {
     match name {
-        "json" => Box::new(super::json::Json::new(&config.mqtt)),
+        "json" => Box::new(super::json::Json::new(config)),
         "sparkplug" => Box::new(super::sparkplug::Sparkplug::new(config)),
-        other => unreachable_format(other, &config.mqtt),
+        other => unreachable_format(other, config),
     }
 }
 
 /// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
 /// between [`NAMES`] and [`build`], never a crash of the gateway).
-fn unreachable_format(name: &str, config: &Mqtt) -> Box<dyn Format> {
+fn unreachable_format(name: &str, config: &Config) -> Box<dyn Format> {
     tracing::error!("output format {name:?} is not built in; publishing JSON");
     Box::new(super::json::Json::new(config))
 }

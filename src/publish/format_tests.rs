@@ -37,17 +37,13 @@ fn check(mqtt: &str) -> Result<crate::config::Config, crate::config::ConfigError
     crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env)
 }
 
-fn full() -> crate::config::Config {
+fn config() -> crate::config::Config {
     check("retain = true\nqos = 0").expect("config")
-}
-
-fn config() -> Mqtt {
-    check("retain = true\nqos = 0").expect("config").mqtt
 }
 
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
-    let mut json = build(&full(), "json");
+    let mut json = build(&config(), "json");
     let m = render(&mut *json, &Output::Reading(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
@@ -60,7 +56,7 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
 
 #[test]
 fn json_status_is_retained_and_bus_health_is_transient() {
-    let mut json = build(&full(), "json");
+    let mut json = build(&config(), "json");
     let status = Output::DeviceStatus {
         device: "press1".into(),
         online: false,
@@ -99,7 +95,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
 
 #[test]
 fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
-    let mut json = build(&full(), "json");
+    let mut json = build(&config(), "json");
     let result = Output::CommandResult {
         topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
         correlation: Some(bytes::Bytes::from_static(b"c-1")),
@@ -180,7 +176,11 @@ fn every_format_name_the_config_takes_is_built() {
 
 #[test]
 fn a_batch_is_a_duration_of_at_most_five_seconds() {
-    assert_eq!(config().batch, Duration::from_millis(250), "the default");
+    assert_eq!(
+        config().mqtt.batch,
+        Duration::from_millis(250),
+        "the default"
+    );
     assert_eq!(check("batch = \"0s\"").unwrap().mqtt.batch, Duration::ZERO);
     assert_eq!(
         check("batch = \"1s\"").unwrap().mqtt.batch,
@@ -190,4 +190,40 @@ fn a_batch_is_a_duration_of_at_most_five_seconds() {
     assert!(err.contains("mqtt.batch: must be at most 5s"), "{err}");
     let err = check("batch = \"soon\"").unwrap_err().to_string();
     assert!(err.contains("mqtt.batch: bad duration"), "{err}");
+}
+
+/// The payload shape is the format's: one event for a device's poll goes as one message per
+/// channel, or as one message for a device with `payload = "device"`.
+#[test]
+fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
+    let poll = Output::DeviceReadings {
+        device: "d".into(),
+        readings: vec![
+            Reading {
+                device: "d".into(),
+                ..reading(1)
+            },
+            Reading {
+                device: "d".into(),
+                channel: "enc1".into(),
+                ..reading(2)
+            },
+        ],
+    };
+    let mut per_channel = build(&config(), "json");
+    let topics: Vec<String> = render(&mut *per_channel, &poll)
+        .into_iter()
+        .map(|m| m.topic)
+        .collect();
+    assert_eq!(topics, ["pg/e1/d/enc0", "pg/e1/d/enc1"]);
+    let text = format!(
+        "[gateway]\nid = \"e1\"\npayload = \"device\"\n[mqtt]\ntopic_root = \"pg/e1\"\n{BUS}"
+    );
+    let env = Some(std::collections::HashMap::new());
+    let device_config =
+        crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env).unwrap();
+    let mut per_device = build(&device_config, "json");
+    let m = render(&mut *per_device, &poll);
+    assert_eq!(m.len(), 1);
+    assert_eq!(m[0].topic, "pg/e1/d");
 }

@@ -6,9 +6,12 @@
 use super::format::Format;
 use super::payload;
 use super::topics::Topics;
-use crate::config::Mqtt;
+use std::collections::HashSet;
+
+use crate::config::Config;
 use crate::outbox::{Message, Will};
-use crate::reading::Output;
+use crate::publish::policy::PayloadMode;
+use crate::reading::{Output, Reading};
 
 /// Today's payloads.
 #[derive(Debug, Clone)]
@@ -18,35 +21,52 @@ pub struct Json {
     retain: bool,
     /// `mqtt.qos`, for readings.
     qos: u8,
+    /// The devices whose polls go as one message (`payload = "device"`, theirs or inherited).
+    per_device: HashSet<String>,
 }
 
 impl Json {
-    pub fn new(config: &Mqtt) -> Json {
+    /// The JSON format of `config` (the payload shape of each device from its own config).
+    pub fn new(config: &Config) -> Json {
+        let mqtt = &config.mqtt;
         Json {
-            topics: Topics::new(&config.topic_root),
-            retain: config.retain,
-            qos: config.qos,
+            topics: Topics::new(&mqtt.topic_root),
+            retain: mqtt.retain,
+            qos: mqtt.qos,
+            per_device: per_device(config),
         }
     }
+
+    /// One message per reading.
+    fn readings<'r>(&self, readings: impl IntoIterator<Item = &'r Reading>) -> Vec<Message> {
+        readings
+            .into_iter()
+            .map(|r| {
+                let topic = self.topics.reading(&r.device, &r.channel);
+                Message::new(topic, payload::reading(r), self.qos, self.retain)
+            })
+            .collect()
+    }
+}
+
+fn per_device(config: &Config) -> HashSet<String> {
+    config
+        .devices()
+        .filter(|(_, d)| d.payload.unwrap_or(config.gateway.payload) == PayloadMode::Device)
+        .map(|(_, d)| d.name.clone())
+        .collect()
 }
 
 impl Format for Json {
     fn messages(&mut self, event: &Output) -> Vec<Message> {
         let t = &self.topics;
         match event {
-            Output::Reading(r) => {
-                let topic = t.reading(&r.device, &r.channel);
-                vec![Message::new(
-                    topic,
-                    payload::reading(r),
-                    self.qos,
-                    self.retain,
-                )]
-            }
-            Output::DeviceReadings { device, readings } => {
+            Output::Reading(r) => self.readings([r]),
+            Output::DeviceReadings { device, readings } if self.per_device.contains(&**device) => {
                 let body = payload::device(readings);
                 vec![Message::new(t.device(device), body, self.qos, self.retain)]
             }
+            Output::DeviceReadings { readings, .. } => self.readings(readings),
             Output::DeviceStatus { device, online } => {
                 let word = if *online { "online" } else { "offline" };
                 vec![Message::new(t.device_status(device), word, 1, true)]
@@ -81,6 +101,12 @@ impl Format for Json {
             }
             Output::Checkpoint(_) => Vec::new(),
         }
+    }
+
+    /// A device's payload shape may change with the config.
+    fn reload(&mut self, config: &Config) -> Vec<Message> {
+        self.per_device = per_device(config);
+        Vec::new()
     }
 
     /// The gateway's status, retained: `online` at every connection.

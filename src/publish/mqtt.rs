@@ -575,6 +575,7 @@ impl Publisher<'_> {
         metrics.mqtt(up, spool.len(), spool.total_bytes(), spool.dropped);
         let chatter = outbox.chatter();
         metrics.chatter(chatter.len(), chatter.dropped, spool.written);
+        self.watch.chatter_dropped(chatter.dropped, now);
     }
 
     /// While the broker is away, memory is written out so a crash loses little.
@@ -658,6 +659,9 @@ struct Connection {
 /// Logs of the connection: once per state change, takeovers at most once a minute.
 struct Watch {
     up: Option<bool>,
+    /// Chatter dropped when last logged, and the budget of those lines.
+    chatter_dropped: u64,
+    chatter_log: crate::admission::LogBudget,
     takeovers: u64,
     takeover_log: crate::admission::LogBudget,
     /// Wait before the next attempt after a failure.
@@ -668,9 +672,23 @@ impl Watch {
     fn new() -> Watch {
         Watch {
             up: None,
+            chatter_dropped: 0,
+            chatter_log: crate::admission::LogBudget::new(1),
             takeovers: 0,
             takeover_log: crate::admission::LogBudget::new(1),
             pause: Duration::from_secs(1),
+        }
+    }
+
+    /// Chatter was dropped since the last look: said at most once a minute, with the count.
+    fn chatter_dropped(&mut self, dropped: u64, now: Instant) {
+        if dropped > self.chatter_dropped && self.chatter_log.allow(now).0 {
+            let n = dropped - self.chatter_dropped;
+            tracing::warn!(
+                dropped = n,
+                "{n} command results, discovery configs or bus stats dropped: they came faster than the broker took them (readings are never dropped for them)"
+            );
+            self.chatter_dropped = dropped;
         }
     }
 

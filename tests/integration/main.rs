@@ -10,6 +10,7 @@ mod config_cases;
 mod counters;
 mod dashboards;
 mod faults;
+mod format_seam;
 mod hostile;
 mod local_socket;
 mod metrics;
