@@ -17,6 +17,7 @@ use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
+use crate::publish::topics::ResponseRule;
 use crate::reading::Output;
 
 fn targets_of(
@@ -28,6 +29,9 @@ fn targets_of(
         .filter_map(|(bus, d)| {
             let target = Target {
                 bus: buses.get(&bus.name)?.clone(),
+                bus_name: bus.name.clone(),
+                unit: d.unit,
+                scanned: d.commands,
                 commands: d.commands && d.enabled && bus.enabled,
                 channels: d
                     .profile
@@ -54,6 +58,11 @@ pub struct Incoming {
 /// Where a device's commands go.
 pub struct Target {
     bus: UnboundedSender<BusCommand>,
+    bus_name: String,
+    unit: u8,
+    /// `commands = false` also keeps the device out of scans over MQTT: its unit is neither
+    /// asked nor named in the result.
+    scanned: bool,
     commands: bool,
     channels: BTreeSet<String>,
 }
@@ -74,6 +83,8 @@ pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender
 /// The command router of a gateway.
 pub struct Router {
     root: String,
+    /// Where a response topic may point (see [`ResponseRule`]).
+    responses: ResponseRule,
     targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
@@ -95,6 +106,7 @@ impl Router {
     ) -> Router {
         Router {
             root: config.mqtt.topic_root.clone(),
+            responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
@@ -136,16 +148,23 @@ impl Router {
             return refuse(&reply, "too_large", "correlation data too long".into());
         }
         if let Some(rt) = &msg.response_topic {
-            if let Err(e) = command::check_response_topic(rt) {
+            if let Err(e) = check_response_topic(&self.responses, rt) {
                 return refuse(&reply, e.code(), e.to_string());
             }
             reply.topics.push(rt.clone());
             reply.correlation = msg.correlation.clone();
         }
-        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+        let (mut units, id) = match survey::parse_scan_payload(&msg.payload) {
             Ok(p) => p,
             Err(e) => return refuse(&reply, "bad_payload", e),
         };
+        let targets = self.targets.read().unwrap_or_else(|e| e.into_inner());
+        units.retain(|u| {
+            !targets
+                .values()
+                .any(|t| !t.scanned && t.bus_name == bus && t.unit == *u)
+        });
+        drop(targets);
         let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
         let Some(tx) = scans.get(bus) else {
             return refuse(&reply, "unknown_bus", format!("no bus {bus:?}"));
@@ -200,7 +219,7 @@ impl Router {
             topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        if let Err(e) = reply_to(&msg, &mut reply) {
+        if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {
             return self.refuse(&msg.topic, &reply, None, None, e);
         }
         let parsed = match command::parse_payload(&msg.payload, channel.is_some()) {
@@ -368,7 +387,7 @@ impl Router {
 /// Checks the MQTT v5 properties of a command before anything is published to them (a
 /// response topic the gateway cannot publish to must not reach the spool) and adds the response
 /// topic and correlation data to `reply`.
-fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
+fn reply_to(rule: &ResponseRule, msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
     if let Some(c) = &msg.correlation
         && c.len() > command::MAX_CORRELATION
     {
@@ -379,9 +398,20 @@ fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
         });
     }
     if let Some(rt) = &msg.response_topic {
-        command::check_response_topic(rt)?;
+        check_response_topic(rule, rt)?;
         reply.topics.push(rt.clone());
         reply.correlation = msg.correlation.clone();
     }
     Ok(())
 }
+
+/// A response topic's shape (length, wildcards, `$`) and place (not into the gateway's own
+/// topics or Home Assistant's): refused before anything is published there.
+fn check_response_topic(rule: &ResponseRule, topic: &str) -> Result<(), CommandError> {
+    command::check_response_topic(topic)?;
+    rule.check(topic).map_err(CommandError::BadResponseTopic)
+}
+
+#[cfg(test)]
+#[path = "dispatch_tests.rs"]
+mod tests;

@@ -34,4 +34,5 @@ pub mod report;
 pub mod saved;
 pub mod sim;
 pub mod state;
+pub mod state_lock;
 pub mod systemd;

@@ -245,6 +245,13 @@ impl Durable {
         }
     }
 
+    /// The state file of a clean shutdown is durable as it is: the first readings of this run
+    /// go out at once, not after a save (so a crash right after that save cannot take their
+    /// deltas with it). After a crash the moved seqs are not durable until saved.
+    pub fn trust(&mut self, saved: &BusState) {
+        self.ledger.durable(&seqs(&saved.channels));
+    }
+
     /// Readings are waiting for a save (the bus should come back soon).
     pub fn holding(&self) -> bool {
         !self.held.is_empty()

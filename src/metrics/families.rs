@@ -1,6 +1,8 @@
 //! The metric families, their names, help texts, labels and histogram buckets: the one place
 //! that defines what `/metrics` shows.
 
+use std::collections::BTreeSet;
+
 use prometheus::{
     CounterVec, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
     IntGaugeVec, Opts, Registry,
@@ -36,6 +38,7 @@ pub(super) struct Families {
     pub spool_messages: IntGauge,
     pub spool_bytes: IntGauge,
     pub spool_dropped: IntCounter,
+    pub spool_fallback: IntGauge,
     pub spool_written: IntCounter,
     pub chatter_messages: IntGauge,
     pub chatter_dropped: IntCounter,
@@ -146,6 +149,10 @@ const SPOOL_DROPPED: Family = (
     "pulsegate_spool_dropped_messages_total",
     "Oldest messages dropped because the spool was full.",
 );
+const SPOOL_FALLBACK: Family = (
+    "pulsegate_spool_private_fallback",
+    "1 while the spool is in a fresh private temporary directory because <state_dir>/spool could not be used (lost at reboot).",
+);
 const SPOOL_WRITTEN: Family = (
     "pulsegate_spool_written_bytes_total",
     "Bytes written to the spool's files (while the broker is away, and at checkpoints a stalled broker leaves unacknowledged).",
@@ -172,7 +179,44 @@ const START_TIME: Family = (
 );
 const BUILD_INFO: Family = ("pulsegate_build_info", "Always 1; the version is a label.");
 
+/// Series of buses, devices and channels that are gone (see `Metrics::retain`).
+#[derive(Default)]
+pub(super) struct Gone {
+    pub buses: BTreeSet<String>,
+    pub devices: BTreeSet<(String, String)>,
+    pub channels: BTreeSet<(String, String, String)>,
+}
+
 impl Families {
+    /// Removes the series of what is gone from every family labelled with it.
+    pub fn forget(&self, gone: &Gone) {
+        // A series never created is not there to remove: the error says only that.
+        for (b, d, c) in &gone.channels {
+            let l = [b.as_str(), d.as_str(), c.as_str()];
+            let _ = self.channel_pulses.remove_label_values(&l);
+            let _ = self.channel_position.remove_label_values(&l);
+            let _ = self.channel_rate.remove_label_values(&l);
+        }
+        for (b, d) in &gone.devices {
+            let l = [b.as_str(), d.as_str()];
+            let _ = self.device_up.remove_label_values(&l);
+            let _ = self.device_wrong_model.remove_label_values(&l);
+            let _ = self.device_transactions.remove_label_values(&l);
+            let _ = self.device_timeouts.remove_label_values(&l);
+            let _ = self.device_garbled.remove_label_values(&l);
+            let _ = self.device_exceptions.remove_label_values(&l);
+            let _ = self.device_latency.remove_label_values(&l);
+        }
+        for b in &gone.buses {
+            let l = [b.as_str()];
+            let _ = self.bus_transactions.remove_label_values(&l);
+            let _ = self.bus_reconnects.remove_label_values(&l);
+            let _ = self.bus_line_faults.remove_label_values(&l);
+            let _ = self.bus_busy.remove_label_values(&l);
+            let _ = self.bus_utilisation.remove_label_values(&l);
+        }
+    }
+
     pub fn register(r: &Registry) -> Families {
         Families {
             channel_pulses: family!(r, IntCounterVec, CHANNEL_PULSES, CHANNEL),
@@ -205,6 +249,7 @@ impl Families {
             spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
             spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
             spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
+            spool_fallback: family!(r, IntGauge, SPOOL_FALLBACK),
             spool_written: family!(r, IntCounter, SPOOL_WRITTEN),
             chatter_messages: family!(r, IntGauge, CHATTER_MESSAGES),
             chatter_dropped: family!(r, IntCounter, CHATTER_DROPPED),

@@ -213,3 +213,61 @@ fn metrics_that_are_off_record_nothing_and_expose_nothing() {
     m.mqtt(true, 1, 2, 3);
     assert_eq!(m.encode(), "");
 }
+
+fn config(text: &str) -> Config {
+    Config::from_toml(
+        text,
+        std::path::Path::new("/etc/pulsegate.toml"),
+        Some(Default::default()),
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_reload_forgets_every_series_of_a_device_channel_or_bus_that_is_gone() {
+    let before = config(
+        "[buses.line1]\nport = \"/dev/ttyUSB0\"\n\
+         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m3]\nunit = 3\nmodel = \"yl67\"\n\
+         [buses.line2]\nport = \"/dev/ttyUSB1\"\n\
+         [buses.line2.devices.m9]\nunit = 9\nmodel = \"yl67\"\n",
+    );
+    let m = Metrics::new();
+    let mut handles = Vec::new();
+    for (bus, device) in [("line1", "m1"), ("line1", "m3"), ("line2", "m9")] {
+        let b = m.bus(bus);
+        b.utilisation(0.5);
+        let mut d = b.device(device);
+        d.up(Some(true));
+        d.latency(Duration::from_millis(30));
+        d.reading(&reading(device, "a0", 5, 1.0, false));
+        d.reading(&reading(device, "gone0", 5, 1.0, false));
+        handles.push(d);
+    }
+    m.retain(&before);
+    let text = m.encode();
+    assert!(
+        !text.contains("gone0"),
+        "a channel the model does not have:\n{text}"
+    );
+    assert!(text.contains("device=\"m3\""));
+
+    let after = config(
+        "[buses.line1]\nport = \"/dev/ttyUSB0\"\n\
+         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m1.channels.a1]\nenabled = false\n",
+    );
+    let mut m1 = m.bus("line1").device("m1");
+    m1.reading(&reading("m1", "a1", 5, 1.0, false));
+    m.retain(&after);
+    let text = m.encode();
+    for gone in ["\"m3\"", "\"m9\"", "\"line2\"", "\"a1\""] {
+        assert!(!text.contains(gone), "{gone} is still exported:\n{text}");
+    }
+    assert!(
+        text.contains("pulsegate_device_up{bus=\"line1\",device=\"m1\"} 1")
+            && text.contains("channel=\"a0\",device=\"m1\"")
+            && text.contains("{bus=\"line1\"}"),
+        "what stays is kept:\n{text}"
+    );
+}

@@ -13,6 +13,7 @@ pub mod poller;
 pub mod session;
 pub mod sparkplug;
 pub mod spool;
+pub mod spool_place;
 pub mod tls;
 pub mod topics;
 pub mod units;

@@ -285,7 +285,12 @@ async fn start(task: &Task) -> Option<(Options, Spool)> {
             return None;
         }
     };
-    let spool = open_spool(task.spool_dir.clone(), task.config.spool_bytes).await?;
+    let spool = open_spool(
+        task.spool_dir.clone(),
+        task.config.spool_bytes,
+        &task.metrics,
+    )
+    .await?;
     if !spool.is_empty() {
         tracing::info!(
             messages = spool.len(),
@@ -296,19 +301,14 @@ async fn start(task: &Task) -> Option<(Options, Spool)> {
 }
 
 /// Opens the spool off the runtime thread (a large one left by the last run must not hold up
-/// the buses); a temporary directory when its own cannot be used.
-async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
-    let opened = tokio::task::spawn_blocking(move || match Spool::open(&dir, bytes) {
-        Ok(s) => Ok(s),
-        Err(e) => {
-            tracing::error!("{e}; spooling in a temporary directory instead");
-            let dir = std::env::temp_dir().join(format!("pulsegate-spool-{}", std::process::id()));
-            Spool::open(&dir, bytes)
-        }
-    })
-    .await;
+/// the buses); a fresh private directory when its own cannot be used (see `spool_place`).
+async fn open_spool(dir: PathBuf, bytes: u64, metrics: &crate::metrics::Metrics) -> Option<Spool> {
+    let opened = tokio::task::spawn_blocking(move || super::spool_place::open(&dir, bytes)).await;
     match opened {
-        Ok(Ok(s)) => Some(s),
+        Ok(Ok(o)) => {
+            metrics.spool_fallback(o.fallback.is_some());
+            Some(o.spool)
+        }
         Ok(Err(e)) => {
             tracing::error!("{e}; no spool at all: stopping");
             None
@@ -486,6 +486,7 @@ impl Publisher<'_> {
                     tracing::info!(broker = %self.link.broker, "connected to MQTT broker");
                 }
                 self.watch.up = Some(true);
+                self.task.heart.set_problem(None);
                 s.on_connack(max_packet, &self.link, &mut self.stage);
                 self.pump();
                 // Health (the systemd status, the ready line) says so now, not at the next beat.
@@ -539,6 +540,9 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
+        if matches!(why, Failure::ProtocolRefused) {
+            self.task.heart.set_problem(Some(why.to_string()));
+        }
         let eventloop = self.shell.on_lost(&self.link.options, &mut self.stage);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
         self.settle(Instant::now());
@@ -666,6 +670,8 @@ struct Watch {
     takeover_log: crate::admission::LogBudget,
     /// Wait before the next attempt after a failure.
     pause: Duration,
+    /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
+    protocol_named: bool,
 }
 
 impl Watch {
@@ -677,6 +683,7 @@ impl Watch {
             takeovers: 0,
             takeover_log: crate::admission::LogBudget::new(1),
             pause: Duration::from_secs(1),
+            protocol_named: false,
         }
     }
 
@@ -712,6 +719,10 @@ impl Watch {
                 tracing::error!(client_id = %link.client_id, takeovers = self.takeovers, "the broker dropped this connection because another client connected with the same client id: is a second gateway using mqtt.client_id {:?}? Both would receive each other's commands", link.client_id);
             }
             self.pause = (self.pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
+        } else if matches!(e, Failure::ProtocolRefused) {
+            if !std::mem::replace(&mut self.protocol_named, true) {
+                tracing::error!(broker = %link.broker, "MQTT broker refused the connection: {e}");
+            }
         } else if self.up != Some(false) {
             tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
         }

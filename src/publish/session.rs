@@ -248,14 +248,21 @@ pub enum Failure {
     RequestsDone,
     /// Another client connected with our client id (v5 says so; 3.1.1 just closes).
     TakenOver,
+    /// The broker refused the protocol version we asked for (an MQTT 3.1.1 broker asked for
+    /// v5, in the v5 form, reason 0x84, or the 3.1.1 form, return code 1).
+    ProtocolRefused,
     Other(String),
 }
+
+/// What the log and the systemd status say when the broker refuses MQTT 5.
+pub const PROTOCOL_REFUSED: &str = "the broker refuses MQTT 5 (CONNACK: unacceptable protocol version): it speaks MQTT 3.1.1 only; set mqtt.protocol = \"3.1.1\" in the config";
 
 impl std::fmt::Display for Failure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Failure::RequestsDone => f.write_str("client closed"),
             Failure::TakenOver => f.write_str("session taken over by another client"),
+            Failure::ProtocolRefused => f.write_str(PROTOCOL_REFUSED),
             Failure::Other(m) => f.write_str(m),
         }
     }
@@ -335,6 +342,10 @@ fn v5_failure(e: v5::ConnectionError) -> Failure {
             reason_code: DisconnectReasonCode::SessionTakenOver,
             ..
         }) => Failure::TakenOver,
+        v5::ConnectionError::ConnectionRefused(
+            v5::mqttbytes::v5::ConnectReturnCode::UnsupportedProtocolVersion
+            | v5::mqttbytes::v5::ConnectReturnCode::RefusedProtocolVersion,
+        ) => Failure::ProtocolRefused,
         other => Failure::Other(other.to_string()),
     }
 }
@@ -349,6 +360,31 @@ fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_refusal_of_mqtt_5_in_either_form_is_named_as_such() {
+        use v5::mqttbytes::v5::{ConnectReturnCode, Packet};
+        // A 3.1.1 broker's CONNACK (no properties), return code 1, read by the v5 client.
+        let mut bytes = bytes::BytesMut::from(&[0x20u8, 0x02, 0x00, 0x01][..]);
+        let Ok(Packet::ConnAck(ack)) = Packet::read(&mut bytes, None) else {
+            panic!("a 3.1.1 CONNACK is read, not awaited");
+        };
+        assert_eq!(ack.code, ConnectReturnCode::RefusedProtocolVersion);
+        for code in [
+            ConnectReturnCode::RefusedProtocolVersion,
+            ConnectReturnCode::UnsupportedProtocolVersion,
+        ] {
+            let failure = v5_failure(v5::ConnectionError::ConnectionRefused(code));
+            assert!(matches!(failure, Failure::ProtocolRefused));
+            assert!(failure.to_string().contains("mqtt.protocol = \"3.1.1\""));
+        }
+        assert!(matches!(
+            v5_failure(v5::ConnectionError::ConnectionRefused(
+                ConnectReturnCode::NotAuthorized
+            )),
+            Failure::Other(_)
+        ));
+    }
 
     fn settings(protocol: MqttProtocol) -> Settings<'static> {
         Settings {

@@ -154,6 +154,16 @@ pub struct Spool {
     syncer: Syncer,
 }
 
+impl SpoolError {
+    /// A failure at `path`.
+    pub fn new(path: &Path, source: std::io::Error) -> SpoolError {
+        SpoolError {
+            path: path.display().to_string(),
+            source,
+        }
+    }
+}
+
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SpoolError + '_ {
     move |source| SpoolError {
         path: path.display().to_string(),

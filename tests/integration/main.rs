@@ -9,6 +9,8 @@ mod commission;
 mod config_cases;
 mod counters;
 mod dashboards;
+mod edges;
+mod edges_local;
 mod faults;
 mod format_seam;
 mod hostile;
