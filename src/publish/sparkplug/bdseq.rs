@@ -45,6 +45,9 @@ impl BdSeq {
     }
 
     fn save(&self) -> std::io::Result<()> {
+        if let Some(dir) = self.path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
         let tmp = self.path.with_extension("tmp");
         std::fs::write(&tmp, format!("{}\n", self.next))?;
         std::fs::File::open(&tmp)?.sync_all()?;
