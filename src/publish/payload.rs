@@ -93,7 +93,7 @@ pub fn interval(i: &IntervalRecord) -> String {
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
-fn round3(v: f64) -> f64 {
+pub(crate) fn round3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
 }
 

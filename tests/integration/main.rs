@@ -22,4 +22,5 @@ mod plants;
 mod protocol;
 mod readings_first;
 mod service;
+mod sparkplug;
 mod support;
