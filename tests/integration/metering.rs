@@ -369,6 +369,48 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
         writes_before,
         "still nothing written to the module"
     );
+    // Hostile values are refused by name, and write nothing either.
+    for (payload, code) in [
+        (
+            r#"{"op":"set_reading","value":"12,5","id":"h1"}"#,
+            "bad_value",
+        ),
+        (
+            r#"{"op":"set_reading","value":"0.000000000000000000000000000000000001e-18","id":"h2"}"#,
+            "bad_value",
+        ),
+        (r#"{"op":"set_reading","id":"h3"}"#, "missing_value"),
+    ] {
+        sub.client
+            .publish(
+                format!("{topic}/cmd"),
+                rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
+                false,
+                payload,
+            )
+            .await
+            .unwrap();
+        let id = serde_json::from_str::<Value>(payload).unwrap()["id"].clone();
+        let result = sub
+            .wait_for(
+                &format!("{topic}/cmd/result"),
+                Duration::from_secs(5),
+                |m| m.json()["id"] == id,
+            )
+            .await
+            .expect("a result")
+            .json();
+        assert_eq!(
+            (result["ok"].clone(), result["error"].clone()),
+            (false.into(), code.into()),
+            "{result}"
+        );
+    }
+    assert_eq!(
+        writes(),
+        writes_before,
+        "nothing written for a refused value"
+    );
     // A channel without a scale has no reading to set.
     let out = std::process::Command::new(bin())
         .args(["set-reading", "--config"])
