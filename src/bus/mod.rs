@@ -14,6 +14,7 @@ mod run;
 mod saver;
 pub mod schedule;
 mod serial;
+pub mod sizing;
 pub mod stats;
 pub mod survey;
 mod timer;

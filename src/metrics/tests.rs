@@ -190,3 +190,22 @@ fn metrics_that_are_off_record_nothing_and_expose_nothing() {
     m.mqtt(true, 1, 2, 3);
     assert_eq!(m.encode(), "");
 }
+
+#[test]
+fn a_devices_request_size_shows_the_limit_and_the_requests_of_a_poll() {
+    let m = Metrics::new();
+    let d = m.bus("line1").device("doors");
+    d.request_size(125, 2);
+    let text = m.encode();
+    assert!(
+        text.contains(
+            "pulsegate_device_request_limit_registers{bus=\"line1\",device=\"doors\"} 125"
+        )
+    );
+    assert!(text.contains("pulsegate_device_requests_per_poll{bus=\"line1\",device=\"doors\"} 2"));
+    d.request_size(1, 48);
+    let text = m.encode();
+    assert!(
+        text.contains("pulsegate_device_request_limit_registers{bus=\"line1\",device=\"doors\"} 1")
+    );
+}
