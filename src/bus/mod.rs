@@ -10,6 +10,7 @@ mod identity;
 mod ledger;
 pub mod link;
 pub mod modbus;
+mod retry;
 mod run;
 mod saver;
 pub mod schedule;

@@ -14,8 +14,9 @@ use super::device::{At, ChannelRt, DeviceRt, ProtocolError};
 use super::driver::DeviceState;
 use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
+use super::retry::{Lost, NOISE_RETRIES, Next, Tries};
 use super::run::RunState;
-use super::sizing::{Change, Sizing};
+use super::sizing::{Change, Prices, Sizing};
 use super::stats::RequestSize;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, Direction};
@@ -54,22 +55,6 @@ impl From<LinkError> for PollError {
     fn from(e: LinkError) -> PollError {
         PollError::Protocol(ModbusError::Link(e))
     }
-}
-
-/// Times a read is asked again after noise (timeout, garbled, mismatch), when the device's
-/// availability says it is worth it ([`Availability::worth_retrying`]).
-///
-/// [`Availability::worth_retrying`]: super::availability::Availability::worth_retrying
-const NOISE_RETRIES: u32 = 2;
-
-/// What a read of several blocks does with a block lost to the line (after its retries).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Lost {
-    /// The whole read fails: its values belong together (work modes, identity, windows).
-    FailsAll,
-    /// The block is left out and the others are read: the count poll, whose channels are each
-    /// published whole or not at all.
-    LeftOut,
 }
 
 /// Registers read in one poll, by block.
@@ -556,7 +541,8 @@ impl DeviceRt<ModbusDevice> {
         let mut out = Vec::with_capacity(blocks.len());
         let mut left_out: Vec<Block> = Vec::new();
         let mut last_loss = None;
-        let (mut i, mut retries) = (0, 0);
+        let mut tries = Tries::new(lost);
+        let mut i = 0;
         while i < blocks.len() {
             if preempt() {
                 return Err(PollError::Preempted);
@@ -565,37 +551,35 @@ impl DeviceRt<ModbusDevice> {
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
             let answer = match link.read(self.proto.unit, b.start, b.len, timeout).await {
-                // A device that lost one request or answer to noise is asked again: on a noisy
-                // line a corrupted request gets no answer at all, and three of those in a row
-                // must not make a healthy device offline. An offline device that stays silent
-                // is not asked twice (a dead one costs the others one timeout per probe).
-                // Asked again in shorter reads when the line has shortened them.
+                // Asked again (see `retry`), in shorter reads when the line shortened them.
                 Err(e) if e.is_noise() => {
-                    let shortened =
-                        self.resize(|s| s.lost(b.len)) && b.len > self.proto.sizing.limit();
-                    if self.asks_again(&e, retries) {
-                        retries += 1;
-                        if shortened {
+                    let shortened = self.resize(link, |s, p| s.lost(b.len, p))
+                        && b.len > self.proto.sizing.limit();
+                    let heard = e.device_answered();
+                    match tries.lost(heard, self.availability.worth_retrying(heard)) {
+                        Next::Again if shortened => {
                             blocks.truncate(i);
                             blocks.extend(self.plan_rest(regs, &out, &left_out));
                         }
-                        continue;
+                        Next::Again => {}
+                        Next::LeaveOut => {
+                            left_out.push(b);
+                            last_loss = Some(e);
+                            i += 1;
+                        }
+                        Next::Stop if lost == Lost::FailsAll || out.is_empty() => {
+                            return Err(e.into());
+                        }
+                        Next::Stop => break,
                     }
-                    if lost == Lost::FailsAll {
-                        return Err(e.into());
-                    }
-                    left_out.push(b);
-                    last_loss = Some(e);
-                    retries = 0;
-                    i += 1;
                     continue;
                 }
                 other => other?,
             };
-            retries = 0;
+            tries.answered();
             match answer {
                 Ok(words) => {
-                    self.resize(|s| s.answered(b.len));
+                    self.resize(link, |s, p| s.answered(b.len, p));
                     let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
                     self.record_latency(latency, link, b.len);
                     out.push((b, words, At::now()));
@@ -646,12 +630,23 @@ impl DeviceRt<ModbusDevice> {
         )
     }
 
-    /// Tells the device's [`Sizing`] what a read did; `true` when it shortened reads. A change
-    /// from or back to full length is logged; the steps between are debug (a noisy line moves
-    /// them often).
-    fn resize(&mut self, event: impl FnOnce(&mut Sizing) -> Option<Change>) -> bool {
+    /// Tells the device's [`Sizing`] what a read did, on an RTU line (TCP carries no broken
+    /// characters); `true` when it shortened reads. A change from or back to full length is
+    /// logged; the steps between are debug (a noisy line moves them often).
+    fn resize(
+        &mut self,
+        link: &Link,
+        event: impl FnOnce(&mut Sizing, &Prices) -> Option<Change>,
+    ) -> bool {
+        let Some(timing) = link.timing_for(self.proto.unit) else {
+            return false;
+        };
+        let prices = Prices {
+            overhead: self.proto.wire.request_overhead,
+            loss: self.proto.answer_timeout.as_secs_f64() / timing.char_time().as_secs_f64(),
+        };
         let was_full = self.proto.sizing.is_full();
-        let change = event(&mut self.proto.sizing);
+        let change = event(&mut self.proto.sizing, &prices);
         let limit = self.proto.sizing.limit();
         match change {
             Some(Change::Shortened(_)) if was_full => {
