@@ -6,13 +6,19 @@
 //! costs the other devices on the bus three timeouts a poll, no more. A read whose blocks may
 //! arrive apart (the count poll: each channel published whole or not at all) asks a block more
 //! often before leaving it out, since a block given up wastes the blocks of the same channels
-//! that did arrive.
+//! that did arrive; and once the device has been heard in it, the read ends only after
+//! [`SILENT_HEARD`] silent reads in a row (on a line that loses a request in four, three in a
+//! row come every few dozen reads, and would cut most polls short).
 
 /// Times a block is asked again after noise when the read fails as a whole.
 pub const NOISE_RETRIES: u32 = 2;
 
 /// Times a block is asked again after noise when the read can leave it out.
 pub const PARTIAL_RETRIES: u32 = 7;
+
+/// Silent reads in a row that end a read that can leave blocks out, once the device was heard
+/// in it.
+pub const SILENT_HEARD: u32 = 6;
 
 /// What a read of several blocks does with a block lost to the line (after its retries).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,6 +48,8 @@ pub struct Tries {
     retries: u32,
     /// Reads in a row that heard nothing at all.
     silent: u32,
+    /// The device said something in this read (an answer, a refusal, a garbled answer).
+    heard: bool,
 }
 
 impl Tries {
@@ -50,6 +58,7 @@ impl Tries {
             lost,
             retries: 0,
             silent: 0,
+            heard: false,
         }
     }
 
@@ -57,6 +66,7 @@ impl Tries {
     pub fn answered(&mut self) {
         self.retries = 0;
         self.silent = 0;
+        self.heard = true;
     }
 
     /// A block was lost; `heard`: some of an answer came (garbled); `worth`: the device's
@@ -64,7 +74,12 @@ impl Tries {
     /// asked twice).
     pub fn lost(&mut self, heard: bool, worth: bool) -> Next {
         self.silent = if heard { 0 } else { self.silent + 1 };
-        if self.silent > NOISE_RETRIES {
+        self.heard |= heard;
+        let silence = match self.lost {
+            Lost::LeftOut if self.heard => SILENT_HEARD,
+            _ => NOISE_RETRIES + 1,
+        };
+        if self.silent >= silence {
             return Next::Stop;
         }
         let budget = match self.lost {
@@ -118,6 +133,22 @@ mod tests {
         let mut t = Tries::new(Lost::LeftOut);
         assert_eq!(t.lost(false, true), Next::Again);
         assert_eq!(t.lost(false, true), Next::Again);
+        assert_eq!(t.lost(false, true), Next::Stop);
+    }
+
+    #[test]
+    fn once_the_device_was_heard_the_count_poll_takes_six_silent_reads_to_end() {
+        let mut t = Tries::new(Lost::LeftOut);
+        t.answered();
+        for _ in 1..SILENT_HEARD {
+            assert_ne!(t.lost(false, true), Next::Stop);
+        }
+        assert_eq!(t.lost(false, true), Next::Stop);
+        // A read that fails as a whole ends at three, heard or not.
+        let mut t = Tries::new(Lost::FailsAll);
+        t.answered();
+        t.lost(false, true);
+        t.lost(false, true);
         assert_eq!(t.lost(false, true), Next::Stop);
     }
 

@@ -12,8 +12,8 @@
 
 use crate::plan::{MAX_READ, read_chars};
 
-/// Reads the estimate remembers (their weight halves about every 22 reads).
-const MEMORY: f64 = 32.0;
+/// Reads the estimate remembers (their weight halves about every 11 reads).
+const MEMORY: f64 = 16.0;
 
 /// The lengths the limit takes, shortest first.
 const LENGTHS: [u16; 8] = [1, 2, 4, 8, 16, 32, 64, MAX_READ];

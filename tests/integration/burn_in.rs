@@ -152,15 +152,18 @@ fn noisy_channels() -> Vec<(&'static str, u8, String, f64)> {
     out
 }
 
-/// The last bus stats of `line1` that satisfy `f`, waiting up to `within`.
+/// Bus stats of `line1` that arrived after `after` and satisfy `f`, waiting up to `within`.
 async fn stats_where(
     sub: &Subscriber,
+    after: Instant,
     within: Duration,
     f: impl Fn(&serde_json::Value) -> bool,
 ) -> Option<serde_json::Value> {
-    sub.wait_for("pulsegate/test/bus/line1/stats", within, |m| f(&m.json()))
-        .await
-        .map(|m| m.json())
+    sub.wait_for("pulsegate/test/bus/line1/stats", within, |m| {
+        m.at > after && f(&m.json())
+    })
+    .await
+    .map(|m| m.json())
 }
 
 /// 3% dropped and 1% corrupted bytes (seeded, even noise) at 19200 baud for 40 s: a module whose
@@ -197,7 +200,7 @@ async fn a_noisy_line_shortens_reads_publishes_every_channel_exactly_and_grows_t
     // Clean: every poll in full blocks (the ZH-YX1600: its 16 command words and a 64-register
     // block of counts and windows).
     let full = |s: &serde_json::Value, d: &str| s["devices"][d]["request_limit"] == 125;
-    let clean = stats_where(&sub, Duration::from_secs(30), |s| {
+    let clean = stats_where(&sub, Instant::now(), Duration::from_secs(30), |s| {
         ["a", "b", "c"].iter().all(|d| full(s, d)) && s["devices"]["c"]["longest_request"] == 64
     })
     .await
@@ -207,7 +210,7 @@ async fn a_noisy_line_shortens_reads_publishes_every_channel_exactly_and_grows_t
 
     line().set_noisy(true);
     let noisy = Instant::now();
-    let shortened = stats_where(&sub, soak(), |s| {
+    let shortened = stats_where(&sub, noisy, soak(), |s| {
         s["devices"]["c"]["request_limit"].as_u64() < Some(64)
     })
     .await
@@ -278,7 +281,7 @@ async fn a_noisy_line_shortens_reads_publishes_every_channel_exactly_and_grows_t
     }
 
     // The reads grow back to the full block within a minute, and the line use with them.
-    let grown = stats_where(&sub, Duration::from_secs(60), |s| {
+    let grown = stats_where(&sub, quiet, Duration::from_secs(60), |s| {
         ["a", "b", "c"].iter().all(|d| full(s, d))
             && s["devices"]["c"]["longest_request"] == 64
             && s["devices"]["c"]["requests_per_poll"] == clean_requests
