@@ -58,6 +58,11 @@ pub enum Output {
         correlation: Option<bytes::Bytes>,
         payload: serde_json::Value,
     },
+    /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
+    ScanProgress {
+        topic: String,
+        progress: Box<crate::bus::survey::ScanProgress>,
+    },
     /// A state save of the bus is starting: it records the seq of every reading sent before
     /// this, so those go to the broker now, not at the end of a batch (`mqtt.batch`). After a
     /// crash the next run's first readings count from the saved seqs (`after_seq`): a reading

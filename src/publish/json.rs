@@ -77,6 +77,10 @@ impl Format for Json {
                 }
                 out
             }
+            Output::ScanProgress { topic, progress } => {
+                let body = serde_json::to_string(&**progress).unwrap_or_default();
+                vec![Message::new(topic.clone(), body, 1, false)]
+            }
             Output::Checkpoint => Vec::new(),
         }
     }
