@@ -4,7 +4,9 @@
 //! the gateway neither memory nor the line time the polls need.
 
 use std::collections::HashMap;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
 
 use crate::command::CommandError;
 

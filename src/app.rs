@@ -32,6 +32,7 @@ pub async fn run_with_reloads(
     shutdown: CancellationToken,
     mut reloads: UnboundedReceiver<Config>,
 ) {
+    let _state_lock = claim_state_dir(&config.gateway.state_dir).await;
     let health = Arc::new(Health::default());
     let (out_tx, out_rx) = unbounded_channel();
     let (incoming_tx, incoming_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
@@ -113,6 +114,30 @@ pub async fn run_with_reloads(
     let _ = supervisor.await;
     if let Some(e) = endpoint {
         let _ = e.await;
+    }
+}
+
+/// Holds the state directory for the run (see [`crate::state_lock`]), so `pulsegate state prune
+/// --apply` refuses while the gateway runs. A directory that cannot be locked is logged, and the
+/// gateway runs on: polling matters more than the tool's guard.
+async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state_lock::StateLock> {
+    let dir = dir.to_path_buf();
+    let taken = tokio::task::spawn_blocking(move || crate::state_lock::StateLock::take(&dir)).await;
+    match taken {
+        Ok(Ok(lock)) => Some(lock),
+        Ok(Err(e @ crate::state_lock::LockError::Held { .. })) => {
+            tracing::error!(
+                "{e}: two gateways on one state directory overwrite each other's counter state; give each its own gateway.state_dir"
+            );
+            None
+        }
+        Ok(Err(e)) => {
+            tracing::warn!(
+                "{e}; `pulsegate state prune --apply` cannot tell that this gateway runs"
+            );
+            None
+        }
+        Err(_) => None,
     }
 }
 
@@ -232,6 +257,7 @@ async fn apply(
     }
     let devices: Vec<String> = new.devices().map(|(_, d)| d.name.clone()).collect();
     health.retain_devices(&devices);
+    metrics.retain(&new);
     tracing::info!(unchanged = kept, buses = new.buses.len(), "config reloaded");
     let gateway = current.gateway.clone();
     let mqtt = current.mqtt.clone();

@@ -5,7 +5,11 @@
 //! Nothing here writes to a module: a request reaches a bus only after every check passed.
 
 use std::collections::{HashMap, VecDeque};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use crate::outcome::CommandOutcome;
 
 use serde_json::{Map, Value, json};
 
@@ -271,7 +275,7 @@ type Key = (String, String);
 /// Recently seen command ids (per topic) and their results, bounded in entries and bytes.
 #[derive(Debug, Default)]
 pub struct Dedupe {
-    seen: HashMap<Key, (Instant, Option<Value>, usize)>,
+    seen: HashMap<Key, (Instant, Option<CommandOutcome>, usize)>,
     /// Keys in the order they were first seen (the oldest is evicted first).
     order: VecDeque<(Key, Instant)>,
     bytes: usize,
@@ -283,7 +287,7 @@ pub enum Seen {
     /// New: go ahead.
     New,
     /// Answered before: send this result again, write nothing.
-    Answered(Value),
+    Answered(CommandOutcome),
     /// Still being carried out: its result will come; write nothing.
     InFlight,
 }
@@ -329,9 +333,9 @@ impl Dedupe {
     }
 
     /// Stores the result of a command so a repeat is answered with it.
-    pub fn answered(&mut self, topic: &str, id: &str, result: Value) {
+    pub fn answered(&mut self, topic: &str, id: &str, result: CommandOutcome) {
         if let Some(entry) = self.seen.get_mut(&(topic.to_string(), id.to_string())) {
-            let extra = result.to_string().len();
+            let extra = result.id.as_ref().map_or(0, String::len) + 128;
             self.bytes += extra;
             entry.2 += extra;
             entry.1 = Some(result);
@@ -435,16 +439,24 @@ mod tests {
         assert_eq!(v, json!({"id":"a","op":"preset","ok":true,"count":3000}));
     }
 
+    fn ok() -> CommandOutcome {
+        CommandOutcome {
+            id: Some("1".into()),
+            op: Some("clear".into()),
+            result: Ok(None),
+        }
+    }
+
     #[test]
     fn the_same_id_within_ten_minutes_is_answered_again_without_a_write() {
         let mut d = Dedupe::default();
         let t0 = Instant::now();
         assert_eq!(d.check("t", "1", t0), Seen::New);
         assert_eq!(d.check("t", "1", t0), Seen::InFlight);
-        d.answered("t", "1", json!({"ok":true}));
+        d.answered("t", "1", ok());
         assert_eq!(
             d.check("t", "1", t0 + Duration::from_secs(599)),
-            Seen::Answered(json!({"ok":true}))
+            Seen::Answered(ok())
         );
         assert_eq!(d.check("t", "1", t0 + Duration::from_secs(601)), Seen::New);
         assert_eq!(d.check("other", "1", t0), Seen::New);

@@ -223,6 +223,54 @@ async fn live_table(host: String, port: u16, root: String, shutdown: Cancellatio
     }
 }
 
+/// The rows of the table: readings only (no statuses, bus stats, the boot marker `gateway`,
+/// commands or their results), channels in natural order (di2 before di10).
+fn reading_rows(latest: &BTreeMap<String, String>) -> Vec<(&str, &str)> {
+    let mut rows: Vec<(&str, &str)> = latest
+        .iter()
+        .filter(|(topic, _)| {
+            let last = topic.rsplit('/').next().unwrap_or_default();
+            // `gateway` is the boot marker, `status` the gateway's availability.
+            !matches!(topic.as_str(), "gateway" | "status")
+                && !topic.starts_with("bus/")
+                && !matches!(last, "status" | "cmd" | "result" | "scan")
+        })
+        .map(|(t, b)| (t.as_str(), b.as_str()))
+        .collect();
+    rows.sort_by(|a, b| natural_cmp(a.0, b.0));
+    rows
+}
+
+/// Text with its runs of digits compared as numbers: `di2` < `di10`.
+fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
+    fn parts(s: &str) -> Vec<(bool, &str)> {
+        let mut out = Vec::new();
+        let mut start = 0;
+        let bytes = s.as_bytes();
+        for i in 1..=bytes.len() {
+            if i == bytes.len() || bytes[i].is_ascii_digit() != bytes[start].is_ascii_digit() {
+                out.push((bytes[start].is_ascii_digit(), &s[start..i]));
+                start = i;
+            }
+        }
+        out
+    }
+    let (pa, pb) = (parts(a), parts(b));
+    for (x, y) in pa.iter().zip(&pb) {
+        let ord = match (x, y) {
+            ((true, x), (true, y)) => {
+                let (x, y) = (x.trim_start_matches('0'), y.trim_start_matches('0'));
+                x.len().cmp(&y.len()).then_with(|| x.cmp(y))
+            }
+            ((_, x), (_, y)) => x.cmp(y),
+        };
+        if ord.is_ne() {
+            return ord;
+        }
+    }
+    pa.len().cmp(&pb.len()).then_with(|| a.cmp(b))
+}
+
 fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
     let mut out = String::new();
     if tty {
@@ -233,10 +281,7 @@ fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
         "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
         "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event"
     );
-    for (topic, body) in latest {
-        if topic.ends_with("/status") || topic.starts_with("bus/") || topic == "status" {
-            continue;
-        }
+    for (topic, body) in reading_rows(latest) {
         let v: serde_json::Value = serde_json::from_str(body).unwrap_or_default();
         let f = |k: &str| v.get(k).map(|x| x.to_string()).unwrap_or_default();
         out += &format!(
@@ -260,4 +305,54 @@ fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
     let mut stdout = std::io::stdout();
     let _ = stdout.write_all(out.as_bytes());
     let _ = stdout.flush();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_lists_readings_in_natural_order_and_no_gateway_marker_row() {
+        let mut latest = BTreeMap::new();
+        for topic in [
+            "gateway",
+            "status",
+            "io/status",
+            "bus/line1/stats",
+            "io/di10",
+            "io/di2",
+            "io/di1",
+            "io/di16",
+            "io/di3",
+            "io/cmd/result",
+            "io/di1/cmd",
+            "meter/enc0",
+            "meter/enc1",
+        ] {
+            latest.insert(topic.to_string(), "{}".to_string());
+        }
+        let rows: Vec<&str> = reading_rows(&latest).into_iter().map(|r| r.0).collect();
+        assert_eq!(
+            rows,
+            [
+                "io/di1",
+                "io/di2",
+                "io/di3",
+                "io/di10",
+                "io/di16",
+                "meter/enc0",
+                "meter/enc1"
+            ]
+        );
+    }
+
+    #[test]
+    fn natural_order_compares_digit_runs_as_numbers() {
+        use std::cmp::Ordering::*;
+        assert_eq!(natural_cmp("di2", "di10"), Less);
+        assert_eq!(natural_cmp("di10", "di9"), Greater);
+        assert_eq!(natural_cmp("a/x2", "a/x02"), Greater, "ties broken as text");
+        assert_eq!(natural_cmp("enc0", "enc0"), Equal);
+        assert_eq!(natural_cmp("", "a"), Less);
+    }
 }

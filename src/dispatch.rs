@@ -16,6 +16,8 @@ use crate::bus::BusCommand;
 use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
+use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
+use crate::publish::topics::ResponseRule;
 use crate::reading::Output;
 
 fn targets_of(
@@ -27,6 +29,9 @@ fn targets_of(
         .filter_map(|(bus, d)| {
             let target = Target {
                 bus: buses.get(&bus.name)?.clone(),
+                bus_name: bus.name.clone(),
+                unit: d.unit,
+                scanned: d.commands,
                 commands: d.commands && d.enabled && bus.enabled,
                 channels: d
                     .profile
@@ -53,6 +58,11 @@ pub struct Incoming {
 /// Where a device's commands go.
 pub struct Target {
     bus: UnboundedSender<BusCommand>,
+    bus_name: String,
+    unit: u8,
+    /// `commands = false` also keeps the device out of scans over MQTT: its unit is neither
+    /// asked nor named in the result.
+    scanned: bool,
     commands: bool,
     channels: BTreeSet<String>,
 }
@@ -73,6 +83,8 @@ pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender
 /// The command router of a gateway.
 pub struct Router {
     root: String,
+    /// Where a response topic may point (see [`ResponseRule`]).
+    responses: ResponseRule,
     targets: Targets,
     out: UnboundedSender<Output>,
     dedupe: Arc<Mutex<Dedupe>>,
@@ -94,6 +106,7 @@ impl Router {
     ) -> Router {
         Router {
             root: config.mqtt.topic_root.clone(),
+            responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
@@ -114,12 +127,15 @@ impl Router {
             topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        let refuse = |reply: &Reply, error: &str, message: String| {
+        let refuse = |reply: &Reply, code: &'static str, message: String| {
             self.warn(&msg.topic, &format!("scan refused: {message}"));
-            self.send(
-                reply,
-                serde_json::json!({"bus": bus, "error": error, "message": message}),
-            );
+            let refused = ScanOutcome::Refused {
+                bus: bus.to_string(),
+                id: None,
+                code,
+                message,
+            };
+            self.send(reply, Outcome::Scan(refused));
         };
         // The same checks as for commands: nothing unsendable reaches the spool.
         if msg.payload.len() > command::MAX_PAYLOAD {
@@ -132,16 +148,23 @@ impl Router {
             return refuse(&reply, "too_large", "correlation data too long".into());
         }
         if let Some(rt) = &msg.response_topic {
-            if let Err(e) = command::check_response_topic(rt) {
+            if let Err(e) = check_response_topic(&self.responses, rt) {
                 return refuse(&reply, e.code(), e.to_string());
             }
             reply.topics.push(rt.clone());
             reply.correlation = msg.correlation.clone();
         }
-        let (units, id) = match survey::parse_scan_payload(&msg.payload) {
+        let (mut units, id) = match survey::parse_scan_payload(&msg.payload) {
             Ok(p) => p,
             Err(e) => return refuse(&reply, "bad_payload", e),
         };
+        let targets = self.targets.read().unwrap_or_else(|e| e.into_inner());
+        units.retain(|u| {
+            !targets
+                .values()
+                .any(|t| !t.scanned && t.bus_name == bus && t.unit == *u)
+        });
+        drop(targets);
         let scans = self.scans.read().unwrap_or_else(|e| e.into_inner());
         let Some(tx) = scans.get(bus) else {
             return refuse(&reply, "unknown_bus", format!("no bus {bus:?}"));
@@ -197,7 +220,7 @@ impl Router {
             topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
-        if let Err(e) = reply_to(&msg, &mut reply) {
+        if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {
             return self.refuse(&msg.topic, &reply, None, None, e);
         }
         let parsed = match command::parse_payload(&msg.payload, channel.is_some()) {
@@ -224,14 +247,14 @@ impl Router {
             });
         }
         if let Some(id) = id {
-            let seen = lock(&self.dedupe).check(&msg.topic, id, std::time::Instant::now());
+            let seen = lock(&self.dedupe).check(&msg.topic, id, Instant::now());
             match seen {
                 Seen::New => {}
                 Seen::InFlight => return,
-                Seen::Answered(result) => return self.send(&reply, result),
+                Seen::Answered(result) => return self.send(&reply, Outcome::Command(result)),
             }
         }
-        if let Err(e) = lock(&self.admission).admit(device, std::time::Instant::now()) {
+        if let Err(e) = lock(&self.admission).admit(device, Instant::now()) {
             if let Some(id) = id {
                 lock(&self.dedupe).forget(&msg.topic, id);
             }
@@ -283,14 +306,18 @@ impl Router {
                 .await
                 .unwrap_or_else(|_| Err(CommandError::Offline("gateway stopping".into())));
             lock(&admission).done(&device);
-            let json = command::result_json(id.as_deref(), Some(op), &outcome);
-            if let Some(id) = &id {
-                lock(&dedupe).answered(&topic, id, json.clone());
+            let outcome = CommandOutcome {
+                op: Some(op.to_string()),
+                id,
+                result: outcome,
+            };
+            if let Some(id) = &outcome.id {
+                lock(&dedupe).answered(&topic, id, outcome.clone());
             }
             let _ = out.send(Output::CommandResult {
                 topics: reply.topics,
                 correlation: reply.correlation,
-                payload: json,
+                outcome: Outcome::Command(outcome),
             });
         });
     }
@@ -305,12 +332,17 @@ impl Router {
         e: CommandError,
     ) {
         self.warn(topic, &format!("command refused: {e}"));
-        self.send(reply, command::result_json(id, op, &Err(e)));
+        let outcome = CommandOutcome {
+            id: id.map(str::to_string),
+            op: op.map(str::to_string),
+            result: Err(e),
+        };
+        self.send(reply, Outcome::Command(outcome));
     }
 
     /// A warning about a command message, at most 20 lines a minute (a flood is counted).
     fn warn(&self, topic: &str, text: &str) {
-        let (allowed, suppressed) = lock(&self.log_budget).allow(std::time::Instant::now());
+        let (allowed, suppressed) = lock(&self.log_budget).allow(Instant::now());
         if let Some(n) = suppressed {
             tracing::warn!(
                 "{n} more command messages were refused in the last minute (not logged one by one)"
@@ -334,25 +366,29 @@ impl Router {
         if let Err(e) = outcome {
             self.warn(topic, &format!("command failed: {e}"));
         }
-        let json = command::result_json(id, Some(op), outcome);
+        let outcome = CommandOutcome {
+            id: id.map(str::to_string),
+            op: Some(op.to_string()),
+            result: outcome.clone(),
+        };
         if let Some(id) = id {
-            lock(&self.dedupe).answered(topic, id, json.clone());
+            lock(&self.dedupe).answered(topic, id, outcome.clone());
         }
-        self.send(reply, json);
+        self.send(reply, Outcome::Command(outcome));
     }
 
-    fn send(&self, reply: &Reply, payload: serde_json::Value) {
+    fn send(&self, reply: &Reply, outcome: Outcome) {
         let _ = self.out.send(Output::CommandResult {
             topics: reply.topics.clone(),
             correlation: reply.correlation.clone(),
-            payload,
+            outcome,
         });
     }
 }
 /// Checks the MQTT v5 properties of a command before anything is published to them (a
 /// response topic the gateway cannot publish to must not reach the spool) and adds the response
 /// topic and correlation data to `reply`.
-fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
+fn reply_to(rule: &ResponseRule, msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
     if let Some(c) = &msg.correlation
         && c.len() > command::MAX_CORRELATION
     {
@@ -363,9 +399,20 @@ fn reply_to(msg: &Incoming, reply: &mut Reply) -> Result<(), CommandError> {
         });
     }
     if let Some(rt) = &msg.response_topic {
-        command::check_response_topic(rt)?;
+        check_response_topic(rule, rt)?;
         reply.topics.push(rt.clone());
         reply.correlation = msg.correlation.clone();
     }
     Ok(())
 }
+
+/// A response topic's shape (length, wildcards, `$`) and place (not into the gateway's own
+/// topics or Home Assistant's): refused before anything is published there.
+fn check_response_topic(rule: &ResponseRule, topic: &str) -> Result<(), CommandError> {
+    command::check_response_topic(topic)?;
+    rule.check(topic).map_err(CommandError::BadResponseTopic)
+}
+
+#[cfg(test)]
+#[path = "dispatch_tests.rs"]
+mod tests;

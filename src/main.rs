@@ -204,6 +204,13 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                 Err(code) => return Ok(code),
             };
             print!("{}", pulsegate::report::poll_plan(&config));
+            let spool = config.gateway.state_dir.join("spool");
+            if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
+                println!(
+                    "warning: the spool cannot be kept in {} ({e}): the gateway would spool in a fresh private temporary directory, lost at reboot",
+                    spool.display()
+                );
+            }
             if let Some(host) = &config.gateway.id_from_hostname {
                 println!(
                     "gateway.id is not set: \"{}\" (from the hostname {host:?})",
@@ -266,9 +273,18 @@ fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCod
     use pulsegate::saved;
     use pulsegate::state::BusState;
     let files = saved::files(&config.gateway.state_dir)?;
+    // A prune that writes claims the state directory as the running gateway does: never both.
+    let _lock = match action {
+        StateAction::Prune { apply: true } => Some(
+            pulsegate::state_lock::StateLock::take(&config.gateway.state_dir)
+                .context("state prune --apply")?,
+        ),
+        _ => None,
+    };
     let mut unmatched = 0;
     for (bus, path) in files {
-        let state = BusState::load(&path)?;
+        // Only reads: a file the tool cannot take (a newer format) stays where it is.
+        let state = BusState::inspect(&path)?;
         let entries = saved::entries(config, &bus, &state);
         unmatched += entries.iter().filter(|e| e.device.is_none()).count();
         match action {
@@ -284,7 +300,7 @@ fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCod
                 }
                 let kept = saved::pruned(config, &bus, &state);
                 if apply && kept != state {
-                    kept.save(&path)?;
+                    kept.save_from_tool(&path)?;
                 }
             }
         }

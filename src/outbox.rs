@@ -12,9 +12,23 @@
 //! without touching them: a full store drops the oldest messages *after* the window, never one
 //! the client still holds, and the acknowledgements that follow release exactly the messages
 //! they were for.
+//!
+//! Messages come in two classes ([`Class`]). Readings and statuses are *owed*: stored, spooled,
+//! in order, evicted only by the store's own byte bound. What the gateway can make again
+//! (discovery configs, command and scan results, bus stats) is *chatter*: a small queue of its
+//! own in memory ([`chatter::Chatter`]) with its own small window, dropped first and counted, so
+//! no flood of chatter can push a reading out or write a byte to disk.
+//!
+//! Time is tokio's, so outages and stalls are tested on paused time.
+
+mod chatter;
 
 use std::collections::VecDeque;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+pub use chatter::{CHATTER_BYTES, CHATTER_MESSAGES, CHATTER_WINDOW, Chatter};
 
 use bytes::Bytes;
 use serde::{Deserialize, Serialize};
@@ -29,8 +43,31 @@ pub struct Message {
     pub retain: bool,
     /// MQTT v5 publish properties.
     pub properties: Properties,
-    /// Of the moment only (bus health): dropped rather than stored while the broker is away.
+    /// Of the moment only (bus health): dropped rather than kept while the broker is away.
     pub transient: bool,
+    /// Owed (kept, in order) or chatter (made again, dropped first).
+    pub class: Class,
+}
+
+/// What losing a message costs, and so how it is kept.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Class {
+    /// Readings, statuses, interval records: spooled (to disk while the broker is away),
+    /// delivered in order, never evicted by anything else.
+    #[default]
+    Owed,
+    /// What the gateway can make again (discovery configs, command and scan results, bus
+    /// stats): a bounded queue in memory, dropped first, never written to disk.
+    Chatter,
+}
+
+/// A message the broker publishes for the gateway when its connection dies (the MQTT will).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Will {
+    pub topic: String,
+    pub payload: Bytes,
+    pub qos: u8,
+    pub retain: bool,
 }
 
 /// The MQTT v5 publish properties the gateway sets (dropped on MQTT 3.1.1).
@@ -41,7 +78,7 @@ pub struct Properties {
 }
 
 impl Message {
-    /// A QoS `qos` message without properties.
+    /// An owed QoS `qos` message without properties.
     pub fn new(topic: String, payload: impl Into<Bytes>, qos: u8, retain: bool) -> Message {
         Message {
             topic,
@@ -50,6 +87,15 @@ impl Message {
             retain,
             properties: Properties::default(),
             transient: false,
+            class: Class::Owed,
+        }
+    }
+
+    /// A chatter message: one the gateway can make again.
+    pub fn chatter(topic: String, payload: impl Into<Bytes>, qos: u8, retain: bool) -> Message {
+        Message {
+            class: Class::Chatter,
+            ..Message::new(topic, payload, qos, retain)
         }
     }
 }
@@ -118,6 +164,8 @@ pub trait Store {
     fn evict(&mut self, keep: usize) -> u64;
     /// Messages stored.
     fn len(&self) -> u64;
+    /// The sequence number the next message will get (everything below it was stored before).
+    fn next_seq(&self) -> u64;
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -126,19 +174,36 @@ pub trait Store {
 }
 
 /// A message handed to the client, waiting for its acknowledgement.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 struct Slot {
-    seq: u64,
+    held: Held,
     /// Packet id, once the client has sent it (0 for QoS 0).
     pkid: Option<u16>,
     acked: bool,
+}
+
+/// What a slot of the window holds.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Held {
+    /// The store's message with this sequence number.
+    Owed(u64),
+    /// A chatter message, kept to be queued again if the connection goes before its
+    /// acknowledgement.
+    Chatter(Box<Message>),
+}
+
+impl Slot {
+    fn owed(&self) -> bool {
+        matches!(self.held, Held::Owed(_))
+    }
 }
 
 /// What to do next, from [`Outbox::next`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Step {
     /// Hand this message to the client (then [`Outbox::refused`] if it could not take it).
-    Send(Entry),
+    /// `replay`: an owed message stored before this connection was made (sent late).
+    Send { entry: Entry, replay: bool },
     /// This message can never be sent (it would block everything behind it): it was dropped.
     Dropped { topic: String, why: String },
 }
@@ -150,15 +215,22 @@ pub enum Enqueued {
     Stored { seq: u64, evicted: u64 },
     /// A transient message while the broker is away: not stored.
     Skipped,
+    /// A chatter message, queued; `dropped` older chatter made room for it.
+    Chatter { dropped: u64 },
 }
 
 /// The spool and the send window of one gateway.
 #[derive(Debug)]
 pub struct Outbox<S> {
     store: S,
-    /// The store's oldest messages that the client has, in order.
+    /// What the client has, in the order it was handed over: the store's oldest messages (in
+    /// order) and chatter between them.
     window: VecDeque<Slot>,
     capacity: usize,
+    /// What the gateway can make again, waiting.
+    chatter: Chatter,
+    /// Owed messages with a sequence number below this were stored before this connection.
+    replay_below: u64,
     connected: bool,
     /// The broker's maximum packet size (CONNACK), if it announced one.
     broker_max: Option<u32>,
@@ -177,6 +249,8 @@ impl<S: Store> Outbox<S> {
             store,
             window: VecDeque::new(),
             capacity: window.max(1),
+            chatter: Chatter::default(),
+            replay_below: 0,
             connected: false,
             broker_max: None,
             progress: now,
@@ -202,13 +276,34 @@ impl<S: Store> Outbox<S> {
         self.window.len()
     }
 
-    /// Stores a message; the bound is kept without dropping what the client holds.
+    /// Owed messages the client holds.
+    fn owed_in_flight(&self) -> usize {
+        self.window.iter().filter(|s| s.owed()).count()
+    }
+
+    /// A window kept something back: the owed window is full, or chatter waits (its window
+    /// full, or the client's queue). The next acknowledgement should let more out.
+    pub fn backlogged(&self) -> bool {
+        self.owed_in_flight() >= self.capacity || !self.chatter.is_empty()
+    }
+
+    /// The chatter waiting (and what it dropped).
+    pub fn chatter(&self) -> &Chatter {
+        &self.chatter
+    }
+
+    /// Stores an owed message (the bound is kept without dropping what the client holds) or
+    /// queues a chatter message.
     pub fn enqueue(&mut self, message: Message) -> Result<Enqueued, S::Error> {
         if message.transient && !self.connected {
             return Ok(Enqueued::Skipped);
         }
+        if message.class == Class::Chatter {
+            let dropped = self.chatter.push(message);
+            return Ok(Enqueued::Chatter { dropped });
+        }
         let seq = self.store.push(message)?;
-        let evicted = self.store.evict(self.window.len());
+        let evicted = self.store.evict(self.owed_in_flight());
         self.evicted += evicted;
         Ok(Enqueued::Stored { seq, evicted })
     }
@@ -218,16 +313,36 @@ impl<S: Store> Outbox<S> {
         self.connected = true;
         self.broker_max = max_packet;
         self.progress = now;
+        self.replay_below = self.store.next_seq();
         self.store.broker_away(false);
     }
 
     /// The connection failed: everything the client held is gone with it and will be handed
-    /// out again, in order, after the next [`Outbox::connected`].
+    /// out again, in order, after the next [`Outbox::connected`] (chatter too, ahead of the
+    /// chatter that came since).
     pub fn lost(&mut self) {
         self.connected = false;
-        self.window.clear();
+        let held: Vec<Message> = self
+            .window
+            .drain(..)
+            .filter_map(|s| match s.held {
+                Held::Chatter(m) if !s.acked => Some(*m),
+                _ => None,
+            })
+            .collect();
+        self.chatter.requeue(held);
         self.direct = 0;
         self.store.broker_away(true);
+    }
+
+    /// The sequence number the next owed message will get.
+    pub fn next_seq(&self) -> u64 {
+        self.store.next_seq()
+    }
+
+    /// The oldest owed message not yet acknowledged, if any.
+    pub fn oldest_unacked(&mut self) -> Option<u64> {
+        self.store.get(0).map(|e| e.seq)
     }
 
     /// A publish outside the store (the gateway's status) was handed to the client: its send
@@ -260,15 +375,50 @@ impl<S: Store> Outbox<S> {
         }
     }
 
-    /// The next thing to do, or `None` when the window is full, the store empty or the broker
-    /// away. Releases acknowledged messages from the store first (in order: an acknowledgement
-    /// that overtakes an older one waits for it).
+    /// The next thing to do, or `None` when both windows are full, nothing waits or the broker
+    /// is away. Releases acknowledged messages first (owed ones in order: an acknowledgement
+    /// that overtakes an older one waits for it). Chatter goes first within its own small
+    /// window, so a discovery config leaves before the reading it describes, and never takes a
+    /// place of the owed messages' window.
     pub fn next(&mut self, now: Instant) -> Option<Step> {
         self.release(now);
-        if !self.connected || self.window.len() >= self.capacity {
+        if !self.connected {
             return None;
         }
-        let i = self.window.len();
+        let chatter_in_flight = self.window.len() - self.owed_in_flight();
+        if chatter_in_flight < CHATTER_WINDOW
+            && let Some(m) = self.chatter.pop()
+        {
+            return Some(self.hand_chatter(m));
+        }
+        self.next_owed()
+    }
+
+    fn hand_chatter(&mut self, m: Message) -> Step {
+        let corr = m.properties.correlation.as_ref().map_or(0, Bytes::len);
+        if let Some(why) = unsendable(&m.topic, m.payload.len(), corr, self.broker_max) {
+            return Step::Dropped {
+                topic: m.topic.chars().take(200).collect(),
+                why,
+            };
+        }
+        let entry = Entry::of(0, m.clone());
+        self.window.push_back(Slot {
+            held: Held::Chatter(Box::new(m)),
+            pkid: None,
+            acked: false,
+        });
+        Step::Send {
+            entry,
+            replay: false,
+        }
+    }
+
+    fn next_owed(&mut self) -> Option<Step> {
+        let i = self.owed_in_flight();
+        if i >= self.capacity {
+            return None;
+        }
         let broker_max = self.broker_max;
         let e = self.store.get(i)?;
         let corr = e.correlation.as_ref().map_or(0, Vec::len);
@@ -279,30 +429,50 @@ impl<S: Store> Outbox<S> {
                 topic: e.topic.chars().take(200).collect(),
                 why,
             },
-            None => Step::Send(e.clone()),
+            None => Step::Send {
+                replay: seq < self.replay_below,
+                entry: e.clone(),
+            },
         };
         // An unsendable message counts as acknowledged, so order and the window hold.
         let acked = matches!(step, Step::Dropped { .. });
         let pkid = acked.then_some(0);
-        self.window.push_back(Slot { seq, pkid, acked });
+        self.window.push_back(Slot {
+            held: Held::Owed(seq),
+            pkid,
+            acked,
+        });
         Some(step)
     }
 
     /// The client could not take the message [`Outbox::next`] just returned (its queue is
     /// full): it is handed out again later.
     pub fn refused(&mut self) {
-        if self.window.back().is_some_and(|s| s.pkid.is_none()) {
-            self.window.pop_back();
+        if self.window.back().is_some_and(|s| s.pkid.is_none())
+            && let Some(slot) = self.window.pop_back()
+            && let Held::Chatter(m) = slot.held
+        {
+            self.chatter.requeue(vec![*m]);
         }
     }
 
+    /// Forgets acknowledged chatter, and releases the acknowledged owed messages at the front
+    /// of the store.
     fn release(&mut self, now: Instant) {
-        let n = self.window.iter().take_while(|s| s.acked).count();
-        if n > 0 {
-            let last = self.window[n - 1].seq;
-            self.window.drain(..n);
-            self.store.ack_front(n);
-            debug_assert!(self.store.get(0).is_none_or(|e| e.seq > last));
+        let mut released = 0;
+        let mut in_order = true;
+        self.window.retain(|s| {
+            if !s.owed() {
+                return !s.acked;
+            }
+            in_order &= s.acked;
+            if in_order {
+                released += 1;
+            }
+            !in_order
+        });
+        if released > 0 {
+            self.store.ack_front(released);
         }
         if self.window.is_empty() {
             self.progress = now;
@@ -396,6 +566,10 @@ impl Store for MemoryStore {
 
     fn len(&self) -> u64 {
         self.entries.len() as u64
+    }
+
+    fn next_seq(&self) -> u64 {
+        self.next_seq
     }
 }
 

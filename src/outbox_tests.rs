@@ -21,7 +21,7 @@ fn outbox(max_bytes: u64, window: usize) -> Outbox<MemoryStore> {
 fn pump(o: &mut Outbox<MemoryStore>) -> Vec<u64> {
     let mut sent = Vec::new();
     while let Some(step) = o.next(t0()) {
-        if let Step::Send(e) = step {
+        if let Step::Send { entry: e, .. } = step {
             sent.push(e.seq);
         }
     }
@@ -182,7 +182,7 @@ fn a_packet_id_reused_after_a_reconnect_releases_the_new_message_only() {
 fn a_refused_hand_over_is_offered_again() {
     let mut o = outbox(1 << 20, 3);
     enqueue(&mut o, 2);
-    assert!(matches!(o.next(t0()), Some(Step::Send(e)) if e.seq == 1));
+    assert!(matches!(o.next(t0()), Some(Step::Send { entry: e, .. }) if e.seq == 1));
     o.refused();
     assert_eq!(pump(&mut o), [1, 2]);
 }
@@ -194,7 +194,7 @@ fn an_unsendable_message_is_dropped_and_the_next_one_sent() {
         .unwrap();
     o.enqueue(msg(1)).unwrap();
     assert!(matches!(o.next(t0()), Some(Step::Dropped { topic, .. }) if topic == "evil/#"));
-    assert!(matches!(o.next(t0()), Some(Step::Send(e)) if e.topic == "pg/t/d/c1"));
+    assert!(matches!(o.next(t0()), Some(Step::Send { entry: e, .. }) if e.topic == "pg/t/d/c1"));
     assert_eq!(o.store().seqs(), [2], "the wildcard one is gone");
 }
 

@@ -30,17 +30,16 @@ pub struct Reading {
 /// Everything a bus task reports.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output {
+    /// One channel's reading on its own.
     Reading(Reading),
-    /// The readings of one device's poll, published as one message (`payload = "device"`).
+    /// The readings of one device's poll (or command) that its publish policy lets through;
+    /// the format decides whether they go as one message (`payload = "device"`) or one each.
     DeviceReadings {
         device: Arc<str>,
         readings: Vec<Reading>,
     },
     /// A device became available (first good read) or stopped answering.
-    DeviceStatus {
-        device: Arc<str>,
-        online: bool,
-    },
+    DeviceStatus { device: Arc<str>, online: bool },
     /// The device has a problem that stops some or all of its readings:
     /// `<root>/<device>/status` = `status` (`wrong_model`, `mode_mismatch`).
     DeviceProblem {
@@ -52,22 +51,51 @@ pub enum Output {
         bus: Arc<str>,
         stats: Box<crate::bus::stats::BusStats>,
     },
-    /// The answer to a command, as JSON, and the topics it goes to.
+    /// The answer to a command or a scan, and the topics it goes to.
     CommandResult {
         topics: Vec<String>,
         correlation: Option<bytes::Bytes>,
-        payload: serde_json::Value,
+        outcome: crate::outcome::Outcome,
     },
     /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
     ScanProgress {
         topic: String,
         progress: Box<crate::bus::survey::ScanProgress>,
     },
-    /// A state save of the bus is starting: it records the seq of every reading sent before
-    /// this, so those go to the broker now, not at the end of a batch (`mqtt.batch`). After a
-    /// crash the next run's first readings count from the saved seqs (`after_seq`): a reading
-    /// up to them must not be one that died in memory. Publishes nothing.
-    Checkpoint,
+    /// A state save of the bus is waiting: it may record the seq of every reading sent before
+    /// this only once those are durable (acknowledged by the broker, or fsynced in the spool),
+    /// which the MQTT task says through the checkpoint. After a crash the next run's first
+    /// readings count from the saved seqs (`after_seq`): a reading up to them must not be one
+    /// that died in memory. Publishes nothing.
+    Checkpoint(Checkpoint),
+}
+
+/// A state save's question to the MQTT task: "is everything sent before me durable?" Answered
+/// once (`true`: acknowledged or fsynced; `false`: it cannot be made so); dropped unanswered
+/// (no MQTT task) means there is no one to lose readings to.
+#[derive(Debug, Clone)]
+pub struct Checkpoint(Arc<std::sync::Mutex<Option<tokio::sync::oneshot::Sender<bool>>>>);
+
+impl Checkpoint {
+    /// A checkpoint and the receiver of its answer.
+    pub fn new() -> (Checkpoint, tokio::sync::oneshot::Receiver<bool>) {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        (Checkpoint(Arc::new(std::sync::Mutex::new(Some(tx)))), rx)
+    }
+
+    /// Answers the save (once; later answers are ignored).
+    pub fn answer(&self, durable: bool) {
+        let mut slot = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(tx) = slot.take() {
+            let _ = tx.send(durable);
+        }
+    }
+}
+
+impl PartialEq for Checkpoint {
+    fn eq(&self, other: &Checkpoint) -> bool {
+        Arc::ptr_eq(&self.0, &other.0)
+    }
 }
 
 /// Milliseconds since the Unix epoch.

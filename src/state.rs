@@ -39,6 +39,10 @@ pub struct BusState {
 /// A state file could not be read or written.
 #[derive(Debug, thiserror::Error)]
 pub enum StateError {
+    #[error(
+        "save put off: the readings before it are not durable yet (neither acknowledged by the MQTT broker nor synced in the spool)"
+    )]
+    NotDurable,
     #[error("state file {path}: {source}")]
     Io {
         path: String,
@@ -194,8 +198,26 @@ impl BusState {
         }
     }
 
+    /// Reads a bus's state and changes nothing, whatever the file holds: for the operator's
+    /// tools (`pulsegate state list`), which must never move a file the gateway then misses.
+    /// Blocking.
+    pub fn inspect(path: &Path) -> Result<BusState, StateError> {
+        Self::read(path)
+    }
+
     /// Writes atomically: a reader (or a restart after power loss) sees old or new, never half.
     pub fn save(&self, path: &Path) -> Result<(), StateError> {
+        self.save_via(path, &path.with_extension("json.tmp"))
+    }
+
+    /// As [`BusState::save`], through a temporary file of the operator's tool's own
+    /// (`bus-<name>.json.tool-<pid>.tmp`), never the gateway's.
+    pub fn save_from_tool(&self, path: &Path) -> Result<(), StateError> {
+        let tmp = format!("json.tool-{}.tmp", std::process::id());
+        self.save_via(path, &path.with_extension(tmp))
+    }
+
+    fn save_via(&self, path: &Path, tmp: &Path) -> Result<(), StateError> {
         let io = |source| StateError::Io {
             path: path.display().to_string(),
             source,
@@ -205,13 +227,12 @@ impl BusState {
         let bytes = serde_json::to_vec_pretty(&this).expect("state serializes");
         let dir = path.parent().unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).map_err(io)?;
-        let tmp = path.with_extension("json.tmp");
         {
-            let mut f = std::fs::File::create(&tmp).map_err(io)?;
+            let mut f = std::fs::File::create(tmp).map_err(io)?;
             f.write_all(&bytes).map_err(io)?;
             f.sync_all().map_err(io)?;
         }
-        std::fs::rename(&tmp, path).map_err(io)?;
+        std::fs::rename(tmp, path).map_err(io)?;
         sync_dir(dir).map_err(io)?;
         Ok(())
     }
@@ -228,6 +249,22 @@ impl BusState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_operators_tool_never_writes_through_the_gateways_temporary_file() {
+        let dir = std::env::temp_dir().join(format!("pulsegate-state-tool-{}", std::process::id()));
+        let path = bus_path(&dir, "line1");
+        std::fs::create_dir_all(&dir).unwrap();
+        let gateways = path.with_extension("json.tmp");
+        std::fs::write(&gateways, "the gateway's, half written").unwrap();
+        BusState::default().save_from_tool(&path).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&gateways).unwrap(),
+            "the gateway's, half written"
+        );
+        assert!(BusState::inspect(&path).is_ok());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn state_survives_a_save_and_load() {

@@ -83,13 +83,14 @@ impl Emitter {
                 d.withdraw_seq(&r.channel);
             }
         }
-        match payload {
-            PayloadMode::Channel => published.into_iter().map(Output::Reading).collect(),
-            PayloadMode::Device if !published.is_empty() => vec![Output::DeviceReadings {
-                device: d.name.clone(),
-                readings: published,
-            }],
-            PayloadMode::Device => Vec::new(),
+        // One event for the poll: how it goes on the wire (a message per channel or per device)
+        // is the format's business.
+        if published.is_empty() {
+            return Vec::new();
         }
+        vec![Output::DeviceReadings {
+            device: d.name.clone(),
+            readings: published,
+        }]
     }
 }

@@ -155,6 +155,9 @@ impl BusTask {
             saver::Saver::new(self.state_path.clone(), name.clone()),
             after_seq,
         );
+        if saved.clean {
+            durable.trust(&saved);
+        }
         let devices: Vec<DeviceRt<D::Device>> = bus
             .devices
             .iter()

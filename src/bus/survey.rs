@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use serde::Serialize;
-use serde_json::{Value, json};
+use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -16,6 +16,7 @@ use tokio_util::sync::CancellationToken;
 use super::link::Link;
 use crate::command::Reply;
 use crate::commission::scan::{Found, describe, parse_units};
+use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
 
@@ -145,20 +146,17 @@ impl Survey {
         self.pending.is_empty() || now - self.started >= SCAN_LIMIT
     }
 
-    /// The result message.
-    pub fn result(&self, bus: &str, now: Instant) -> Value {
-        let mut v = json!({
-            "bus": bus,
-            "found": self.found,
-            "configured": self.configured,
-            "asked": self.asked,
-            "complete": self.pending.is_empty(),
-            "elapsed_ms": (now - self.started).as_millis() as u64,
-        });
-        if let Some(id) = &self.request.id {
-            v["id"] = json!(id);
-        }
-        v
+    /// The report.
+    pub fn result(&self, bus: &str, now: Instant) -> ScanOutcome {
+        ScanOutcome::Report(ScanReport {
+            bus: bus.to_string(),
+            found: self.found.clone(),
+            configured: self.configured.clone(),
+            asked: self.asked,
+            complete: self.pending.is_empty(),
+            elapsed_ms: (now - self.started).as_millis() as u64,
+            id: self.request.id.clone(),
+        })
     }
 
     pub fn reply(&self) -> &Reply {
@@ -182,10 +180,12 @@ pub async fn idle_step(
     if let Some(rx) = requests.as_mut() {
         while let Ok(req) = rx.try_recv() {
             if survey.is_some() {
-                let mut busy = json!({"bus": bus, "error": "busy", "message": "a scan of this bus is under way"});
-                if let Some(id) = &req.id {
-                    busy["id"] = json!(id);
-                }
+                let busy = ScanOutcome::Refused {
+                    bus: bus.to_string(),
+                    id: req.id.clone(),
+                    code: "busy",
+                    message: "a scan of this bus is under way".into(),
+                };
                 send(out, &req.reply, busy);
             } else {
                 tracing::info!(
@@ -246,11 +246,11 @@ pub async fn idle_step(
     used
 }
 
-fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, payload: Value) {
+fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome: ScanOutcome) {
     let _ = out.send(Output::CommandResult {
         topics: reply.topics.clone(),
         correlation: reply.correlation.clone(),
-        payload,
+        outcome: Outcome::Scan(outcome),
     });
 }
 
@@ -312,7 +312,8 @@ mod tests {
             );
         }
         assert_eq!(asked, [1, 3, 4]);
-        let r = s.result("line1", t);
+        let r = Outcome::Scan(s.result("line1", t)).to_json();
+        use serde_json::json;
         assert_eq!(
             (
                 r["configured"].clone(),
@@ -332,6 +333,7 @@ mod tests {
             progress: "pg/bus/line1/scan/progress".into(),
         };
         let t = Instant::now();
+        use serde_json::json;
         let mut s = Survey::new(req, &[], t);
         assert_eq!(s.record(None, "line1", t), None);
         let found = Found {
@@ -356,6 +358,7 @@ mod tests {
                    "elapsed_ms": 1500})
         );
         s.record(None, "line1", t);
-        assert_eq!(s.result("line1", t)["found"], json!([found]));
+        let result = Outcome::Scan(s.result("line1", t)).to_json();
+        assert_eq!(result["found"], json!([found]));
     }
 }

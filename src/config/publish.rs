@@ -1,10 +1,10 @@
 //! Publish keys at the gateway, device and channel levels (`publish`, `heartbeat`,
 //! `min_interval`, `payload`), and `[homeassistant]`.
 
-use super::walk::{Errors, Table, join};
+use super::walk::{Errors, MAX_DURATION, Table, join};
 use crate::publish::policy::{PayloadMode, PolicyOverride, PublishMode};
 
-/// Reads `publish`, `heartbeat` and `min_interval` of one table.
+/// Reads `publish`, `heartbeat` and `min_interval` of one table (`"0s"`: none).
 pub(crate) fn policy(t: &mut Table<'_>, errs: &mut Errors) -> PolicyOverride {
     let publish = match t.opt::<String>("publish", errs).as_deref() {
         None => None,
@@ -19,10 +19,15 @@ pub(crate) fn policy(t: &mut Table<'_>, errs: &mut Errors) -> PolicyOverride {
             None
         }
     };
+    // "0s" is allowed here: it means none, so a device or channel can undo a wider level's
+    // pacing or heartbeat (resolved in `PolicyOverride::policy`).
+    let none_or = |t: &mut Table<'_>, key: &str, errs: &mut Errors| {
+        t.duration_within(key, std::time::Duration::ZERO, MAX_DURATION, errs)
+    };
     PolicyOverride {
         publish,
-        heartbeat: t.duration("heartbeat", errs),
-        min_interval: t.duration("min_interval", errs),
+        heartbeat: none_or(t, "heartbeat", errs),
+        min_interval: none_or(t, "min_interval", errs),
     }
 }
 

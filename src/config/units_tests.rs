@@ -122,3 +122,27 @@ fn homeassistant_discovery_is_off_unless_asked_for() {
         "{e}"
     );
 }
+
+#[test]
+fn zero_min_interval_or_heartbeat_is_accepted_and_undoes_the_gateway_value() {
+    let c = check(
+        "publish = \"poll\"\nmin_interval = \"0s\"\n\
+         [buses.line1.devices.meter.channels.a0]\npublish = \"change\"\nheartbeat = \"0s\"\n",
+        &[
+            ("PULSEGATE__GATEWAY__MIN_INTERVAL", "1s"),
+            ("PULSEGATE__GATEWAY__HEARTBEAT", "1m"),
+        ],
+    )
+    .unwrap();
+    assert_eq!(
+        c.gateway.publish.policy().min_interval,
+        Some(Duration::from_secs(1))
+    );
+    let d = &c.buses[0].devices[0];
+    let device = c.gateway.publish.then(&d.publish);
+    assert_eq!(device.policy().min_interval, None);
+    let channel = device.then(&d.channels["a0"].publish).policy();
+    assert_eq!((channel.min_interval, channel.heartbeat), (None, None));
+    let e = errors("min_interval = \"-1s\"\n");
+    assert!(e.contains("min_interval"), "{e}");
+}

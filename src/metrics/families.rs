@@ -1,6 +1,8 @@
 //! The metric families, their names, help texts, labels and histogram buckets: the one place
 //! that defines what `/metrics` shows.
 
+use std::collections::BTreeSet;
+
 use prometheus::{
     CounterVec, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
     IntGaugeVec, Opts, Registry,
@@ -38,6 +40,10 @@ pub(super) struct Families {
     pub spool_messages: IntGauge,
     pub spool_bytes: IntGauge,
     pub spool_dropped: IntCounter,
+    pub spool_fallback: IntGauge,
+    pub spool_written: IntCounter,
+    pub chatter_messages: IntGauge,
+    pub chatter_dropped: IntCounter,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -153,6 +159,22 @@ const SPOOL_DROPPED: Family = (
     "pulsegate_spool_dropped_messages_total",
     "Oldest messages dropped because the spool was full.",
 );
+const SPOOL_FALLBACK: Family = (
+    "pulsegate_spool_private_fallback",
+    "1 while the spool is in a fresh private temporary directory because <state_dir>/spool could not be used (lost at reboot).",
+);
+const SPOOL_WRITTEN: Family = (
+    "pulsegate_spool_written_bytes_total",
+    "Bytes written to the spool's files (while the broker is away, and at checkpoints a stalled broker leaves unacknowledged).",
+);
+const CHATTER_MESSAGES: Family = (
+    "pulsegate_mqtt_chatter_messages",
+    "Messages the gateway can make again (discovery configs, results, bus stats) waiting for the broker.",
+);
+const CHATTER_DROPPED: Family = (
+    "pulsegate_mqtt_chatter_dropped_total",
+    "Oldest chatter messages dropped to keep their bound (readings are never dropped for them).",
+);
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
     "Commands answered (a retained command message is ignored, not counted).",
@@ -167,7 +189,46 @@ const START_TIME: Family = (
 );
 const BUILD_INFO: Family = ("pulsegate_build_info", "Always 1; the version is a label.");
 
+/// Series of buses, devices and channels that are gone (see `Metrics::retain`).
+#[derive(Default)]
+pub(super) struct Gone {
+    pub buses: BTreeSet<String>,
+    pub devices: BTreeSet<(String, String)>,
+    pub channels: BTreeSet<(String, String, String)>,
+}
+
 impl Families {
+    /// Removes the series of what is gone from every family labelled with it.
+    pub fn forget(&self, gone: &Gone) {
+        // A series never created is not there to remove: the error says only that.
+        for (b, d, c) in &gone.channels {
+            let l = [b.as_str(), d.as_str(), c.as_str()];
+            let _ = self.channel_pulses.remove_label_values(&l);
+            let _ = self.channel_position.remove_label_values(&l);
+            let _ = self.channel_rate.remove_label_values(&l);
+        }
+        for (b, d) in &gone.devices {
+            let l = [b.as_str(), d.as_str()];
+            let _ = self.device_up.remove_label_values(&l);
+            let _ = self.device_wrong_model.remove_label_values(&l);
+            let _ = self.device_transactions.remove_label_values(&l);
+            let _ = self.device_timeouts.remove_label_values(&l);
+            let _ = self.device_garbled.remove_label_values(&l);
+            let _ = self.device_exceptions.remove_label_values(&l);
+            let _ = self.device_latency.remove_label_values(&l);
+            let _ = self.device_request_limit.remove_label_values(&l);
+            let _ = self.device_requests_per_poll.remove_label_values(&l);
+        }
+        for b in &gone.buses {
+            let l = [b.as_str()];
+            let _ = self.bus_transactions.remove_label_values(&l);
+            let _ = self.bus_reconnects.remove_label_values(&l);
+            let _ = self.bus_line_faults.remove_label_values(&l);
+            let _ = self.bus_busy.remove_label_values(&l);
+            let _ = self.bus_utilisation.remove_label_values(&l);
+        }
+    }
+
     pub fn register(r: &Registry) -> Families {
         Families {
             channel_pulses: family!(r, IntCounterVec, CHANNEL_PULSES, CHANNEL),
@@ -202,6 +263,10 @@ impl Families {
             spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
             spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
             spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
+            spool_fallback: family!(r, IntGauge, SPOOL_FALLBACK),
+            spool_written: family!(r, IntCounter, SPOOL_WRITTEN),
+            chatter_messages: family!(r, IntGauge, CHATTER_MESSAGES),
+            chatter_dropped: family!(r, IntCounter, CHATTER_DROPPED),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

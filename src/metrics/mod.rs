@@ -13,15 +13,16 @@
 mod families;
 pub mod server;
 
-use std::collections::HashMap;
+use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
 use std::time::Duration;
 
 use prometheus::{Encoder, Gauge, Histogram, IntCounter, IntGauge, Registry, TextEncoder};
 
 use crate::bus::link::WireCounters;
+use crate::config::Config;
 use crate::reading::Reading;
-use families::Families;
+use families::{Families, Gone};
 
 /// The gateway's metrics: one registry, handed to the buses and the MQTT task; or nothing.
 #[derive(Clone, Default)]
@@ -92,18 +93,60 @@ impl Metrics {
         }
     }
 
-    /// A command was answered with `payload` (`{"ok":true,…}` or `{"ok":false,"error":CODE}`).
-    pub fn command_result(&self, payload: &serde_json::Value) {
+    /// Whether the spool fell back to a private temporary directory (see
+    /// `publish::spool_place`).
+    pub fn spool_fallback(&self, fallback: bool) {
+        if let Some(e) = &self.inner {
+            e.families.spool_fallback.set(fallback as i64);
+        }
+    }
+
+    /// The chatter queue (waiting, dropped since start) and the spool's bytes written to disk
+    /// since start.
+    pub fn chatter(&self, waiting: usize, dropped: u64, spool_written: u64) {
+        let Some(e) = &self.inner else { return };
+        let f = &e.families;
+        f.chatter_messages.set(waiting as i64);
+        for (counter, now) in [
+            (&f.chatter_dropped, dropped),
+            (&f.spool_written, spool_written),
+        ] {
+            let seen = counter.get();
+            if now > seen {
+                counter.inc_by(now - seen);
+            }
+        }
+    }
+
+    /// A command or scan was answered: counted, and its refusal by code.
+    pub fn command_result(&self, outcome: &crate::outcome::Outcome) {
         let Some(e) = &self.inner else { return };
         let f = &e.families;
         f.commands_received.inc();
-        if payload.get("ok").and_then(|v| v.as_bool()) != Some(true) {
-            let code = payload
-                .get("error")
-                .and_then(|v| v.as_str())
-                .unwrap_or("unknown");
+        if let Some(code) = outcome.refusal() {
             f.commands_refused.with_label_values(&[code]).inc();
         }
+    }
+
+    /// Forgets every series of a bus, device or channel `config` no longer has (or no longer
+    /// polls: disabled), after a reload: a removed device must not show on a dashboard as it
+    /// was last seen, online. Series of what stays are kept (counters never go backwards).
+    pub fn retain(&self, config: &Config) {
+        let Some(e) = &self.inner else { return };
+        let present = Present::of(config);
+        let mut gone = Gone::default();
+        for family in e.registry.gather() {
+            for m in family.get_metric() {
+                let label = |name: &str| {
+                    m.get_label()
+                        .iter()
+                        .find(|l| l.name() == name)
+                        .map(|l| l.value().to_string())
+                };
+                gone.note(&present, label("bus"), label("device"), label("channel"));
+            }
+        }
+        e.families.forget(&gone);
     }
 
     /// The exposition in Prometheus's text format (version 0.0.4).
@@ -115,6 +158,71 @@ impl Metrics {
         // Encoding our own, well-formed families into a Vec cannot fail.
         let _ = TextEncoder::new().encode(&e.registry.gather(), &mut out);
         String::from_utf8(out).unwrap_or_default()
+    }
+}
+
+/// What a config polls: enabled buses, their enabled devices and those devices' enabled
+/// channels.
+struct Present {
+    buses: BTreeSet<String>,
+    devices: BTreeSet<(String, String)>,
+    channels: BTreeSet<(String, String, String)>,
+}
+
+impl Present {
+    fn of(config: &Config) -> Present {
+        let devices = || config.enabled_devices();
+        Present {
+            buses: config
+                .buses
+                .iter()
+                .filter(|b| b.enabled)
+                .map(|b| b.name.clone())
+                .collect(),
+            devices: devices()
+                .map(|(b, d)| (b.name.clone(), d.name.clone()))
+                .collect(),
+            channels: devices()
+                .flat_map(|(b, d)| {
+                    d.profile
+                        .all_channels()
+                        .into_iter()
+                        .filter(|c| d.channels.get(&c.name).is_none_or(|cc| cc.enabled))
+                        .map(move |c| (b.name.clone(), d.name.clone(), c.name))
+                })
+                .collect(),
+        }
+    }
+}
+
+impl Gone {
+    /// A series labelled `bus`, `device`, `channel` (as far as it has them): remembered when
+    /// what it describes is not present.
+    fn note(
+        &mut self,
+        present: &Present,
+        bus: Option<String>,
+        device: Option<String>,
+        channel: Option<String>,
+    ) {
+        match (bus, device, channel) {
+            (Some(b), Some(d), Some(c)) => {
+                let key = (b, d, c);
+                if !present.channels.contains(&key) {
+                    self.channels.insert(key);
+                }
+            }
+            (Some(b), Some(d), None) => {
+                let key = (b, d);
+                if !present.devices.contains(&key) {
+                    self.devices.insert(key);
+                }
+            }
+            (Some(b), None, None) if !present.buses.contains(&b) => {
+                self.buses.insert(b);
+            }
+            _ => {}
+        }
     }
 }
 

@@ -4,7 +4,12 @@
 //! hyper's HTTP/1 server on the gateway's own single-threaded runtime: no extra threads. It is
 //! meant for a local scraper (loopback by default), not the open network, and a client can cost
 //! it little: a few connections at a time, small request heads, and a deadline per connection.
+//! A client that holds connections open without finishing its request cannot keep a probe of
+//! `/healthz` out: every connection is accepted at once, the head must arrive within a second,
+//! and when all slots are taken the oldest connection is closed for the new one (a watchdog or a
+//! load balancer must not restart a healthy gateway because someone is slow on purpose).
 
+use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -16,14 +21,16 @@ use hyper::header::{CONTENT_TYPE, HeaderValue};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
 use tokio::net::TcpListener;
-use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 
 use super::Metrics;
 use crate::health::Health;
 
-/// Connections served at once; more wait in the kernel's backlog.
+/// Connections served at once; a new one beyond them closes the oldest.
 const MAX_CONNECTIONS: usize = 8;
+/// A request head (request line and headers) must arrive within this: a scraper or a probe
+/// sends it at once.
+const HEADER_TIMEOUT: Duration = Duration::from_secs(1);
 /// A connection's whole life, request head to last byte of the answer.
 const CONNECTION_DEADLINE: Duration = Duration::from_secs(10);
 /// Read buffer cap: a request head larger than this is refused.
@@ -55,12 +62,8 @@ pub async fn serve(
     health: Arc<Health>,
     shutdown: CancellationToken,
 ) {
-    let slots = Arc::new(Semaphore::new(MAX_CONNECTIONS));
+    let slots = Arc::new(std::sync::Mutex::new(Slots::default()));
     loop {
-        let permit = tokio::select! {
-            () = shutdown.cancelled() => return,
-            p = slots.clone().acquire_owned() => p.expect("the semaphore is never closed"),
-        };
         let stream = tokio::select! {
             () = shutdown.cancelled() => return,
             s = listener.accept() => match s {
@@ -73,6 +76,8 @@ pub async fn serve(
             },
         };
         let (metrics, health) = (metrics.clone(), health.clone());
+        let (id, closed) = lock(&slots).admit();
+        let slots = slots.clone();
         tokio::spawn(async move {
             let service = hyper::service::service_fn(move |req| {
                 let (metrics, health) = (metrics.clone(), health.clone());
@@ -80,13 +85,49 @@ pub async fn serve(
             });
             let conn = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
-                .header_read_timeout(Duration::from_secs(5))
+                .header_read_timeout(HEADER_TIMEOUT)
                 .max_buf_size(MAX_HEAD)
                 .keep_alive(false)
                 .serve_connection(TokioIo::new(stream), service);
-            let _ = tokio::time::timeout(CONNECTION_DEADLINE, conn).await;
-            drop(permit);
+            tokio::select! {
+                _ = tokio::time::timeout(CONNECTION_DEADLINE, conn) => {}
+                () = closed.cancelled() => {}
+            }
+            lock(&slots).done(id);
         });
+    }
+}
+
+fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// The connections being served, oldest first, each with the token that closes it.
+#[derive(Default)]
+struct Slots {
+    next: u64,
+    open: BTreeMap<u64, CancellationToken>,
+}
+
+impl Slots {
+    /// A new connection: its id and token; when every slot is taken, the oldest connection's
+    /// token is cancelled (it closes) and its slot is the new one's.
+    fn admit(&mut self) -> (u64, CancellationToken) {
+        while self.open.len() >= MAX_CONNECTIONS {
+            if let Some((_, oldest)) = self.open.pop_first() {
+                oldest.cancel();
+            }
+        }
+        let id = self.next;
+        self.next += 1;
+        let token = CancellationToken::new();
+        self.open.insert(id, token.clone());
+        (id, token)
+    }
+
+    /// A connection ended (answered, timed out or closed).
+    fn done(&mut self, id: u64) {
+        self.open.remove(&id);
     }
 }
 
@@ -133,4 +174,28 @@ fn plain(status: StatusCode, body: String) -> Response<Full<Bytes>> {
         HeaderValue::from_static("text/plain; charset=utf-8"),
     );
     r
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_connection_beyond_the_slots_closes_the_oldest_and_only_it() {
+        let mut slots = Slots::default();
+        let first: Vec<(u64, CancellationToken)> =
+            (0..MAX_CONNECTIONS).map(|_| slots.admit()).collect();
+        assert!(first.iter().all(|(_, t)| !t.is_cancelled()));
+        let (_, newest) = slots.admit();
+        assert!(first[0].1.is_cancelled(), "the oldest is closed");
+        assert!(first[1..].iter().all(|(_, t)| !t.is_cancelled()));
+        assert!(!newest.is_cancelled());
+        slots.done(first[0].0);
+        slots.done(first[1].0);
+        let (_, another) = slots.admit();
+        assert!(
+            !first[2].1.is_cancelled() && !another.is_cancelled(),
+            "a slot freed by a finished connection is taken without closing anyone"
+        );
+    }
 }

@@ -137,11 +137,34 @@ fn inputs_are_counters_and_encoders_are_positions_that_may_go_negative() {
 #[test]
 fn refused_commands_are_counted_by_error_code() {
     let m = Metrics::new();
-    m.command_result(&serde_json::json!({"op":"clear","ok":true}));
-    m.command_result(&serde_json::json!({"op":"clear","ok":false,"error":"offline"}));
-    m.command_result(&serde_json::json!({"ok":false,"error":"bad_json"}));
+    use crate::command::CommandError;
+    use crate::outcome::{CommandOutcome, Outcome, ScanOutcome, ScanReport};
+    let command = |result| {
+        Outcome::Command(CommandOutcome {
+            id: None,
+            op: Some("clear".into()),
+            result,
+        })
+    };
+    m.command_result(&command(Ok(None)));
+    m.command_result(&command(Err(CommandError::Offline("press1".into()))));
+    m.command_result(&command(Err(CommandError::NotJson("x".into()))));
+    // A scan's report has no `ok` key: read as JSON, it once counted as a refusal.
+    m.command_result(&Outcome::Scan(ScanOutcome::Report(ScanReport {
+        bus: "line1".into(),
+        found: Vec::new(),
+        configured: Vec::new(),
+        asked: 247,
+        complete: true,
+        elapsed_ms: 9000,
+        id: None,
+    })));
     let text = m.encode();
-    assert!(text.contains("pulsegate_commands_received_total 3"));
+    assert!(text.contains("pulsegate_commands_received_total 4"));
+    assert!(
+        !text.contains("code=\"unknown\""),
+        "a successful scan moves no refusal counter: {text}"
+    );
     assert!(text.contains("pulsegate_commands_refused_total{code=\"offline\"} 1"));
     assert!(text.contains("pulsegate_commands_refused_total{code=\"bad_json\"} 1"));
 }
@@ -207,5 +230,64 @@ fn a_devices_request_size_shows_the_limit_and_the_requests_of_a_poll() {
     let text = m.encode();
     assert!(
         text.contains("pulsegate_device_request_limit_registers{bus=\"line1\",device=\"doors\"} 1")
+    );
+}
+
+fn config(text: &str) -> Config {
+    Config::from_toml(
+        text,
+        std::path::Path::new("/etc/pulsegate.toml"),
+        Some(Default::default()),
+    )
+    .unwrap()
+}
+
+#[test]
+fn a_reload_forgets_every_series_of_a_device_channel_or_bus_that_is_gone() {
+    let before = config(
+        "[buses.line1]\nport = \"/dev/ttyUSB0\"\n\
+         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m3]\nunit = 3\nmodel = \"yl67\"\n\
+         [buses.line2]\nport = \"/dev/ttyUSB1\"\n\
+         [buses.line2.devices.m9]\nunit = 9\nmodel = \"yl67\"\n",
+    );
+    let m = Metrics::new();
+    let mut handles = Vec::new();
+    for (bus, device) in [("line1", "m1"), ("line1", "m3"), ("line2", "m9")] {
+        let b = m.bus(bus);
+        b.utilisation(0.5);
+        let mut d = b.device(device);
+        d.up(Some(true));
+        d.latency(Duration::from_millis(30));
+        d.request_size(8, 10);
+        d.reading(&reading(device, "a0", 5, 1.0, false));
+        d.reading(&reading(device, "gone0", 5, 1.0, false));
+        handles.push(d);
+    }
+    m.retain(&before);
+    let text = m.encode();
+    assert!(
+        !text.contains("gone0"),
+        "a channel the model does not have:\n{text}"
+    );
+    assert!(text.contains("device=\"m3\""));
+
+    let after = config(
+        "[buses.line1]\nport = \"/dev/ttyUSB0\"\n\
+         [buses.line1.devices.m1]\nunit = 1\nmodel = \"yl67\"\n\
+         [buses.line1.devices.m1.channels.a1]\nenabled = false\n",
+    );
+    let mut m1 = m.bus("line1").device("m1");
+    m1.reading(&reading("m1", "a1", 5, 1.0, false));
+    m.retain(&after);
+    let text = m.encode();
+    for gone in ["\"m3\"", "\"m9\"", "\"line2\"", "\"a1\""] {
+        assert!(!text.contains(gone), "{gone} is still exported:\n{text}");
+    }
+    assert!(
+        text.contains("pulsegate_device_up{bus=\"line1\",device=\"m1\"} 1")
+            && text.contains("channel=\"a0\",device=\"m1\"")
+            && text.contains("{bus=\"line1\"}"),
+        "what stays is kept:\n{text}"
     );
 }

@@ -13,7 +13,9 @@
 //! Only *when* messages are handed to the MQTT client changes: they are in the outbox (and its
 //! spool) from the moment they are made, exactly as without a batch.
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
 
 /// What to do with the reading just queued.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -3,10 +3,18 @@
 //! Home Assistant or a reload say so. Pure: events in, retained config messages out. It runs in
 //! the output stage before the payload format, so an entity is announced before its first
 //! reading; it subscribes to Home Assistant's status and this gateway's configs on the broker.
+//!
+//! Configs are chatter (the gateway can make them again): they never push a reading out of the
+//! outbox. Home Assistant's `online` announces every config again, but a flood of them (a
+//! flapping Home Assistant, a misbehaving client) costs at most one announcement every
+//! [`REANNOUNCE_GAP`]: an `online` within it leaves one announcement pending for the next tick.
 
 use std::collections::{BTreeMap, BTreeSet, HashSet};
+use std::time::Duration;
 
-use super::format::Format;
+use tokio::time::Instant;
+
+use super::format::{Format, Reaction};
 use super::homeassistant::{
     Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
     module_topics, possible_topics,
@@ -24,11 +32,14 @@ pub struct Announce {
 }
 
 impl Announce {
-    /// Retained, at least once.
+    /// Retained, at least once; chatter (made again at will).
     fn message(self) -> Message {
-        Message::new(self.topic, self.payload, 1, true)
+        Message::chatter(self.topic, self.payload, 1, true)
     }
 }
+
+/// The least time between two announcements of every config for Home Assistant's `online`.
+pub const REANNOUNCE_GAP: Duration = Duration::from_secs(5);
 
 fn messages(list: impl IntoIterator<Item = Announce>) -> Vec<Message> {
     list.into_iter().map(Announce::message).collect()
@@ -53,6 +64,10 @@ pub struct Discovery {
     settled: BTreeSet<(String, u8)>,
     /// Topics of settled modules' channels they do not have (another work mode): stale.
     unwanted: BTreeSet<String>,
+    /// When every config was last announced for Home Assistant's `online`.
+    reannounced: Option<Instant>,
+    /// An `online` came within [`REANNOUNCE_GAP`] of the last announcement: one is owed.
+    reannounce_pending: bool,
 }
 
 impl Discovery {
@@ -67,6 +82,8 @@ impl Discovery {
             learned: HashSet::new(),
             settled: BTreeSet::new(),
             unwanted: BTreeSet::new(),
+            reannounced: None,
+            reannounce_pending: false,
         }
     }
 
@@ -184,11 +201,31 @@ impl Discovery {
         topics.iter().map(|t| self.clear(t)).collect()
     }
 
-    /// Home Assistant announced itself: every config again.
-    pub fn ha_status(&mut self, payload: &[u8]) -> Vec<Announce> {
+    /// Home Assistant announced itself: every config again, at once or (within
+    /// [`REANNOUNCE_GAP`] of the last time) at a later [`Discovery::due`].
+    pub fn ha_status(&mut self, payload: &[u8], now: Instant) -> Vec<Announce> {
         if payload != b"online" {
             return Vec::new();
         }
+        self.reannounce_pending = true;
+        self.due(now)
+    }
+
+    /// A pending announcement whose time has come.
+    pub fn due(&mut self, now: Instant) -> Vec<Announce> {
+        let recent = self
+            .reannounced
+            .is_some_and(|t| now.saturating_duration_since(t) < REANNOUNCE_GAP);
+        if !self.reannounce_pending || recent {
+            return Vec::new();
+        }
+        self.reannounce_pending = false;
+        self.reannounced = Some(now);
+        self.everything()
+    }
+
+    /// Every config announced so far.
+    pub fn everything(&self) -> Vec<Announce> {
         self.announced
             .iter()
             .map(|(topic, payload)| Announce {
@@ -281,15 +318,21 @@ impl Format for Discovery {
         messages(Discovery::start(self))
     }
 
-    fn received(&mut self, topic: &str, payload: &[u8]) -> Vec<Message> {
-        if topic == self.site.ha_status() {
-            messages(self.ha_status(payload))
+    fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        let out = if topic == self.site.ha_status() {
+            messages(self.ha_status(payload, Instant::now()))
         } else if topic.starts_with(&format!("{}/", self.site.prefix)) && topic.ends_with("/config")
         {
             messages(self.config_seen(topic, payload))
         } else {
             Vec::new()
-        }
+        };
+        out.into()
+    }
+
+    /// A re-announcement put off by a flood of `online`.
+    fn tick(&mut self, now: Instant) -> Vec<Message> {
+        messages(self.due(now))
     }
 
     fn reload(&mut self, config: &Config) -> Vec<Message> {

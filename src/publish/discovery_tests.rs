@@ -70,7 +70,7 @@ fn reading(device: &str, channel: &str) -> Reading {
 }
 
 fn json(d: &mut Discovery, topic: &str) -> Value {
-    let all = d.ha_status(b"online");
+    let all = d.everything();
     let a = all.iter().find(|a| a.topic == topic).unwrap_or_else(|| {
         panic!(
             "no {topic} in {:?}",
@@ -163,8 +163,9 @@ fn a_channel_is_announced_once_and_everything_again_when_home_assistant_returns(
     let first = d.start().len();
     let announced = d.reading(&reading("meter", "a0")).len();
     assert!(d.reading(&reading("meter", "a0")).is_empty());
-    assert_eq!(d.ha_status(b"online").len(), first + announced);
-    assert!(d.ha_status(b"offline").is_empty());
+    let now = tokio::time::Instant::now();
+    assert_eq!(d.ha_status(b"online", now).len(), first + announced);
+    assert!(d.ha_status(b"offline", now).is_empty());
 }
 
 #[test]
@@ -366,7 +367,7 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     let mut stage = Stage::new(chosen(&config(CONFIG)));
     let mut announced = stage.start().len();
     announced += stage.render(&Output::Reading(reading("press", "a0"))).len() - 1;
-    let again = stage.received("homeassistant/status", b"online");
+    let again = stage.received("homeassistant/status", b"online").messages;
     assert_eq!(
         again.len(),
         announced,
@@ -375,10 +376,18 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     assert!(
         stage
             .received("homeassistant/status", b"offline")
+            .messages
             .is_empty()
     );
-    assert!(stage.received("pulsegate/edge/meter/cmd", b"{}").is_empty());
-    let stale = stage.received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}");
+    assert!(
+        stage
+            .received("pulsegate/edge/meter/cmd", b"{}")
+            .messages
+            .is_empty()
+    );
+    let stale = stage
+        .received("homeassistant/sensor/edge/line9_u1_a0_total/config", b"{}")
+        .messages;
     assert_eq!(stale.len(), 1);
     assert!(stale[0].payload.is_empty() && stale[0].retain, "cleared");
     let without_press = CONFIG.replace(

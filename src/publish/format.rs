@@ -8,13 +8,40 @@
 //! in [`NAMES`] and a line in [`build`]. A format that runs beside it (Home Assistant discovery,
 //! [`super::discovery`], under `[homeassistant] discovery`) is a line in [`chosen`].
 //!
-//! Most formats only turn events into messages. One that also listens (discovery: Home
-//! Assistant's birth message, the configs the broker holds) names its subscriptions, and what
-//! arrives on them comes back to it; one that describes the config hears about reloads.
+//! Most formats only turn events into messages. A format also owns its lifecycle on the wire,
+//! as Telegraf's outputs own `Connect`/`Write`/`Close`: what it publishes at every connection
+//! (the gateway's `online`, Sparkplug's births), the will it leaves with the broker, what it
+//! publishes when the gateway stops, what its subscriptions mean (Home Assistant's birth
+//! message; commands of its own protocol, handed to the command router), timers of its own
+//! (`tick`), and a last look at each stored message as it leaves (a protocol that numbers its
+//! messages on the wire). The MQTT task only calls these hooks; it knows no format.
 
-use crate::config::{Config, Mqtt};
-use crate::outbox::Message;
+use bytes::Bytes;
+use tokio::time::Instant;
+
+use crate::config::Config;
+use crate::dispatch::Incoming;
+use crate::outbox::{Message, Will};
 use crate::reading::Output;
+
+/// What a format makes of a message on one of its subscriptions.
+#[derive(Debug, Default)]
+pub struct Reaction {
+    /// To publish.
+    pub messages: Vec<Message>,
+    /// For the command router, as if they had arrived on a command topic (with all its
+    /// checks and admission).
+    pub commands: Vec<Incoming>,
+}
+
+impl From<Vec<Message>> for Reaction {
+    fn from(messages: Vec<Message>) -> Reaction {
+        Reaction {
+            messages,
+            commands: Vec::new(),
+        }
+    }
+}
 
 /// Turns events into the messages that publish them. `&mut self`: a format may remember what it
 /// published (discovery announces each entity once; Sparkplug B numbers its messages).
@@ -33,13 +60,45 @@ pub trait Format: Send + Sync {
     }
 
     /// A message arrived on one of the formats' subscriptions (any format's: take only yours).
-    fn received(&mut self, _topic: &str, _payload: &[u8]) -> Vec<Message> {
-        Vec::new()
+    fn received(&mut self, _topic: &str, _payload: &[u8]) -> Reaction {
+        Reaction::default()
     }
 
     /// The gateway's config was reloaded (SIGHUP).
     fn reload(&mut self, _config: &Config) -> Vec<Message> {
         Vec::new()
+    }
+
+    /// Published at every CONNACK, before the outbox's backlog, and not stored (a new
+    /// connection makes them again).
+    fn connected(&mut self) -> Vec<Message> {
+        Vec::new()
+    }
+
+    /// The connection is gone: the next [`Format::connected`] starts a new session.
+    fn disconnected(&mut self) {}
+
+    /// The will to leave with the broker at the next connection (asked before each one).
+    fn will(&mut self) -> Option<Will> {
+        None
+    }
+
+    /// Published, not stored, as the gateway stops while connected (what the will would
+    /// have said, said cleanly).
+    fn stopping(&mut self) -> Vec<Message> {
+        Vec::new()
+    }
+
+    /// About once a second, on tokio's clock: work the format put off (coalescing).
+    fn tick(&mut self, _now: Instant) -> Vec<Message> {
+        Vec::new()
+    }
+
+    /// A stored message of this format leaves for the broker now, in wire order: `Some`
+    /// bytes to send instead of the stored ones. `replay`: it was stored before this
+    /// connection (an outage's backlog). Any format's messages pass: change only yours.
+    fn outgoing(&mut self, _topic: &str, _payload: &Bytes, _replay: bool) -> Option<Bytes> {
+        None
     }
 }
 
@@ -47,8 +106,8 @@ pub trait Format: Send + Sync {
 pub const NAMES: &[&str] = &["json"];
 
 /// The payload format named by the config (checked against [`NAMES`] when the config is read).
-pub fn build(config: &Mqtt) -> Box<dyn Format> {
-    match config.format.as_str() {
+pub fn build(config: &Config) -> Box<dyn Format> {
+    match config.mqtt.format.as_str() {
         "json" => Box::new(super::json::Json::new(config)),
         other => unreachable_format(other, config),
     }
@@ -56,7 +115,7 @@ pub fn build(config: &Mqtt) -> Box<dyn Format> {
 
 /// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
 /// between [`NAMES`] and [`build`], never a crash of the gateway).
-fn unreachable_format(name: &str, config: &Mqtt) -> Box<dyn Format> {
+fn unreachable_format(name: &str, config: &Config) -> Box<dyn Format> {
     tracing::error!("output format {name:?} is not built in; publishing JSON");
     Box::new(super::json::Json::new(config))
 }
@@ -68,7 +127,7 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     if config.homeassistant.discovery {
         formats.push(Box::new(super::discovery::Discovery::new(config)));
     }
-    formats.push(build(&config.mqtt));
+    formats.push(build(config));
     formats
 }
 
@@ -105,12 +164,55 @@ impl Stage {
     }
 
     /// A message on one of the subscriptions, offered to every format.
-    pub fn received(&mut self, topic: &str, payload: &[u8]) -> Vec<Message> {
-        self.each(|f| f.received(topic, payload))
+    pub fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        let mut out = Reaction::default();
+        for format in &mut self.formats {
+            let r = format.received(topic, payload);
+            out.messages.extend(r.messages);
+            out.commands.extend(r.commands);
+        }
+        out
     }
 
     pub fn reload(&mut self, config: &Config) -> Vec<Message> {
         self.each(|f| f.reload(config))
+    }
+
+    /// Every format's messages for a new connection.
+    pub fn connected(&mut self) -> Vec<Message> {
+        self.each(|f| f.connected())
+    }
+
+    pub fn disconnected(&mut self) {
+        for format in &mut self.formats {
+            format.disconnected();
+        }
+    }
+
+    /// The first will a format sets (formats that must own the will come first in
+    /// [`chosen`]).
+    pub fn will(&mut self) -> Option<Will> {
+        self.formats.iter_mut().find_map(|f| f.will())
+    }
+
+    pub fn stopping(&mut self) -> Vec<Message> {
+        self.each(|f| f.stopping())
+    }
+
+    pub fn tick(&mut self, now: Instant) -> Vec<Message> {
+        self.each(|f| f.tick(now))
+    }
+
+    /// The bytes to send for a stored message, after every format has had its look.
+    pub fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {
+        let mut changed: Option<Bytes> = None;
+        for format in &mut self.formats {
+            let current = changed.as_ref().unwrap_or(payload);
+            if let Some(b) = format.outgoing(topic, current, replay) {
+                changed = Some(b);
+            }
+        }
+        changed
     }
 
     fn each(&mut self, mut f: impl FnMut(&mut dyn Format) -> Vec<Message>) -> Vec<Message> {

@@ -37,8 +37,8 @@ fn check(mqtt: &str) -> Result<crate::config::Config, crate::config::ConfigError
     crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env)
 }
 
-fn config() -> Mqtt {
-    check("retain = true\nqos = 0").expect("config").mqtt
+fn config() -> crate::config::Config {
+    check("retain = true\nqos = 0").expect("config")
 }
 
 #[test]
@@ -99,7 +99,11 @@ fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
     let result = Output::CommandResult {
         topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
         correlation: Some(bytes::Bytes::from_static(b"c-1")),
-        payload: serde_json::json!({"ok": true}),
+        outcome: crate::outcome::Outcome::Command(crate::outcome::CommandOutcome {
+            id: None,
+            op: None,
+            result: Ok(None),
+        }),
     };
     let m = render(&mut *json, &result);
     assert_eq!(m.len(), 2);
@@ -132,14 +136,14 @@ fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchang
     let mut packed = PackedTotals {
         topics: Topics::new("pg/e1"),
     };
-    let now = std::time::Instant::now();
+    let now = tokio::time::Instant::now();
     let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
     outbox.connected(None, now);
     for m in render(&mut packed, &Output::Reading(reading(-2))) {
         outbox.enqueue(m).unwrap();
     }
     assert_eq!(outbox.store().len(), 1);
-    let Some(Step::Send(e)) = outbox.next(now) else {
+    let Some(Step::Send { entry: e, .. }) = outbox.next(now) else {
         panic!("nothing to send")
     };
     assert_eq!(e.topic, "pg/e1/press1/enc0/total");
@@ -159,7 +163,7 @@ fn an_unknown_format_is_a_config_error_naming_the_choices() {
 fn every_format_name_the_config_takes_is_built() {
     for name in NAMES {
         let mut c = config();
-        c.format = (*name).to_string();
+        c.mqtt.format = (*name).to_string();
         let mut built = build(&c);
         assert!(
             !render(&mut *built, &Output::Reading(reading(1))).is_empty(),
@@ -170,7 +174,11 @@ fn every_format_name_the_config_takes_is_built() {
 
 #[test]
 fn a_batch_is_a_duration_of_at_most_five_seconds() {
-    assert_eq!(config().batch, Duration::from_millis(250), "the default");
+    assert_eq!(
+        config().mqtt.batch,
+        Duration::from_millis(250),
+        "the default"
+    );
     assert_eq!(check("batch = \"0s\"").unwrap().mqtt.batch, Duration::ZERO);
     assert_eq!(
         check("batch = \"1s\"").unwrap().mqtt.batch,
@@ -180,4 +188,40 @@ fn a_batch_is_a_duration_of_at_most_five_seconds() {
     assert!(err.contains("mqtt.batch: must be at most 5s"), "{err}");
     let err = check("batch = \"soon\"").unwrap_err().to_string();
     assert!(err.contains("mqtt.batch: bad duration"), "{err}");
+}
+
+/// The payload shape is the format's: one event for a device's poll goes as one message per
+/// channel, or as one message for a device with `payload = "device"`.
+#[test]
+fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
+    let poll = Output::DeviceReadings {
+        device: "d".into(),
+        readings: vec![
+            Reading {
+                device: "d".into(),
+                ..reading(1)
+            },
+            Reading {
+                device: "d".into(),
+                channel: "enc1".into(),
+                ..reading(2)
+            },
+        ],
+    };
+    let mut per_channel = build(&config());
+    let topics: Vec<String> = render(&mut *per_channel, &poll)
+        .into_iter()
+        .map(|m| m.topic)
+        .collect();
+    assert_eq!(topics, ["pg/e1/d/enc0", "pg/e1/d/enc1"]);
+    let text = format!(
+        "[gateway]\nid = \"e1\"\npayload = \"device\"\n[mqtt]\ntopic_root = \"pg/e1\"\n{BUS}"
+    );
+    let env = Some(std::collections::HashMap::new());
+    let device_config =
+        crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env).unwrap();
+    let mut per_device = build(&device_config);
+    let m = render(&mut *per_device, &poll);
+    assert_eq!(m.len(), 1);
+    assert_eq!(m[0].topic, "pg/e1/d");
 }

@@ -1,12 +1,17 @@
 //! The JSON format: one message per reading (or per device poll), retained status words, bus
-//! health, command results. Payload shapes are in [`super::payload`]; topics in [`super::topics`].
+//! health, command results, and the gateway's own status (`online` at every connection, its
+//! will `offline`). Payload shapes are in [`super::payload`]; topics in [`super::topics`].
+//! Readings and statuses are owed; bus health and results are chatter (made again).
 
 use super::format::Format;
 use super::payload;
 use super::topics::Topics;
-use crate::config::Mqtt;
-use crate::outbox::Message;
-use crate::reading::Output;
+use std::collections::HashSet;
+
+use crate::config::Config;
+use crate::outbox::{Message, Will};
+use crate::publish::policy::PayloadMode;
+use crate::reading::{Output, Reading};
 
 /// Today's payloads.
 #[derive(Debug, Clone)]
@@ -16,35 +21,52 @@ pub struct Json {
     retain: bool,
     /// `mqtt.qos`, for readings.
     qos: u8,
+    /// The devices whose polls go as one message (`payload = "device"`, theirs or inherited).
+    per_device: HashSet<String>,
 }
 
 impl Json {
-    pub fn new(config: &Mqtt) -> Json {
+    /// The JSON format of `config` (the payload shape of each device from its own config).
+    pub fn new(config: &Config) -> Json {
+        let mqtt = &config.mqtt;
         Json {
-            topics: Topics::new(&config.topic_root),
-            retain: config.retain,
-            qos: config.qos,
+            topics: Topics::new(&mqtt.topic_root),
+            retain: mqtt.retain,
+            qos: mqtt.qos,
+            per_device: per_device(config),
         }
     }
+
+    /// One message per reading.
+    fn readings<'r>(&self, readings: impl IntoIterator<Item = &'r Reading>) -> Vec<Message> {
+        readings
+            .into_iter()
+            .map(|r| {
+                let topic = self.topics.reading(&r.device, &r.channel);
+                Message::new(topic, payload::reading(r), self.qos, self.retain)
+            })
+            .collect()
+    }
+}
+
+fn per_device(config: &Config) -> HashSet<String> {
+    config
+        .devices()
+        .filter(|(_, d)| d.payload.unwrap_or(config.gateway.payload) == PayloadMode::Device)
+        .map(|(_, d)| d.name.clone())
+        .collect()
 }
 
 impl Format for Json {
     fn messages(&mut self, event: &Output) -> Vec<Message> {
         let t = &self.topics;
         match event {
-            Output::Reading(r) => {
-                let topic = t.reading(&r.device, &r.channel);
-                vec![Message::new(
-                    topic,
-                    payload::reading(r),
-                    self.qos,
-                    self.retain,
-                )]
-            }
-            Output::DeviceReadings { device, readings } => {
+            Output::Reading(r) => self.readings([r]),
+            Output::DeviceReadings { device, readings } if self.per_device.contains(&**device) => {
                 let body = payload::device(readings);
                 vec![Message::new(t.device(device), body, self.qos, self.retain)]
             }
+            Output::DeviceReadings { readings, .. } => self.readings(readings),
             Output::DeviceStatus { device, online } => {
                 let word = if *online { "online" } else { "offline" };
                 vec![Message::new(t.device_status(device), word, 1, true)]
@@ -53,21 +75,21 @@ impl Format for Json {
                 vec![Message::new(t.device_status(device), *status, 1, true)]
             }
             Output::BusStats { bus, stats } => {
-                // Health is of the moment: not worth spooling.
+                // Health is of the moment: not worth keeping while the broker is away.
                 let body = serde_json::to_string(&**stats).unwrap_or_default();
-                let mut m = Message::new(t.bus_stats(bus), body, 0, false);
+                let mut m = Message::chatter(t.bus_stats(bus), body, 0, false);
                 m.transient = true;
                 vec![m]
             }
             Output::CommandResult {
                 topics,
                 correlation,
-                payload,
+                outcome,
             } => {
-                let body = bytes::Bytes::from(payload.to_string());
+                let body = bytes::Bytes::from(outcome.to_json().to_string());
                 let mut out = Vec::with_capacity(topics.len());
                 for (i, topic) in topics.iter().enumerate() {
-                    let mut m = Message::new(topic.clone(), body.clone(), 1, false);
+                    let mut m = Message::chatter(topic.clone(), body.clone(), 1, false);
                     // The MQTT v5 response topic (after the result topic) gets the request's
                     // correlation data back.
                     if i > 0 {
@@ -79,9 +101,46 @@ impl Format for Json {
             }
             Output::ScanProgress { topic, progress } => {
                 let body = serde_json::to_string(&**progress).unwrap_or_default();
-                vec![Message::new(topic.clone(), body, 1, false)]
+                // Made again by the next scan: chatter, never spooled.
+                vec![Message::chatter(topic.clone(), body, 1, false)]
             }
-            Output::Checkpoint => Vec::new(),
+            Output::Checkpoint(_) => Vec::new(),
         }
+    }
+
+    /// A device's payload shape may change with the config.
+    fn reload(&mut self, config: &Config) -> Vec<Message> {
+        self.per_device = per_device(config);
+        Vec::new()
+    }
+
+    /// The gateway's status, retained: `online` at every connection.
+    fn connected(&mut self) -> Vec<Message> {
+        vec![Message::new(
+            self.topics.gateway_status(),
+            "online",
+            1,
+            true,
+        )]
+    }
+
+    /// `offline` when the connection dies without a word.
+    fn will(&mut self) -> Option<Will> {
+        Some(Will {
+            topic: self.topics.gateway_status(),
+            payload: bytes::Bytes::from_static(b"offline"),
+            qos: 1,
+            retain: true,
+        })
+    }
+
+    /// `offline` as the gateway stops.
+    fn stopping(&mut self) -> Vec<Message> {
+        vec![Message::new(
+            self.topics.gateway_status(),
+            "offline",
+            1,
+            true,
+        )]
     }
 }

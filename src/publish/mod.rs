@@ -12,6 +12,7 @@ pub mod policy;
 pub mod poller;
 pub mod session;
 pub mod spool;
+pub mod spool_place;
 pub mod tls;
 pub mod topics;
 pub mod units;

@@ -22,7 +22,9 @@
 use std::path::PathBuf;
 use std::pin::Pin;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use tokio::time::Instant;
 
 use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver};
@@ -38,16 +40,17 @@ use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
 use crate::health::Heart;
 use crate::outbox::{Message, Outbox, Step};
-use crate::reading::Output;
+use crate::reading::{Checkpoint, Output};
 
 pub use crate::outbox::unsendable;
 
 /// Messages handed to rumqttc before their acknowledgement.
 const WINDOW: usize = 100;
 
-/// rumqttc's own in-flight limit: the outbox's window plus room for the messages that bypass it
-/// (command results, subscriptions), so rumqttc never has to hold one back.
-const INFLIGHT: u16 = WINDOW as u16 + 64;
+/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
+/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
+/// hold one back.
+const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
 
 /// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
 /// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
@@ -77,17 +80,21 @@ impl Shell {
         }
     }
 
-    /// Hands rumqttc what the outbox says, until it says wait or rumqttc's queue is full.
-    fn pump(&mut self) {
+    /// Hands rumqttc what the outbox says, until it says wait or rumqttc's queue is full. Each
+    /// stored message passes the formats' last look on its way ([`Stage::outgoing`]).
+    fn pump(&mut self, stage: &mut Stage) {
         let now = Instant::now();
         self.backlog = false;
         while let Some(step) = self.outbox.next(now) {
             match step {
-                Step::Send(e) => {
+                Step::Send { entry: e, replay } => {
                     let corr = e.correlation.as_deref();
+                    let payload = stage
+                        .outgoing(&e.topic, &e.payload, replay)
+                        .unwrap_or(e.payload);
                     if self
                         .client
-                        .publish(e.topic, e.qos, e.retain, e.payload, corr)
+                        .publish(e.topic, e.qos, e.retain, payload, corr)
                         .is_err()
                     {
                         self.outbox.refused(); // more when it sends
@@ -100,12 +107,7 @@ impl Shell {
                 }
             }
         }
-        self.backlog |= self.outbox.in_flight() >= WINDOW;
-    }
-
-    fn enqueue(&mut self, message: Message) {
-        self.queue(message);
-        self.pump();
+        self.backlog |= self.outbox.backlogged();
     }
 
     /// Into the outbox (and its spool) without handing anything to rumqttc yet.
@@ -115,10 +117,12 @@ impl Shell {
         }
     }
 
-    /// A publish outside the outbox (boot marker, gateway status).
-    fn publish_direct(&mut self, topic: String, payload: &'static str) {
+    /// A publish outside the outbox (boot marker, what formats say at connect and at stop).
+    fn publish_direct(&mut self, m: Message) {
         self.outbox.direct();
-        let _ = self.client.publish(topic, 1, true, payload.into(), None);
+        let _ = self
+            .client
+            .publish(m.topic, m.qos, m.retain, m.payload, None);
     }
 
     fn subscribe(&self, filter: &str) {
@@ -127,17 +131,19 @@ impl Shell {
         }
     }
 
-    /// Connected: say so before the backlog, restore subscriptions (clean session), send.
-    fn on_connack(&mut self, max_packet: Option<u32>, link: &Connection) {
+    /// Connected: the formats say so before the backlog, subscriptions are restored (clean
+    /// session); the caller sends the backlog.
+    fn on_connack(&mut self, max_packet: Option<u32>, link: &Connection, stage: &mut Stage) {
         self.outbox.connected(max_packet, Instant::now());
         // The boot marker: subscribe first, so the retained one of another gateway arrives
         // before ours replaces it.
         let marker = self.topics.gateway_marker();
         self.subscribe(&marker);
         let boot = link.boot.marker(&link.client_id);
-        self.outbox.direct();
-        let _ = self.client.publish(marker, 1, true, boot.into(), None);
-        self.publish_direct(self.topics.gateway_status(), "online");
+        self.publish_direct(Message::new(marker, boot, 1, true));
+        for m in stage.connected() {
+            self.publish_direct(m);
+        }
         if link.commands {
             let filters = self.topics.command_filters();
             if let Err(e) = self.client.subscribe_commands(&filters) {
@@ -147,22 +153,23 @@ impl Shell {
         for f in &self.extra_filters {
             self.subscribe(f);
         }
-        self.pump();
     }
 
     /// The connection failed: everything rumqttc held goes with it (the outbox sends it again,
-    /// in order, on the fresh connection).
-    fn on_lost(&mut self, options: &Options) -> EventLoop {
+    /// in order, on the fresh connection, which leaves the formats' current will).
+    fn on_lost(&mut self, options: &Options, stage: &mut Stage) -> EventLoop {
         self.outbox.lost();
-        let (client, fresh) = options.connect(WINDOW + 64);
+        stage.disconnected();
+        let (client, fresh) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
         self.client = client;
         fresh
     }
 }
 
-/// The client options of this gateway: a fresh client is built from them after every failure.
-/// TLS that cannot be set up is an error: the gateway never falls back to plaintext.
-pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::tls::TlsError> {
+/// The client options of this gateway: a fresh client is built from them after every failure
+/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
+/// never falls back to plaintext.
+pub fn client_options(config: &Mqtt) -> Result<Options, super::tls::TlsError> {
     let login = config.username.as_ref().map(|user| {
         let password = config.password.as_ref().map(|p| p.0.clone());
         (user.clone(), password.unwrap_or_default())
@@ -176,7 +183,6 @@ pub fn client_options(config: &Mqtt, topics: &Topics) -> Result<Options, super::
         keep_alive: config.keep_alive,
         max_incoming: MAX_PACKET,
         inflight: INFLIGHT,
-        will: (topics.gateway_status(), "offline"),
         login,
         transport,
     }))
@@ -225,15 +231,15 @@ pub async fn run(
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&task.config.topic_root);
-    let Some((options, spool)) = start(&task, &topics).await else {
+    let Some((options, spool)) = start(&task).await else {
         // `check` and the start refuse such a config; a file changed since is fatal too.
         shutdown.cancel();
         task.heart.set_up(false);
         while output.recv().await.is_some() {}
         return;
     };
-    let (client, eventloop) = options.connect(WINDOW + 64);
-    let stage = Stage::new(std::mem::take(&mut task.formats));
+    let mut stage = Stage::new(std::mem::take(&mut task.formats));
+    let (client, eventloop) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
     let routes = Routes {
@@ -259,6 +265,7 @@ pub async fn run(
         routes,
         batch: Batch::new(task.config.batch),
         batch_due: None,
+        checkpoints: Vec::new(),
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -267,15 +274,20 @@ pub async fn run(
 }
 
 /// The client options and the spool, or `None` (logged) when the gateway cannot publish.
-async fn start(task: &Task, topics: &Topics) -> Option<(Options, Spool)> {
-    let options = match client_options(&task.config, topics) {
+async fn start(task: &Task) -> Option<(Options, Spool)> {
+    let options = match client_options(&task.config) {
         Ok(o) => o,
         Err(e) => {
             tracing::error!("MQTT TLS cannot be set up: {e}; stopping (never plaintext)");
             return None;
         }
     };
-    let spool = open_spool(task.spool_dir.clone(), task.config.spool_bytes).await?;
+    let spool = open_spool(
+        task.spool_dir.clone(),
+        task.config.spool_bytes,
+        &task.metrics,
+    )
+    .await?;
     if !spool.is_empty() {
         tracing::info!(
             messages = spool.len(),
@@ -286,19 +298,14 @@ async fn start(task: &Task, topics: &Topics) -> Option<(Options, Spool)> {
 }
 
 /// Opens the spool off the runtime thread (a large one left by the last run must not hold up
-/// the buses); a temporary directory when its own cannot be used.
-async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
-    let opened = tokio::task::spawn_blocking(move || match Spool::open(&dir, bytes) {
-        Ok(s) => Ok(s),
-        Err(e) => {
-            tracing::error!("{e}; spooling in a temporary directory instead");
-            let dir = std::env::temp_dir().join(format!("pulsegate-spool-{}", std::process::id()));
-            Spool::open(&dir, bytes)
-        }
-    })
-    .await;
+/// the buses); a fresh private directory when its own cannot be used (see `spool_place`).
+async fn open_spool(dir: PathBuf, bytes: u64, metrics: &crate::metrics::Metrics) -> Option<Spool> {
+    let opened = tokio::task::spawn_blocking(move || super::spool_place::open(&dir, bytes)).await;
     match opened {
-        Ok(Ok(s)) => Some(s),
+        Ok(Ok(o)) => {
+            metrics.spool_fallback(o.fallback.is_some());
+            Some(o.spool)
+        }
         Ok(Err(e)) => {
             tracing::error!("{e}; no spool at all: stopping");
             None
@@ -312,7 +319,8 @@ async fn open_spool(dir: PathBuf, bytes: u64) -> Option<Spool> {
 
 /// The MQTT task: the one owner of the shell. Bus output goes through the output stage into
 /// the outbox; the connection's reports (connected, sent, acked, failed) move the outbox; a
-/// health beat every second (and the stall check), the spool flushed every `flush_every`.
+/// health beat every second (the stall check, the formats' ticks, checkpoints the broker did
+/// not settle), the spool flushed every `flush_every`.
 struct Publisher<'t> {
     task: &'t Task,
     stage: Stage,
@@ -330,6 +338,8 @@ struct Publisher<'t> {
     /// Dropped with the batch: a timer left in the runtime's wheel (even reset to later) would
     /// still wake the runtime at its old time, for nothing.
     batch_due: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// State saves waiting to hear that what came before them is durable.
+    checkpoints: Vec<PendingCheckpoint>,
 }
 
 impl Publisher<'_> {
@@ -337,8 +347,9 @@ impl Publisher<'_> {
     fn start(&mut self) {
         self.shell.extra_filters = self.stage.subscriptions();
         for m in self.stage.start() {
-            self.shell.enqueue(m);
+            self.shell.queue(m);
         }
+        self.pump();
     }
 
     /// Until the bus output closes.
@@ -356,8 +367,9 @@ impl Publisher<'_> {
                 () = due(&mut self.batch_due), if self.batch_due.is_some() => self.pump(),
                 Some(config) = self.reloads.recv() => {
                     for m in self.stage.reload(&config) {
-                        self.shell.enqueue(m);
+                        self.shell.queue(m);
                     }
+                    self.pump();
                 }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
@@ -372,7 +384,8 @@ impl Publisher<'_> {
         match &out {
             Output::DeviceStatus { device, online } => task.health.device(device, *online),
             Output::DeviceProblem { device, .. } => task.health.device(device, false),
-            Output::CommandResult { payload, .. } => task.metrics.command_result(payload),
+            Output::CommandResult { outcome, .. } => task.metrics.command_result(outcome),
+            Output::Checkpoint(c) => return self.checkpoint(c.clone()),
             _ => {}
         }
         for m in self.stage.render(&out) {
@@ -385,10 +398,63 @@ impl Publisher<'_> {
         match self.batch.reading(Instant::now()) {
             Verdict::Send => self.pump(),
             Verdict::HoldUntil(t) => {
-                self.batch_due = Some(Box::pin(tokio::time::sleep_until(t.into())));
+                self.batch_due = Some(Box::pin(tokio::time::sleep_until(t)));
             }
             Verdict::Hold => {}
         }
+    }
+
+    /// A state save asks whether everything before it is durable: held readings go to the
+    /// broker now; the answer comes when the broker has acknowledged them, or (broker away or
+    /// slow) once they are fsynced in the spool.
+    fn checkpoint(&mut self, checkpoint: Checkpoint) {
+        self.pump();
+        let upto = self.shell.outbox.next_seq().saturating_sub(1);
+        self.checkpoints.push(PendingCheckpoint {
+            checkpoint,
+            upto,
+            since: Instant::now(),
+        });
+        self.settle(Instant::now());
+    }
+
+    /// Answers the checkpoints the broker has settled by acknowledging; those it left too long
+    /// (or every one, while it is away) are made durable on disk.
+    fn settle(&mut self, now: Instant) {
+        if self.checkpoints.is_empty() {
+            return;
+        }
+        let oldest = self.shell.outbox.oldest_unacked();
+        let up = self.shell.outbox.is_connected();
+        let (done, waiting): (Vec<_>, Vec<_>) = std::mem::take(&mut self.checkpoints)
+            .into_iter()
+            .partition(|p| oldest.is_none_or(|o| o > p.upto));
+        for p in done {
+            p.checkpoint.answer(true);
+        }
+        let (to_disk, waiting): (Vec<_>, Vec<_>) = waiting
+            .into_iter()
+            .partition(|p| !up || now.saturating_duration_since(p.since) >= CHECKPOINT_WAIT);
+        self.checkpoints = waiting;
+        if !to_disk.is_empty() {
+            self.sync_to_disk(to_disk);
+        }
+    }
+
+    /// Spills what only memory holds and answers `checkpoints` once the disk has it.
+    fn sync_to_disk(&mut self, checkpoints: Vec<PendingCheckpoint>) {
+        let spool = self.shell.outbox.store_mut();
+        let spilled = spool.spill();
+        if let Err(e) = &spilled {
+            tracing::error!("{e}; the state save waits for the broker's acknowledgement");
+        }
+        let synced = spool.barrier();
+        tokio::task::spawn_blocking(move || {
+            let durable = spilled.is_ok() && synced.recv_timeout(Duration::from_secs(5)).is_ok();
+            for p in checkpoints {
+                p.checkpoint.answer(durable);
+            }
+        });
     }
 
     /// The connection took or acknowledged a message: more may go out, but held readings wait
@@ -397,12 +463,13 @@ impl Publisher<'_> {
         if !self.batch.holding() || self.shell.backlog {
             self.pump();
         }
+        self.settle(Instant::now());
     }
 
     /// Hands rumqttc what the outbox lets out, held readings included: the batch is over, and
     /// so is its timer (a fired one left in place would be ready at every turn of the loop).
     fn pump(&mut self) {
-        self.shell.pump();
+        self.shell.pump(&mut self.stage);
         self.batch.sent();
         self.batch_due = None;
     }
@@ -416,7 +483,9 @@ impl Publisher<'_> {
                     tracing::info!(broker = %self.link.broker, "connected to MQTT broker");
                 }
                 self.watch.up = Some(true);
-                s.on_connack(max_packet, &self.link);
+                self.task.heart.set_problem(None);
+                s.on_connack(max_packet, &self.link, &mut self.stage);
+                self.pump();
                 // Health (the systemd status, the ready line) says so now, not at the next beat.
                 self.task.heart.set_up(self.shell.outbox.is_connected());
             }
@@ -437,16 +506,23 @@ impl Publisher<'_> {
     }
 
     /// A message on the boot marker or a format's subscription (the poller sends the rest to
-    /// the router).
+    /// the router); commands a format makes of it go to the router too, never waiting on it.
     fn received(&mut self, topic: &[u8], payload: &[u8]) {
         let topic = String::from_utf8_lossy(topic);
         if topic == self.shell.topics.gateway_marker() {
             self.watch.marker(payload, &self.link);
             return;
         }
-        for m in self.stage.received(&topic, payload) {
-            self.shell.enqueue(m);
+        let reaction = self.stage.received(&topic, payload);
+        for m in reaction.messages {
+            self.shell.queue(m);
         }
+        for c in reaction.commands {
+            if self.routes.router.try_send(c).is_err() {
+                tracing::warn!(%topic, "command router busy: a format's command was dropped");
+            }
+        }
+        self.pump();
     }
 
     /// The connection failed or stalled: everything rumqttc held goes with it, a fresh client
@@ -454,12 +530,17 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
-        let eventloop = self.shell.on_lost(&self.link.options);
+        if matches!(why, Failure::ProtocolRefused) {
+            self.task.heart.set_problem(Some(why.to_string()));
+        }
+        let eventloop = self.shell.on_lost(&self.link.options, &mut self.stage);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
+        self.settle(Instant::now());
     }
 
     /// Every second: a connection that takes messages but acknowledges none is rebuilt (what
-    /// rumqttc does after a packet-id collision); health and metrics.
+    /// rumqttc does after a packet-id collision); the formats' put-off work; checkpoints the
+    /// broker left waiting; health and metrics.
     fn beat(&mut self, now: Instant) {
         let outbox = &self.shell.outbox;
         if outbox.stalled(now, self.stall_after) {
@@ -472,11 +553,23 @@ impl Publisher<'_> {
                 "no acknowledgement: connection stalled".into(),
             ));
         }
+        let ticked = self.stage.tick(now);
+        if !ticked.is_empty() {
+            for m in ticked {
+                self.shell.queue(m);
+            }
+            self.pump();
+        }
+        self.settle(now);
         let up = self.shell.outbox.is_connected();
         self.task.heart.set_up(up);
-        let spool = self.shell.outbox.store();
+        let outbox = &self.shell.outbox;
+        let spool = outbox.store();
         let metrics = &self.task.metrics;
         metrics.mqtt(up, spool.len(), spool.total_bytes(), spool.dropped);
+        let chatter = outbox.chatter();
+        metrics.chatter(chatter.len(), chatter.dropped, spool.written);
+        self.watch.chatter_dropped(chatter.dropped, now);
     }
 
     /// While the broker is away, memory is written out so a crash loses little.
@@ -489,7 +582,7 @@ impl Publisher<'_> {
     }
 
     /// Gives the broker a moment to take what is in flight, keeps the rest for next time,
-    /// publishes the gateway offline, lets the connection write that and our DISCONNECT, and
+    /// lets the formats say goodbye, lets the connection write that and our DISCONNECT, and
     /// waits (off the runtime thread) for the spool's last writes.
     async fn finish(&mut self) {
         self.pump();
@@ -509,17 +602,33 @@ impl Publisher<'_> {
             tracing::info!(messages, "unsent messages kept for the next start");
         }
         if s.outbox.is_connected() {
-            let status = s.topics.gateway_status();
-            s.publish_direct(status, "offline");
+            for m in self.stage.stopping() {
+                s.publish_direct(m);
+            }
             let _ = s.client.disconnect();
         }
         let synced = s.outbox.store().barrier();
+        let waiting = std::mem::take(&mut self.checkpoints);
         // The spool's last writes reach the disk before the process ends.
         let synced = tokio::task::spawn_blocking(move || {
-            let _ = synced.recv_timeout(Duration::from_secs(3));
+            let durable = synced.recv_timeout(Duration::from_secs(3)).is_ok();
+            for p in waiting {
+                p.checkpoint.answer(durable);
+            }
         });
         let _ = tokio::join!(self.poller.finish(Duration::from_secs(1)), synced);
     }
+}
+
+/// How long a checkpoint waits for the broker's acknowledgements before what they cover is
+/// fsynced in the spool instead (checked at the beat, so up to a second more).
+const CHECKPOINT_WAIT: Duration = Duration::from_millis(500);
+
+/// A state save waiting for the owed messages up to `upto` to be durable.
+struct PendingCheckpoint {
+    checkpoint: Checkpoint,
+    upto: u64,
+    since: Instant,
 }
 
 /// The end of the batch's window (never, without one).
@@ -544,19 +653,39 @@ struct Connection {
 /// Logs of the connection: once per state change, takeovers at most once a minute.
 struct Watch {
     up: Option<bool>,
+    /// Chatter dropped when last logged, and the budget of those lines.
+    chatter_dropped: u64,
+    chatter_log: crate::admission::LogBudget,
     takeovers: u64,
     takeover_log: crate::admission::LogBudget,
     /// Wait before the next attempt after a failure.
     pause: Duration,
+    /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
+    protocol_named: bool,
 }
 
 impl Watch {
     fn new() -> Watch {
         Watch {
             up: None,
+            chatter_dropped: 0,
+            chatter_log: crate::admission::LogBudget::new(1),
             takeovers: 0,
             takeover_log: crate::admission::LogBudget::new(1),
             pause: Duration::from_secs(1),
+            protocol_named: false,
+        }
+    }
+
+    /// Chatter was dropped since the last look: said at most once a minute, with the count.
+    fn chatter_dropped(&mut self, dropped: u64, now: Instant) {
+        if dropped > self.chatter_dropped && self.chatter_log.allow(now).0 {
+            let n = dropped - self.chatter_dropped;
+            tracing::warn!(
+                dropped = n,
+                "{n} command results, discovery configs or bus stats dropped: they came faster than the broker took them (readings are never dropped for them)"
+            );
+            self.chatter_dropped = dropped;
         }
     }
 
@@ -580,6 +709,10 @@ impl Watch {
                 tracing::error!(client_id = %link.client_id, takeovers = self.takeovers, "the broker dropped this connection because another client connected with the same client id: is a second gateway using mqtt.client_id {:?}? Both would receive each other's commands", link.client_id);
             }
             self.pause = (self.pause * 2).clamp(Duration::from_secs(5), Duration::from_secs(60));
+        } else if matches!(e, Failure::ProtocolRefused) {
+            if !std::mem::replace(&mut self.protocol_named, true) {
+                tracing::error!(broker = %link.broker, "MQTT broker refused the connection: {e}");
+            }
         } else if self.up != Some(false) {
             tracing::warn!(broker = %link.broker, "MQTT broker unreachable: {e}; reconnecting with a fresh client, readings are spooled");
         }

@@ -23,11 +23,10 @@ fn shell(name: &str) -> (Shell, EventLoop) {
         keep_alive: Duration::from_secs(30),
         max_incoming: MAX_PACKET,
         inflight: INFLIGHT,
-        will: ("pg/t/status".into(), "offline"),
         login: None,
         transport: None,
     })
-    .connect(10);
+    .connect(None, 1 << 20);
     let mut shell = Shell::new(
         Spool::open(&dir, 1 << 20).unwrap(),
         client,
@@ -46,7 +45,8 @@ fn message(topic: &str) -> Message {
 #[test]
 fn messages_in_flight_without_an_acknowledgement_for_too_long_are_a_stalled_connection() {
     let (mut s, _requests) = shell("stall");
-    s.enqueue(message("pg/t/d/enc0"));
+    s.queue(message("pg/t/d/enc0"));
+    s.pump(&mut Stage::new(Vec::new()));
     assert_eq!(s.outbox.in_flight(), 1);
     let limit = Duration::from_secs(10);
     let now = Instant::now();
@@ -58,7 +58,7 @@ fn messages_in_flight_without_an_acknowledgement_for_too_long_are_a_stalled_conn
     );
     s.outbox.sent(1);
     s.outbox.acked(1, later);
-    s.pump();
+    s.pump(&mut Stage::new(Vec::new()));
     assert_eq!(s.outbox.in_flight(), 0);
     assert!(!s.outbox.stalled(later, limit), "acknowledged: publishing");
 }
@@ -66,8 +66,9 @@ fn messages_in_flight_without_an_acknowledgement_for_too_long_are_a_stalled_conn
 #[test]
 fn an_unsendable_message_is_dropped_and_the_next_one_sent() {
     let (mut s, _requests) = shell("unsendable");
-    s.enqueue(message("evil/#"));
-    s.enqueue(message("pg/t/ok"));
+    s.queue(message("evil/#"));
+    s.queue(message("pg/t/ok"));
+    s.pump(&mut Stage::new(Vec::new()));
     assert_eq!(s.outbox.store().len(), 1, "the wildcard one is gone");
     assert_eq!(s.outbox.in_flight(), 1);
     assert_eq!(s.outbox.store_mut().get(0).unwrap().topic, "pg/t/ok");
@@ -80,11 +81,17 @@ fn a_message_larger_than_the_broker_takes_can_never_be_sent() {
     assert!(unsendable("t", 200, 0, Some(1024)).is_none());
 }
 
-fn task(name: &str) -> Task {
-    let text = "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
+/// The config of the task's tests: one device `d`, plus `extra` TOML.
+fn config(extra: &str) -> Config {
+    let text = format!(
+        "[gateway]\nid = \"t\"\n[mqtt]\nhost = \"127.0.0.1\"\nport = 1\ntopic_root = \"pg/t\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n{extra}"
+    );
     let env = Some(std::collections::HashMap::new());
-    let config = crate::config::Config::from_toml(text, std::path::Path::new("x.toml"), env)
-        .expect("config");
+    Config::from_toml(&text, std::path::Path::new("x.toml"), env).expect("config")
+}
+
+fn task(name: &str) -> Task {
+    let config = config("");
     let health = Arc::new(crate::health::Health::default());
     Task {
         spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
@@ -103,7 +110,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
     let (shell, eventloop) = shell(name);
     let (poller, reports) = Poller::scripted();
     let link = Connection {
-        options: client_options(&task.config, &shell.topics).unwrap(),
+        options: client_options(&task.config).unwrap(),
         broker: "127.0.0.1:1".into(),
         client_id: "t".into(),
         commands: true,
@@ -112,7 +119,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
     let (router, _) = tokio::sync::mpsc::channel(1);
     let p = Publisher {
         task,
-        stage: Stage::new(vec![super::super::format::build(&task.config)]),
+        stage: Stage::new(vec![super::super::format::build(&config(""))]),
         reloads: tokio::sync::mpsc::unbounded_channel().1,
         shell,
         link,
@@ -125,6 +132,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         stall_after: Duration::from_secs(10),
         batch: Batch::new(task.config.batch),
         batch_due: None,
+        checkpoints: Vec::new(),
     };
     (p, reports, eventloop)
 }
@@ -226,7 +234,7 @@ async fn held_readings_go_with_a_checkpoint_and_not_with_an_acknowledgement() {
     assert_eq!(p.shell.outbox.store().len(), 2, "but in the spool already");
     p.polled(Ok(Event::Acked(7)));
     assert_eq!(p.shell.outbox.in_flight(), 0, "still held");
-    p.handle(Output::Checkpoint);
+    p.handle(Output::Checkpoint(crate::reading::Checkpoint::new().0));
     assert_eq!(
         p.shell.outbox.in_flight(),
         2,
@@ -261,3 +269,6 @@ async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
     );
     assert!(p.batch_due.is_none(), "and the timer with them");
 }
+
+#[path = "mqtt_paused_tests.rs"]
+mod paused;

@@ -54,16 +54,21 @@ impl PolicyOverride {
         }
     }
 
-    /// The policy these keys describe.
+    /// The policy these keys describe. A zero `min_interval` or `heartbeat` (written `"0s"`)
+    /// means none: it overrides a wider level's value instead of inheriting it.
     pub fn policy(&self) -> Policy {
         let mode = self.publish.unwrap_or_default();
+        let set = |d: Option<Duration>| d.filter(|d| !d.is_zero());
         Policy {
             mode,
             heartbeat: match mode {
                 PublishMode::Poll => None,
-                PublishMode::Change => Some(self.heartbeat.unwrap_or(DEFAULT_HEARTBEAT)),
+                PublishMode::Change => match self.heartbeat {
+                    None => Some(DEFAULT_HEARTBEAT),
+                    zero_or_set => set(zero_or_set),
+                },
             },
-            min_interval: self.min_interval,
+            min_interval: set(self.min_interval),
         }
     }
 }
@@ -260,5 +265,41 @@ mod tests {
         assert_eq!(p.heartbeat, Some(Duration::from_secs(60)));
         assert_eq!(p.min_interval, Some(Duration::from_secs(5)));
         assert_eq!(PolicyOverride::default().policy(), Policy::default());
+    }
+
+    #[test]
+    fn a_zero_min_interval_or_heartbeat_at_a_narrower_level_means_none() {
+        let gateway = PolicyOverride {
+            min_interval: Some(Duration::from_secs(1)),
+            heartbeat: Some(Duration::from_secs(60)),
+            ..Default::default()
+        };
+        let device = PolicyOverride {
+            publish: Some(PublishMode::Poll),
+            min_interval: Some(Duration::ZERO),
+            ..Default::default()
+        };
+        let p = gateway.then(&device).policy();
+        assert_eq!((p.mode, p.min_interval), (PublishMode::Poll, None));
+        let mut gate = Gate::default();
+        gate.publish(0, 10, &update(0, 0));
+        assert!(gate.wants(&p, 100, 11, &update(1, 1)), "every poll");
+
+        let channel = PolicyOverride {
+            publish: Some(PublishMode::Change),
+            heartbeat: Some(Duration::ZERO),
+            ..Default::default()
+        };
+        let p = gateway.then(&channel).policy();
+        assert_eq!(
+            p.heartbeat, None,
+            "no heartbeat: a still channel stays quiet"
+        );
+        assert!(!gate.wants(&p, 10_000_000, 10, &update(0, 0)));
+        assert_eq!(
+            gateway.policy().min_interval,
+            Some(Duration::from_secs(1)),
+            "inherited when not written"
+        );
     }
 }

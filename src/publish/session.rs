@@ -45,8 +45,6 @@ pub struct Settings<'a> {
     /// protocol's 65535 and builds its in-flight table at that size up front (~14 MB resident,
     /// half the gateway's memory at 1000 devices); the outbox never has more than its window out.
     pub inflight: u16,
-    /// Last will: topic and payload (QoS 1, retained).
-    pub will: (String, &'static str),
     pub login: Option<(String, String)>,
     pub transport: Option<Transport>,
 }
@@ -59,13 +57,6 @@ impl Options {
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(Some(s.max_incoming));
                 o.set_outgoing_inflight_upper_limit(s.inflight);
-                o.set_last_will(v5::mqttbytes::v5::LastWill::new(
-                    s.will.0,
-                    s.will.1,
-                    v5::mqttbytes::QoS::AtLeastOnce,
-                    true,
-                    None,
-                ));
                 if let Some((u, p)) = s.login {
                     o.set_credentials(u, p);
                 }
@@ -79,12 +70,6 @@ impl Options {
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(s.max_incoming as usize, V311_MAX_OUT as usize);
                 o.set_inflight(s.inflight);
-                o.set_last_will(rumqttc::LastWill::new(
-                    s.will.0,
-                    s.will.1,
-                    rumqttc::QoS::AtLeastOnce,
-                    true,
-                ));
                 if let Some((u, p)) = s.login {
                     o.set_credentials(u, p);
                 }
@@ -96,15 +81,43 @@ impl Options {
         }
     }
 
-    /// A fresh client and its event loop (nothing of an earlier one carries over).
-    pub fn connect(&self, cap: usize) -> (Client, EventLoop) {
-        match self {
+    /// The same options with `will` as the last will: a format's will may change from one
+    /// connection to the next (Sparkplug's NDEATH carries the connection's bdSeq).
+    fn with_will(&self, will: Option<&crate::outbox::Will>) -> Options {
+        let mut o = self.clone();
+        match (&mut o, will) {
+            (Options::V5(o), Some(w)) => {
+                o.set_last_will(v5::mqttbytes::v5::LastWill::new(
+                    w.topic.clone(),
+                    w.payload.clone(),
+                    v5_qos(w.qos),
+                    w.retain,
+                    None,
+                ));
+            }
+            (Options::V311(o), Some(w)) => {
+                o.set_last_will(rumqttc::LastWill::new(
+                    w.topic.clone(),
+                    w.payload.clone(),
+                    v311_qos(w.qos),
+                    w.retain,
+                ));
+            }
+            (_, None) => {}
+        }
+        o
+    }
+
+    /// A fresh client and its event loop (nothing of an earlier one carries over), leaving
+    /// `will` with the broker.
+    pub fn connect(&self, will: Option<&crate::outbox::Will>, cap: usize) -> (Client, EventLoop) {
+        match self.with_will(will) {
             Options::V5(o) => {
-                let (c, e) = v5::AsyncClient::new(o.clone(), cap);
+                let (c, e) = v5::AsyncClient::new(o, cap);
                 (Client::V5(c), EventLoop::V5(e))
             }
             Options::V311(o) => {
-                let (c, e) = rumqttc::AsyncClient::new(o.clone(), cap);
+                let (c, e) = rumqttc::AsyncClient::new(o, cap);
                 (Client::V311(c), EventLoop::V311(e))
             }
         }
@@ -235,14 +248,21 @@ pub enum Failure {
     RequestsDone,
     /// Another client connected with our client id (v5 says so; 3.1.1 just closes).
     TakenOver,
+    /// The broker refused the protocol version we asked for (an MQTT 3.1.1 broker asked for
+    /// v5, in the v5 form, reason 0x84, or the 3.1.1 form, return code 1).
+    ProtocolRefused,
     Other(String),
 }
+
+/// What the log and the systemd status say when the broker refuses MQTT 5.
+pub const PROTOCOL_REFUSED: &str = "the broker refuses MQTT 5 (CONNACK: unacceptable protocol version): it speaks MQTT 3.1.1 only; set mqtt.protocol = \"3.1.1\" in the config";
 
 impl std::fmt::Display for Failure {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Failure::RequestsDone => f.write_str("client closed"),
             Failure::TakenOver => f.write_str("session taken over by another client"),
+            Failure::ProtocolRefused => f.write_str(PROTOCOL_REFUSED),
             Failure::Other(m) => f.write_str(m),
         }
     }
@@ -322,6 +342,10 @@ fn v5_failure(e: v5::ConnectionError) -> Failure {
             reason_code: DisconnectReasonCode::SessionTakenOver,
             ..
         }) => Failure::TakenOver,
+        v5::ConnectionError::ConnectionRefused(
+            v5::mqttbytes::v5::ConnectReturnCode::UnsupportedProtocolVersion
+            | v5::mqttbytes::v5::ConnectReturnCode::RefusedProtocolVersion,
+        ) => Failure::ProtocolRefused,
         other => Failure::Other(other.to_string()),
     }
 }
@@ -337,6 +361,31 @@ fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
 mod tests {
     use super::*;
 
+    #[test]
+    fn a_refusal_of_mqtt_5_in_either_form_is_named_as_such() {
+        use v5::mqttbytes::v5::{ConnectReturnCode, Packet};
+        // A 3.1.1 broker's CONNACK (no properties), return code 1, read by the v5 client.
+        let mut bytes = bytes::BytesMut::from(&[0x20u8, 0x02, 0x00, 0x01][..]);
+        let Ok(Packet::ConnAck(ack)) = Packet::read(&mut bytes, None) else {
+            panic!("a 3.1.1 CONNACK is read, not awaited");
+        };
+        assert_eq!(ack.code, ConnectReturnCode::RefusedProtocolVersion);
+        for code in [
+            ConnectReturnCode::RefusedProtocolVersion,
+            ConnectReturnCode::UnsupportedProtocolVersion,
+        ] {
+            let failure = v5_failure(v5::ConnectionError::ConnectionRefused(code));
+            assert!(matches!(failure, Failure::ProtocolRefused));
+            assert!(failure.to_string().contains("mqtt.protocol = \"3.1.1\""));
+        }
+        assert!(matches!(
+            v5_failure(v5::ConnectionError::ConnectionRefused(
+                ConnectReturnCode::NotAuthorized
+            )),
+            Failure::Other(_)
+        ));
+    }
+
     fn settings(protocol: MqttProtocol) -> Settings<'static> {
         Settings {
             protocol,
@@ -346,7 +395,6 @@ mod tests {
             keep_alive: std::time::Duration::from_secs(30),
             max_incoming: 65536,
             inflight: 164,
-            will: ("pg/t/status".into(), "offline"),
             login: None,
             transport: None,
         }

@@ -6,7 +6,6 @@ use rumqttc::Transport;
 
 use super::mqtt::client_options;
 use super::session::Options;
-use super::topics::Topics;
 use crate::config::{Config, Mqtt, MqttProtocol, Tls};
 
 fn mqtt(protocol: &str) -> Mqtt {
@@ -24,7 +23,7 @@ fn mqtt(protocol: &str) -> Mqtt {
 fn a_v5_client_connects_to_the_socket_path_over_the_unix_transport() {
     let config = mqtt("5");
     assert_eq!(config.protocol, MqttProtocol::V5);
-    match client_options(&config, &Topics::new("pg")).unwrap() {
+    match client_options(&config).unwrap() {
         Options::V5(o) => {
             assert_eq!(o.broker_address().0, "/run/mosquitto/mqtt.sock");
             assert!(matches!(o.transport(), Transport::Unix));
@@ -36,7 +35,7 @@ fn a_v5_client_connects_to_the_socket_path_over_the_unix_transport() {
 #[test]
 fn a_3_1_1_client_connects_to_the_socket_path_over_the_unix_transport() {
     let config = mqtt("3.1.1");
-    match client_options(&config, &Topics::new("pg")).unwrap() {
+    match client_options(&config).unwrap() {
         Options::V311(o) => {
             assert_eq!(o.broker_address().0, "/run/mosquitto/mqtt.sock");
             assert!(matches!(o.transport(), Transport::Unix));
@@ -54,9 +53,7 @@ fn a_socket_with_tls_never_connects_without_tls() {
         cert_file: None,
         key_file: None,
     });
-    let e = client_options(&config, &Topics::new("pg"))
-        .err()
-        .expect("refused");
+    let e = client_options(&config).err().expect("refused");
     assert!(e.to_string().contains("mqtt.socket"), "{e}");
     assert!(e.to_string().contains("mqtt.tls"), "{e}");
 }

@@ -149,7 +149,19 @@ pub struct Spool {
     spilling: bool,
     /// Messages dropped because the spool was full, since start.
     pub dropped: u64,
+    /// Bytes written to segment files, since start.
+    pub written: u64,
     syncer: Syncer,
+}
+
+impl SpoolError {
+    /// A failure at `path`.
+    pub fn new(path: &Path, source: std::io::Error) -> SpoolError {
+        SpoolError {
+            path: path.display().to_string(),
+            source,
+        }
+    }
 }
 
 fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SpoolError + '_ {
@@ -209,8 +221,14 @@ impl Spool {
             next_seq,
             spilling: false,
             dropped: 0,
+            written: 0,
             syncer: Syncer::start(dir.to_path_buf()),
         })
+    }
+
+    /// The directory of the spool's files.
+    pub fn dir(&self) -> &Path {
+        &self.dir
     }
 
     /// Messages waiting (in memory and on disk).
@@ -298,6 +316,7 @@ impl Spool {
         let seg = self.segments.back_mut().expect("just ensured");
         let w = self.writer.as_mut().expect("just ensured");
         w.write_all(line.as_bytes()).map_err(io_err(&seg.path))?;
+        self.written += line.len() as u64;
         seg.last = entry.seq;
         seg.count += 1;
         seg.bytes += line.len() as u64;
@@ -354,6 +373,7 @@ impl Spool {
             bytes += line.len() as u64;
         }
         w.flush().map_err(io_err(&tmp))?;
+        self.written += bytes;
         let file = w.into_inner().map_err(|e| io_err(&tmp)(e.into_error()))?;
         self.syncer.send(Job::Publish {
             file,
@@ -504,6 +524,10 @@ impl crate::outbox::Store for Spool {
         Spool::len(self)
     }
 
+    fn next_seq(&self) -> u64 {
+        self.next_seq
+    }
+
     fn broker_away(&mut self, away: bool) {
         self.set_spilling(away)
     }
@@ -601,7 +625,7 @@ mod tests {
     #[test]
     fn a_full_spool_on_disk_never_drops_what_the_outbox_has_in_flight() {
         use crate::outbox::{Message, Outbox, Step};
-        let now = std::time::Instant::now();
+        let now = tokio::time::Instant::now();
         let d = dir("inflight");
         let mut spool = Spool::open(&d, 100_000).unwrap();
         spool.mem_limit = 1000;
@@ -612,7 +636,9 @@ mod tests {
             o.enqueue(m(i)).unwrap();
         }
         for pkid in 1..=3 {
-            assert!(matches!(o.next(now), Some(Step::Send(e)) if e.seq == u64::from(pkid)));
+            assert!(
+                matches!(o.next(now), Some(Step::Send { entry: e, .. }) if e.seq == u64::from(pkid))
+            );
             o.sent(pkid);
         }
         for i in 3..5000 {
@@ -625,7 +651,7 @@ mod tests {
         for pkid in 1..=3 {
             o.acked(pkid, now);
         }
-        assert!(matches!(o.next(now), Some(Step::Send(e)) if e.seq == oldest_left));
+        assert!(matches!(o.next(now), Some(Step::Send { entry: e, .. }) if e.seq == oldest_left));
         assert_eq!(
             o.store_mut().get(0).unwrap().seq,
             oldest_left,

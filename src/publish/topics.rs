@@ -89,6 +89,63 @@ impl Topics {
     }
 }
 
+/// Where a command's MQTT v5 response topic may not point, written once: the gateway
+/// publishes a result there under its own credentials, so a sender allowed only command topics
+/// must not reach, through it, what it may not publish itself.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ResponseRule {
+    root: String,
+    discovery_prefix: String,
+}
+
+impl ResponseRule {
+    /// The rule of a gateway publishing under `root`, beside Home Assistant's
+    /// `discovery_prefix` (the prefix counts whether discovery is on or not: Home Assistant
+    /// listens there either way).
+    pub fn new(root: &str, discovery_prefix: &str) -> ResponseRule {
+        ResponseRule {
+            root: root.to_string(),
+            discovery_prefix: discovery_prefix.to_string(),
+        }
+    }
+
+    /// Why a result may not go to `topic`, or `Ok` (its shape, length and wildcards are
+    /// checked apart, in `command::check_response_topic`):
+    /// - under the gateway's root only its result topics (`…/cmd/result`, `…/scan/result`):
+    ///   never its status, boot marker, readings, bus stats or command topics;
+    /// - nothing under the Home Assistant discovery prefix (configs, its status);
+    /// - nowhere a request is taken (a last level `cmd` or `scan`, of any gateway): a result
+    ///   must not become a command.
+    ///
+    /// Everything else is confined by the broker's ACL (the example in docs/security.md lets
+    /// the gateway write its root and `replies/#` only).
+    pub fn check(&self, topic: &str) -> Result<(), &'static str> {
+        let under = |prefix: &str| {
+            topic == prefix
+                || topic
+                    .strip_prefix(prefix)
+                    .is_some_and(|rest| rest.starts_with('/'))
+        };
+        if under(&self.root) {
+            let request = topic.strip_suffix("/result").unwrap_or_default();
+            let is_result = parse_command(&self.root, request).is_some()
+                || parse_scan(&self.root, request).is_some();
+            return if is_result {
+                Ok(())
+            } else {
+                Err("it is under the gateway's own topics (only their /result topics may be used)")
+            };
+        }
+        if under(&self.discovery_prefix) {
+            return Err("it is under the Home Assistant discovery prefix");
+        }
+        if matches!(topic.rsplit('/').next(), Some("cmd" | "scan")) {
+            return Err("it is a command or scan topic");
+        }
+        Ok(())
+    }
+}
+
 /// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
 pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
     let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
@@ -121,6 +178,42 @@ mod tests {
         assert_eq!(t.reading("press1", "enc0"), "pulsegate/edge-01/press1/enc0");
         assert_eq!(t.bus_stats("line1"), "pulsegate/edge-01/bus/line1/stats");
         assert_eq!(t.device("press1"), "pulsegate/edge-01/press1");
+    }
+
+    #[test]
+    fn a_response_topic_may_not_reach_the_gateways_own_topics_or_home_assistants() {
+        let t = Topics::new("pg/e1");
+        let rule = ResponseRule::new("pg/e1", "homeassistant");
+        for refused in [
+            t.gateway_status(),
+            t.gateway_marker(),
+            t.device_status("press"),
+            t.reading("press", "enc0"),
+            t.device("press"),
+            t.bus_stats("line1"),
+            t.channel_command("press", "enc0"),
+            t.device_command("press"),
+            "pg/e1".into(),
+            "pg/e1/bus/line1/scan".into(),
+            "pg/e1/press/enc0/result".into(),
+            "pg/e1/x/y/z/cmd/result".into(),
+            "homeassistant/status".into(),
+            "homeassistant/sensor/e1/press_enc0/config".into(),
+            "pg/e2/press/enc0/cmd".into(),
+            "pg/e2/bus/line1/scan".into(),
+        ] {
+            assert!(rule.check(&refused).is_err(), "{refused}");
+        }
+        for allowed in [
+            Topics::result(&t.channel_command("press", "enc0")),
+            Topics::result(&t.device_command("press")),
+            "pg/e1/bus/line1/scan/result".into(),
+            "replies/mes/42".into(),
+            "pg/e10/status".into(),
+            "homeassistantx/reply".into(),
+        ] {
+            assert_eq!(rule.check(&allowed), Ok(()), "{allowed}");
+        }
     }
 
     #[test]

@@ -430,7 +430,15 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
         "ghost flood: {answered} results; RSS {rss_before} kB before, peak {rss_peak} kB, growth {} kB",
         rss_peak - rss_before
     );
-    assert_eq!(answered, 50_000, "every command answered");
+    // Results are chatter: a burst faster than the broker takes them keeps the newest 16,384
+    // (`outbox::CHATTER_MESSAGES`) and says how many it dropped; readings go on (below).
+    let log = gw.log_text();
+    assert!(
+        answered == 50_000
+            || (answered >= pulsegate::outbox::CHATTER_MESSAGES
+                && log.contains("dropped: they came faster than the broker took them")),
+        "{answered} answered:\n{log}"
+    );
     assert!(
         rss_peak - rss_before <= 16 * 1024,
         "RSS grew by {} kB",

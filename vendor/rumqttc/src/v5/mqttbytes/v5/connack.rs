@@ -69,6 +69,16 @@ impl ConnAck {
 
         let flags = read_u8(&mut bytes)?;
         let return_code = read_u8(&mut bytes)?;
+        // pulsegate patch: a broker that speaks only MQTT 3.1.1 answers a v5 CONNECT with a
+        // 3.1.1 CONNACK, which has no properties; its return code 1 is "unacceptable protocol
+        // version". Read as v5 it would wait for a property length that never comes.
+        if bytes.is_empty() && return_code == 1 {
+            return Ok(ConnAck {
+                session_present: false,
+                code: ConnectReturnCode::RefusedProtocolVersion,
+                properties: None,
+            });
+        }
         let properties = ConnAckProperties::read(&mut bytes)?;
 
         let session_present = (flags & 0x01) == 1;

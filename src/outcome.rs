@@ -1,0 +1,134 @@
+//! The answers the gateway gives to commands and scans, as types until a format writes them:
+//! metrics and priorities read the type, never the text (a scan's report has no `ok` key, and
+//! once counted as a refusal for it). Pure.
+
+use serde::Serialize;
+
+use crate::command::{self, CommandError};
+use crate::commission::scan::Found;
+
+/// The answer to a command or a scan.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Command(CommandOutcome),
+    Scan(ScanOutcome),
+}
+
+/// What became of a clear, preset or clear_all.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CommandOutcome {
+    /// The request's `id`, if it had one.
+    pub id: Option<String>,
+    /// The operation, once the payload named one.
+    pub op: Option<String>,
+    /// Done (with the count read back, where there is one), or why not.
+    pub result: Result<Option<i64>, CommandError>,
+}
+
+/// What became of a scan request.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ScanOutcome {
+    /// The scan ran (to its end or its time limit): what it found.
+    Report(ScanReport),
+    /// The scan was refused before it asked any unit.
+    Refused {
+        bus: String,
+        id: Option<String>,
+        /// Machine-readable: `busy`, `too_large`, `bad_request`, …
+        code: &'static str,
+        message: String,
+    },
+}
+
+/// A scan's findings.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ScanReport {
+    pub bus: String,
+    pub found: Vec<Found>,
+    /// Units of configured devices in the requested range (not asked).
+    pub configured: Vec<u8>,
+    pub asked: usize,
+    /// Every requested unit was asked (not cut short by the time limit).
+    pub complete: bool,
+    pub elapsed_ms: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
+}
+
+impl Outcome {
+    /// The refusal's code when the request was refused or failed; `None` when it succeeded.
+    pub fn refusal(&self) -> Option<&str> {
+        match self {
+            Outcome::Command(c) => c.result.as_ref().err().map(CommandError::code),
+            Outcome::Scan(ScanOutcome::Refused { code, .. }) => Some(code),
+            Outcome::Scan(ScanOutcome::Report(_)) => None,
+        }
+    }
+
+    /// The result as JSON text (the JSON format's payload).
+    pub fn to_json(&self) -> serde_json::Value {
+        match self {
+            Outcome::Command(c) => {
+                command::result_json(c.id.as_deref(), c.op.as_deref(), &c.result)
+            }
+            Outcome::Scan(ScanOutcome::Report(r)) => {
+                serde_json::to_value(r).unwrap_or(serde_json::Value::Null)
+            }
+            Outcome::Scan(ScanOutcome::Refused {
+                bus,
+                id,
+                code,
+                message,
+            }) => {
+                let mut v = serde_json::json!({"bus": bus, "error": code, "message": message});
+                if let Some(id) = id {
+                    v["id"] = serde_json::json!(id);
+                }
+                v
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report() -> Outcome {
+        Outcome::Scan(ScanOutcome::Report(ScanReport {
+            bus: "line1".into(),
+            found: Vec::new(),
+            configured: vec![1],
+            asked: 246,
+            complete: true,
+            elapsed_ms: 1200,
+            id: Some("s1".into()),
+        }))
+    }
+
+    #[test]
+    fn a_scan_report_is_no_refusal_though_it_has_no_ok_key() {
+        let r = report();
+        assert_eq!(r.refusal(), None);
+        assert!(r.to_json().get("ok").is_none());
+        assert_eq!(r.to_json()["id"], "s1");
+    }
+
+    #[test]
+    fn a_refused_command_or_scan_names_its_code() {
+        let c = Outcome::Command(CommandOutcome {
+            id: None,
+            op: Some("clear".into()),
+            result: Err(CommandError::UnknownDevice("nosuch".into())),
+        });
+        assert_eq!(c.refusal(), Some("unknown_device"));
+        assert_eq!(c.to_json()["ok"], false);
+        let s = Outcome::Scan(ScanOutcome::Refused {
+            bus: "l".into(),
+            id: None,
+            code: "busy",
+            message: "a scan of this bus is under way".into(),
+        });
+        assert_eq!(s.refusal(), Some("busy"));
+    }
+}

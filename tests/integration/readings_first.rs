@@ -1,0 +1,207 @@
+//! Readings first: chatter (discovery re-announcements, refused commands) shares the connection
+//! with the readings but can never cost one, and a crash after a broker stall loses no pulse for
+//! a consumer following `after_seq`. Real broker, simulated modules on Modbus TCP.
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use rumqttc::v5::mqttbytes::QoS;
+
+use crate::hostile::{KILLED_ENCODER, consume, stop_and_collect};
+use crate::support::*;
+
+/// Three YL67 on Modbus TCP, each counting on `enc0`.
+fn three_encoders(port: u16) -> String {
+    let mut text = format!("[buses.tcp1]\nlisten = \"127.0.0.1:{port}\"\n");
+    for unit in 1..=3 {
+        text += &format!(
+            "[buses.tcp1.devices.m{unit}]\nunit = {unit}\nmodel = \"yl67\"\nchannels.enc0 = {{ rate = {}.0 }}\n",
+            100 * unit
+        );
+    }
+    text
+}
+
+/// More devices configured on a bus that nobody answers: with 190, a site of some 250 discovery
+/// configs.
+fn ghost_bus(devices: u8) -> String {
+    let port = free_port();
+    let mut text = format!(
+        "[buses.ghost]\nhost = \"127.0.0.1\"\nport = {port}\ntimeout = \"100ms\"\nbackoff_max = \"5s\"\n"
+    );
+    for unit in 1..=devices {
+        text += &format!("[buses.ghost.devices.g{unit}]\nunit = {unit}\nmodel = \"yl67\"\n");
+    }
+    text
+}
+
+/// A gateway polling the three encoders every 200 ms with a 1 MB spool, plus `extra`.
+async fn rig(
+    name: &str,
+    broker: &Broker,
+    extra: &str,
+) -> (pulsegate::sim::Plant, Gateway, Subscriber) {
+    let plant = plant(&three_encoders(free_port())).await;
+    let dir = temp_dir(name);
+    let sub = Subscriber::start(broker.port, "pulsegate/test/+/enc0").await;
+    let devices: Vec<(&str, &str, u8, &str, &str)> = (1..=3)
+        .map(|u| ("tcp1", ["m1", "m2", "m3"][u - 1], u as u8, "yl67", "200ms"))
+        .collect();
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, extra).replacen(
+        "[mqtt]\n",
+        "[mqtt]\nspool_mb = 1\n",
+        1,
+    );
+    let gw = Gateway::start(&write_config(&dir, &text));
+    for d in ["m1", "m2", "m3"] {
+        sub.expect_any(&format!("pulsegate/test/{d}/enc0"), Duration::from_secs(10))
+            .await;
+    }
+    (plant, gw, sub)
+}
+
+/// Every channel's readings: seq without a gap, and deltas that add up to the total's change.
+fn assert_every_pulse_counted(sub: &Subscriber) {
+    let mut by_topic: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    for m in sub.all() {
+        by_topic.entry(m.topic.clone()).or_default().push(m.json());
+    }
+    assert_eq!(by_topic.len(), 3, "{:?}", by_topic.keys());
+    for (topic, readings) in by_topic {
+        for w in readings.windows(2) {
+            let (a, b) = (w[0]["seq"].as_i64().unwrap(), w[1]["seq"].as_i64().unwrap());
+            assert_eq!(b, a + 1, "{topic}: seq {a} then {b}");
+        }
+        let deltas: i64 = readings[1..]
+            .iter()
+            .map(|r| r["delta"].as_i64().unwrap())
+            .sum();
+        let first = readings[0]["total"].as_i64().unwrap();
+        let last = readings.last().unwrap()["total"].as_i64().unwrap();
+        assert_eq!(deltas, last - first, "{topic}: summed deltas");
+        assert!(readings.len() > 10, "{topic}: {} readings", readings.len());
+    }
+}
+
+/// Bytes the process has caused to be written to storage (`/proc/<pid>/io`).
+fn disk_writes(pid: i32) -> u64 {
+    let io = std::fs::read_to_string(format!("/proc/{pid}/io")).unwrap();
+    io.lines()
+        .find_map(|l| l.strip_prefix("write_bytes: "))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap()
+}
+
+/// Home Assistant's `online` 600 times at 40 a second on a site of some 250 configs, with a
+/// 1 MB spool: no reading is lost (once every `online` re-announced everything into the same
+/// outbox and the bound pushed readings out), and the spool's disk sees almost nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_home_assistant_births_costs_no_reading_and_no_disk() {
+    let broker = Broker::start();
+    let extra = format!("[homeassistant]\ndiscovery = true\n{}", ghost_bus(190));
+    let (_plant, gw, sub) = rig("rf-ha-flood", &broker, &extra).await;
+    let ha = Subscriber::start(broker.port, "homeassistant/+/test/+/config").await;
+    // The first announcement, complete (the retained configs arrive as they are published).
+    let mut configs = 0;
+    for _ in 0..40 {
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let now = ha.all().len();
+        if now == configs && now > 0 {
+            break;
+        }
+        configs = now;
+    }
+    ha.clear();
+    assert!(configs >= 250, "a site of {configs} configs");
+    let written = disk_writes(gw.pid());
+    let started = Instant::now();
+    for i in 0..600u32 {
+        ha.client
+            .publish("homeassistant/status", QoS::AtMostOnce, false, "online")
+            .await
+            .unwrap();
+        let next = started + Duration::from_millis(25 * u64::from(i + 1));
+        tokio::time::sleep(next.saturating_duration_since(Instant::now())).await;
+    }
+    let flood_writes = disk_writes(gw.pid()) - written;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let announced = ha.all().len();
+    println!(
+        "HA flood: {configs} configs, {announced} config messages in all, {flood_writes} bytes written"
+    );
+    assert!(
+        announced <= configs * 6,
+        "re-announcements coalesced: {announced} messages for {configs} configs"
+    );
+    assert!(flood_writes < 2 << 20, "{flood_writes} bytes written");
+    assert_every_pulse_counted(&sub);
+}
+
+/// Thirty thousand `clear_all` to a device that does not exist, in a burst: every refusal is a
+/// result, but results are chatter and the readings of the burst all arrive.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_of_commands_to_an_unknown_device_costs_no_reading() {
+    let broker = Broker::start();
+    let (_plant, _gw, sub) = rig("rf-cmd-flood", &broker, "").await;
+    let results = Subscriber::start(broker.port, "pulsegate/test/nosuch/cmd/result").await;
+    for _ in 0..30_000 {
+        results
+            .client
+            .publish(
+                "pulsegate/test/nosuch/cmd",
+                QoS::AtMostOnce,
+                false,
+                r#"{"op":"clear_all"}"#,
+            )
+            .await
+            .unwrap();
+    }
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    println!("command burst: {} results", results.all().len());
+    assert!(!results.all().is_empty(), "refusals answered");
+    assert_every_pulse_counted(&sub);
+}
+
+/// The broker stops answering (SIGSTOP), state saves pass, the gateway is killed, the broker
+/// comes back and the gateway restarts: a consumer following `after_seq` sums exactly the
+/// pulses counted. Readings the saves covered were in memory only, once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_crash_after_a_broker_stall_loses_no_pulse_for_a_consumer() {
+    let broker = Broker::start();
+    let plant = plant(KILLED_ENCODER).await;
+    let dir = temp_dir("rf-stall-crash");
+    let topic = "pulsegate/test/m/a0";
+    let sub = Subscriber::start(broker.port, topic).await;
+    let devices = [("line1", "m", 1, "yl67", "50ms")];
+    let config = write_config(
+        &dir,
+        &gateway_toml(&plant, broker.port, &dir, &devices, "").replacen(
+            "[mqtt]\n",
+            "[mqtt]\nkeep_alive = \"30s\"\n",
+            1,
+        ),
+    );
+    let gw = Gateway::start(&config);
+    sub.expect_any(topic, Duration::from_secs(10)).await;
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let pid = broker.pid().to_string();
+    let signal = |sig: &str| {
+        std::process::Command::new("kill")
+            .args([sig, &pid])
+            .status()
+            .unwrap()
+    };
+    signal("-STOP");
+    // Saves every 500 ms: several pass while the broker takes nothing.
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    gw.kill();
+    signal("-CONT");
+    let gw = Gateway::start(&config);
+    let (all, generated) = stop_and_collect(&plant, &sub, gw, topic).await;
+    let first_count = all[0]["count"].as_i64().unwrap();
+    assert!(
+        all.iter().any(|r| r["after_seq"].is_i64()),
+        "the second run counts from the saved seq"
+    );
+    assert_eq!(consume(&all), generated - first_count, "summed deltas");
+}
