@@ -38,7 +38,7 @@ pub const SHORTEST_ANSWER: usize = 5;
 /// How long the line may stay quiet past an answer's end before the answer counts as cut short:
 /// enough for an adapter that holds bytes for its latency timer (16 ms for an FTDI chip left at
 /// its default), far less than an answer timeout.
-pub const CUT_GRACE: Duration = Duration::from_millis(20);
+pub const CUT_GRACE: Duration = Duration::from_millis(30);
 
 /// Whether the runtime watches the port.
 enum Watch {
