@@ -61,7 +61,19 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         }
     }
     let homeassistant = super::publish::homeassistant(root.table("homeassistant", errs), errs);
+    let sparkplug_table = root.table("sparkplug", errs);
+    let sparkplug_set = sparkplug_table.is_some();
+    let sparkplug = super::sparkplug::sparkplug(sparkplug_table, &gateway.id, errs);
+    let origin = root.origin().map(str::to_string);
     root.finish(errs);
+    let named = mqtt.format.iter().any(|f| f == "sparkplug");
+    if named && !sparkplug_set {
+        let why = "mqtt.format names \"sparkplug\": add [sparkplug] with its group_id";
+        errs.push("sparkplug", origin.as_deref(), why);
+    } else if sparkplug_set && !named {
+        let why = "[sparkplug] is set but mqtt.format does not name \"sparkplug\"";
+        errs.push("mqtt.format", origin.as_deref(), why);
+    }
 
     // Device names become topic levels, so they are unique across the gateway.
     let mut seen: HashMap<&str, &str> = HashMap::new();
@@ -84,6 +96,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         metrics,
         buses,
         homeassistant,
+        sparkplug,
     })
 }
 
@@ -199,18 +212,12 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         spool_bytes: 64 << 20,
         commands: true,
         protocol: super::MqttProtocol::V5,
-        format: "json".into(),
+        format: vec!["json".into()],
         batch: DEFAULT_BATCH,
     };
     let Some(mut t) = table else { return m };
-    if let Some(v) = t.opt::<String>("format", errs) {
-        if crate::publish::format::NAMES.contains(&v.as_str()) {
-            m.format = v;
-        } else {
-            let names = crate::publish::format::NAMES.join(", ");
-            let why = format!("unknown output format {v:?}: one of {names}");
-            errs.push(&join(&t.path, "format"), t.origin(), why);
-        }
+    if let Some(list) = super::sparkplug::formats(&mut t, crate::publish::format::NAMES, errs) {
+        m.format = list;
     }
     if let Some(v) = t.opt::<String>("protocol", errs) {
         match v.as_str() {

@@ -9,6 +9,7 @@ mod check;
 mod metrics;
 pub mod publish;
 mod socket;
+pub mod sparkplug;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -23,6 +24,7 @@ pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
 pub use metrics::Metrics as MetricsEndpoint;
 pub use publish::HomeAssistant;
+pub use sparkplug::Sparkplug;
 
 use crate::publish::policy::{PayloadMode, PolicyOverride};
 
@@ -77,6 +79,8 @@ pub struct Config {
     pub buses: Vec<Bus>,
     /// `[homeassistant]`: MQTT discovery.
     pub homeassistant: HomeAssistant,
+    /// `[sparkplug]`: present exactly when `mqtt.format` names `"sparkplug"`.
+    pub sparkplug: Option<Sparkplug>,
 }
 
 /// `[gateway]`
@@ -145,8 +149,9 @@ pub struct Mqtt {
     pub commands: bool,
     /// `mqtt.protocol`: "5" (default) or "3.1.1".
     pub protocol: MqttProtocol,
-    /// `mqtt.format`: how events become payloads, one of [`crate::publish::format::NAMES`].
-    pub format: String,
+    /// `mqtt.format`: how events become payloads, each one of [`crate::publish::format::NAMES`]
+    /// (a list runs them side by side: `["json", "sparkplug"]`).
+    pub format: Vec<String>,
     /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
     /// [`crate::publish::batch`]); zero sends each poll's at once.
     pub batch: Duration,

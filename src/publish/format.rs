@@ -32,13 +32,17 @@ pub struct Reaction {
     /// For the command router, as if they had arrived on a command topic (with all its
     /// checks and admission).
     pub commands: Vec<Incoming>,
+    /// Published at once, ahead of the outbox's backlog, and not stored, like what
+    /// [`Format::connected`] returns (Sparkplug's births when its primary host comes online,
+    /// before what was held for it).
+    pub at_once: Vec<Message>,
 }
 
 impl From<Vec<Message>> for Reaction {
     fn from(messages: Vec<Message>) -> Reaction {
         Reaction {
             messages,
-            commands: Vec::new(),
+            ..Reaction::default()
         }
     }
 }
@@ -62,6 +66,13 @@ pub trait Format: Send + Sync {
     /// A message arrived on one of the formats' subscriptions (any format's: take only yours).
     fn received(&mut self, _topic: &str, _payload: &[u8]) -> Reaction {
         Reaction::default()
+    }
+
+    /// The same for a retained message: what the broker kept, not what was just sent. By
+    /// default the same as [`Format::received`]; a format whose subscriptions carry commands
+    /// ignores retained ones (a stale retained clear must not fire at every connection).
+    fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.received(topic, payload)
     }
 
     /// The gateway's config was reloaded (SIGHUP).
@@ -94,6 +105,13 @@ pub trait Format: Send + Sync {
         Vec::new()
     }
 
+    /// While a format holds, the outbox hands nothing stored to the client: it is kept (and
+    /// spooled) as during an outage. Sparkplug holds while its primary host is offline (the
+    /// spec has the node go quiet then).
+    fn holding(&self) -> bool {
+        false
+    }
+
     /// A stored message of this format leaves for the broker now, in wire order: `Some`
     /// bytes to send instead of the stored ones. `replay`: it was stored before this
     /// connection (an outage's backlog). Any format's messages pass: change only yours.
@@ -103,12 +121,13 @@ pub trait Format: Send + Sync {
 }
 
 /// The formats `mqtt.format` may name.
-pub const NAMES: &[&str] = &["json"];
+pub const NAMES: &[&str] = &["json", "sparkplug"];
 
-/// The payload format named by the config (checked against [`NAMES`] when the config is read).
-pub fn build(config: &Config) -> Box<dyn Format> {
-    match config.mqtt.format.as_str() {
+/// The payload format `name` (checked against [`NAMES`] when the config is read).
+pub fn build(config: &Config, name: &str) -> Box<dyn Format> {
+    match name {
         "json" => Box::new(super::json::Json::new(config)),
+        "sparkplug" => Box::new(super::sparkplug::Sparkplug::new(config)),
         other => unreachable_format(other, config),
     }
 }
@@ -127,7 +146,13 @@ pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
     if config.homeassistant.discovery {
         formats.push(Box::new(super::discovery::Discovery::new(config)));
     }
-    formats.push(build(config));
+    // Sparkplug first: its NDEATH must be the will (a connection has one), before JSON's
+    // `offline` status.
+    let mut names: Vec<&String> = config.mqtt.format.iter().collect();
+    names.sort_by_key(|n| n.as_str() != "sparkplug");
+    for name in names {
+        formats.push(build(config, name));
+    }
     formats
 }
 
@@ -165,13 +190,28 @@ impl Stage {
 
     /// A message on one of the subscriptions, offered to every format.
     pub fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.react(|f| f.received(topic, payload))
+    }
+
+    /// A retained message on one of the subscriptions, offered to every format.
+    pub fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
+        self.react(|f| f.received_retained(topic, payload))
+    }
+
+    fn react(&mut self, mut f: impl FnMut(&mut dyn Format) -> Reaction) -> Reaction {
         let mut out = Reaction::default();
         for format in &mut self.formats {
-            let r = format.received(topic, payload);
+            let r = f(&mut **format);
             out.messages.extend(r.messages);
             out.commands.extend(r.commands);
+            out.at_once.extend(r.at_once);
         }
         out
+    }
+
+    /// Some format holds the outbox ([`Format::holding`]).
+    pub fn holding(&self) -> bool {
+        self.formats.iter().any(|f| f.holding())
     }
 
     pub fn reload(&mut self, config: &Config) -> Vec<Message> {

@@ -43,7 +43,7 @@ fn config() -> crate::config::Config {
 
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
-    let mut json = build(&config());
+    let mut json = build(&config(), "json");
     let m = render(&mut *json, &Output::Reading(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
@@ -56,7 +56,7 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
 
 #[test]
 fn json_status_is_retained_and_bus_health_is_transient() {
-    let mut json = build(&config());
+    let mut json = build(&config(), "json");
     let status = Output::DeviceStatus {
         device: "press1".into(),
         online: false,
@@ -95,7 +95,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
 
 #[test]
 fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
-    let mut json = build(&config());
+    let mut json = build(&config(), "json");
     let result = Output::CommandResult {
         topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
         correlation: Some(bytes::Bytes::from_static(b"c-1")),
@@ -161,12 +161,14 @@ fn an_unknown_format_is_a_config_error_naming_the_choices() {
 
 #[test]
 fn every_format_name_the_config_takes_is_built() {
+    let c = check("format = [\"json\", \"sparkplug\"]\n[sparkplug]\ngroup_id = \"g\"").unwrap();
+    assert_eq!(c.mqtt.format.len(), NAMES.len());
     for name in NAMES {
-        let mut c = config();
-        c.mqtt.format = (*name).to_string();
-        let mut built = build(&c);
+        let mut built = build(&c, name);
+        let mut r = reading(1);
+        (r.device, r.channel) = ("d".into(), "a0".into());
         assert!(
-            !render(&mut *built, &Output::Reading(reading(1))).is_empty(),
+            !render(&mut *built, &Output::Reading(r)).is_empty(),
             "{name}"
         );
     }
@@ -208,7 +210,7 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
             },
         ],
     };
-    let mut per_channel = build(&config());
+    let mut per_channel = build(&config(), "json");
     let topics: Vec<String> = render(&mut *per_channel, &poll)
         .into_iter()
         .map(|m| m.topic)
@@ -220,7 +222,7 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
     let env = Some(std::collections::HashMap::new());
     let device_config =
         crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env).unwrap();
-    let mut per_device = build(&device_config);
+    let mut per_device = build(&device_config, "json");
     let m = render(&mut *per_device, &poll);
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/d");

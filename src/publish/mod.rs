@@ -11,6 +11,7 @@ pub mod payload;
 pub mod policy;
 pub mod poller;
 pub mod session;
+pub mod sparkplug;
 pub mod spool;
 pub mod spool_place;
 pub mod tls;

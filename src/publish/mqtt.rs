@@ -85,6 +85,9 @@ impl Shell {
     fn pump(&mut self, stage: &mut Stage) {
         let now = Instant::now();
         self.backlog = false;
+        if stage.holding() {
+            return;
+        }
         while let Some(step) = self.outbox.next(now) {
             match step {
                 Step::Send { entry: e, replay } => {
@@ -498,7 +501,7 @@ impl Publisher<'_> {
                 s.outbox.acked(pkid, Instant::now());
                 self.acknowledged();
             }
-            Ok(Event::Received(p)) => self.received(&p.topic, &p.payload),
+            Ok(Event::Received(p)) => self.received(&p.topic, &p.payload, p.retain),
             // Our DISCONNECT went out, or the client was dropped: the gateway is stopping.
             Ok(Event::Disconnected | Event::Other) | Err(Failure::RequestsDone) => {}
             Err(e) => self.reconnect(&e),
@@ -507,13 +510,20 @@ impl Publisher<'_> {
 
     /// A message on the boot marker or a format's subscription (the poller sends the rest to
     /// the router); commands a format makes of it go to the router too, never waiting on it.
-    fn received(&mut self, topic: &[u8], payload: &[u8]) {
+    fn received(&mut self, topic: &[u8], payload: &[u8], retained: bool) {
         let topic = String::from_utf8_lossy(topic);
         if topic == self.shell.topics.gateway_marker() {
             self.watch.marker(payload, &self.link);
             return;
         }
-        let reaction = self.stage.received(&topic, payload);
+        let reaction = if retained {
+            self.stage.received_retained(&topic, payload)
+        } else {
+            self.stage.received(&topic, payload)
+        };
+        for m in reaction.at_once {
+            self.shell.publish_direct(m);
+        }
         for m in reaction.messages {
             self.shell.queue(m);
         }

@@ -35,7 +35,7 @@ struct ReadingJson {
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
-fn round3(v: f64) -> f64 {
+pub(crate) fn round3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
 }
 

@@ -113,7 +113,8 @@ impl ResponseRule {
     /// checked apart, in `command::check_response_topic`):
     /// - under the gateway's root only its result topics (`…/cmd/result`, `…/scan/result`):
     ///   never its status, boot marker, readings, bus stats or command topics;
-    /// - nothing under the Home Assistant discovery prefix (configs, its status);
+    /// - nothing under the Home Assistant discovery prefix (configs, its status), nor in the
+    ///   Sparkplug B namespace (a forged DDATA or NDEATH for any node);
     /// - nowhere a request is taken (a last level `cmd` or `scan`, of any gateway): a result
     ///   must not become a command.
     ///
@@ -138,6 +139,9 @@ impl ResponseRule {
         }
         if under(&self.discovery_prefix) {
             return Err("it is under the Home Assistant discovery prefix");
+        }
+        if under(super::sparkplug::topic::NAMESPACE) {
+            return Err("it is in the Sparkplug B namespace (births, data and deaths of nodes)");
         }
         if matches!(topic.rsplit('/').next(), Some("cmd" | "scan")) {
             return Err("it is a command or scan topic");
@@ -198,6 +202,8 @@ mod tests {
             "pg/e1/press/enc0/result".into(),
             "pg/e1/x/y/z/cmd/result".into(),
             "homeassistant/status".into(),
+            "spBv1.0/plant/NDEATH/e1".into(),
+            "spBv1.0/STATE/scada".into(),
             "homeassistant/sensor/e1/press_enc0/config".into(),
             "pg/e2/press/enc0/cmd".into(),
             "pg/e2/bus/line1/scan".into(),

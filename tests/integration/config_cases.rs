@@ -626,6 +626,75 @@ const CASES: &[(&str, &str, &str, &str)] = &[
         "buses.line1.devices.wj.channels.enc3",
         "model wj157 has no channel enc3",
     ),
+    // mqtt.format and [sparkplug] come together
+    (
+        "mqtt.format",
+        "\"sparkplug\"",
+        "sparkplug",
+        "add [sparkplug] with its group_id",
+    ),
+    (
+        "sparkplug.group_id",
+        "\"plant\"",
+        "mqtt.format",
+        "does not name \"sparkplug\"",
+    ),
+    ("mqtt.format", "[]", "mqtt.format", "an empty list"),
+    (
+        "mqtt.format",
+        "[\"json\", \"json\"]",
+        "mqtt.format",
+        "\"json\" is named twice",
+    ),
+    (
+        "mqtt.format",
+        "[\"json\", \"xml\"]",
+        "mqtt.format",
+        "unknown output format \"xml\"",
+    ),
+    ("mqtt.format", "5", "mqtt.format", "a format name or a list"),
+];
+
+/// Broken `[sparkplug]` tables, each a change to [`BASE`] with `mqtt.format = ["json",
+/// "sparkplug"]` and `[sparkplug] group_id = "plant"`.
+const SPARKPLUG_CASES: &[(&str, &str, &str, &str)] = &[
+    ("sparkplug.group_id", "-", "sparkplug.group_id", "missing"),
+    (
+        "sparkplug.group_id",
+        "\"plant/west\"",
+        "sparkplug.group_id",
+        "not a Sparkplug id",
+    ),
+    (
+        "sparkplug.group_id",
+        "\"plant+\"",
+        "sparkplug.group_id",
+        "not a Sparkplug id",
+    ),
+    (
+        "sparkplug.edge_node_id",
+        "\"edge#1\"",
+        "sparkplug.edge_node_id",
+        "not a Sparkplug id",
+    ),
+    (
+        "sparkplug.primary_host",
+        "\"\"",
+        "sparkplug.primary_host",
+        "not a Sparkplug id",
+    ),
+    (
+        "sparkplug.group_id",
+        "\"gggggggggggggggggggggggggggggggggggggggggggggggggggggggggggggggggggg\"",
+        "sparkplug.group_id",
+        "1..64 bytes",
+    ),
+    (
+        "sparkplug.host",
+        "\"scada\"",
+        "sparkplug.host",
+        "unknown key",
+    ),
 ];
 
 /// Sets `path` in a TOML table to `value` (TOML text), or removes it with "-".
@@ -678,10 +747,25 @@ fn the_base_config_is_valid() {
 #[test]
 fn every_broken_config_is_refused_naming_its_key_and_file() {
     assert!(CASES.len() >= 100, "{} cases", CASES.len());
+    refused(BASE, CASES);
+}
+
+#[test]
+fn every_broken_sparkplug_table_is_refused_naming_its_key_and_file() {
+    let base = mutate(BASE, "mqtt.format", "[\"json\", \"sparkplug\"]");
+    let base = mutate(&base, "sparkplug.group_id", "\"plant\"");
+    let file = Path::new("/etc/pulsegate/pulsegate.toml");
+    let good = pulsegate::config::Config::from_toml(&base, file, Some(Default::default()));
+    assert_eq!(good.unwrap().mqtt.format, ["json", "sparkplug"]);
+    refused(&base, SPARKPLUG_CASES);
+}
+
+/// Each case applied to `base` is refused with its error.
+fn refused(base: &str, cases: &[(&str, &str, &str, &str)]) {
     let file = Path::new("/etc/pulsegate/pulsegate.toml");
     let mut failures = Vec::new();
-    for (path, value, want_path, want) in CASES {
-        let text = mutate(BASE, path, value);
+    for (path, value, want_path, want) in cases {
+        let text = mutate(base, path, value);
         let result = std::panic::catch_unwind(|| {
             pulsegate::config::Config::from_toml(&text, file, Some(Default::default()))
         });
@@ -711,7 +795,7 @@ fn every_broken_config_is_refused_naming_its_key_and_file() {
         failures.is_empty(),
         "{} of {} cases:\n{}",
         failures.len(),
-        CASES.len(),
+        cases.len(),
         failures.join("\n")
     );
 }

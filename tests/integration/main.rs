@@ -21,4 +21,5 @@ mod plants;
 mod protocol;
 mod readings_first;
 mod service;
+mod sparkplug;
 mod support;

@@ -1,0 +1,101 @@
+//! `[sparkplug]`: the gateway as a Sparkplug B edge node (selected by `mqtt.format`), and the
+//! `mqtt.format` key itself (one name or a list).
+
+use config::ValueKind;
+
+use super::walk::{Errors, Table, join};
+
+/// `[sparkplug]`, checked.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Sparkplug {
+    /// `spBv1.0/<group_id>/…`: the group the SCADA host files this node under.
+    pub group_id: String,
+    /// The node's id in its group (default: the gateway id).
+    pub edge_node_id: String,
+    /// The primary host whose `spBv1.0/STATE/<host>` births wait for.
+    pub primary_host: Option<String>,
+}
+
+/// A Sparkplug id (group, edge node, device, host): a topic level of its own, so no `/`, and no
+/// wildcard (spec 3.0, "Topic Namespace Elements"); nothing invisible, at most 64 bytes.
+pub fn is_sparkplug_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 64
+        && !id
+            .chars()
+            .any(|c| matches!(c, '/' | '+' | '#') || c.is_control())
+}
+
+/// Reads `[sparkplug]`; `None` when it is absent or broken (every problem in `errs`).
+pub(crate) fn sparkplug(
+    table: Option<Table<'_>>,
+    gateway_id: &str,
+    errs: &mut Errors,
+) -> Option<Sparkplug> {
+    let mut t = table?;
+    let group_id = t.req::<String>("group_id", errs);
+    let group_id = group_id.and_then(|v| checked_id(&t, "group_id", v, errs));
+    let edge_node_id = t.opt::<String>("edge_node_id", errs);
+    let edge_node_id = edge_node_id.and_then(|v| checked_id(&t, "edge_node_id", v, errs));
+    let primary_host = t.opt::<String>("primary_host", errs);
+    let primary_host = primary_host.and_then(|v| checked_id(&t, "primary_host", v, errs));
+    t.finish(errs);
+    Some(Sparkplug {
+        group_id: group_id?,
+        edge_node_id: edge_node_id.unwrap_or_else(|| gateway_id.to_string()),
+        primary_host,
+    })
+}
+
+/// `value` of `key` when it is a Sparkplug id.
+fn checked_id(t: &Table<'_>, key: &str, value: String, errs: &mut Errors) -> Option<String> {
+    if is_sparkplug_id(&value) {
+        return Some(value);
+    }
+    let why = format!(
+        "{value:?} is not a Sparkplug id: 1..64 bytes without '/', '+', '#' or control characters"
+    );
+    errs.push(&join(&t.path, key), t.origin(), why);
+    None
+}
+
+/// Reads `mqtt.format`: one name or a list of names, each in `names`, none twice; `None` when
+/// absent (or broken: the error is in `errs`).
+pub(crate) fn formats(t: &mut Table<'_>, names: &[&str], errs: &mut Errors) -> Option<Vec<String>> {
+    let path = join(&t.path, "format");
+    let value = t.raw("format")?;
+    let list: Option<Vec<String>> = match &value.kind {
+        ValueKind::String(name) => Some(vec![name.clone()]),
+        ValueKind::Array(items) => items
+            .iter()
+            .map(|v| match &v.kind {
+                ValueKind::String(name) => Some(name.clone()),
+                _ => None,
+            })
+            .collect(),
+        _ => None,
+    };
+    let Some(list) = list else {
+        let why = "expected a format name or a list of names (\"json\", [\"json\", \"sparkplug\"])";
+        errs.push(&path, value.origin(), why);
+        return None;
+    };
+    let mut ok = !list.is_empty();
+    if list.is_empty() {
+        errs.push(&path, t.origin(), "an empty list: name at least one format");
+    }
+    for (i, name) in list.iter().enumerate() {
+        if !names.contains(&name.as_str()) {
+            let why = format!(
+                "unknown output format {name:?}: one of {}",
+                names.join(", ")
+            );
+            errs.push(&path, t.origin(), why);
+            ok = false;
+        } else if list[..i].contains(name) {
+            errs.push(&path, t.origin(), format!("{name:?} is named twice"));
+            ok = false;
+        }
+    }
+    ok.then_some(list)
+}

@@ -1,0 +1,548 @@
+//! The edge node as a value: sessions, births and deaths, `seq`, aliases, what the host's
+//! commands mean. Pure: events, connection changes and received bytes in, messages out; the
+//! bdSeq of each session comes from outside ([`super::bdseq`]).
+//!
+//! `seq` is given when a message goes to the wire ([`Node::outgoing`]), not when it is made:
+//! readings spooled while the broker was away go out after the next session's births, and the
+//! host must see one unbroken run 0..255 from the NBIRTH on. The same step marks what was
+//! stored before this session `is_historical` and turns DDATA names into the aliases this
+//! session's DBIRTH declared.
+
+use std::collections::{BTreeMap, HashSet};
+
+use bytes::Bytes;
+
+use super::metrics::{self, Aliases, ChannelShape};
+use super::proto::{Metric, Payload, Value, datatype};
+use super::topic::{Kind, Topics};
+use crate::dispatch::Incoming;
+use crate::outbox::Message;
+use crate::publish::format::Reaction;
+use crate::reading::{Output, Reading};
+
+/// The NBIRTH metric a host writes to ask for a rebirth.
+pub const REBIRTH: &str = "Node Control/Rebirth";
+/// The NBIRTH/NDEATH metric that pairs a death with its birth.
+pub const BD_SEQ: &str = "bdSeq";
+
+/// What the node knows of a device's availability.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Status {
+    /// Not heard of yet in this run: born with null values, so spooled data has a birth.
+    Unknown,
+    Online,
+    Offline,
+}
+
+/// One device of the node.
+#[derive(Debug)]
+struct DeviceNode {
+    shapes: Vec<ChannelShape>,
+    status: Status,
+    /// Its DBIRTH went out in this session; the metric names it declared.
+    declared: Option<HashSet<String>>,
+    /// The last reading of each channel, for the next birth.
+    last: BTreeMap<String, Reading>,
+}
+
+/// How the node is set up (from `[sparkplug]`, `[mqtt]` and the devices).
+#[derive(Debug, Clone)]
+pub struct Setup {
+    pub topics: Topics,
+    /// Where DCMD writes go: the JSON command topics the command router takes.
+    pub commands: crate::publish::topics::Topics,
+    pub primary_host: Option<String>,
+    /// QoS of births and data (the will is QoS 1).
+    pub qos: u8,
+    /// Devices in config order, with their channels.
+    pub devices: Vec<(String, Vec<ChannelShape>)>,
+}
+
+/// The edge node.
+#[derive(Debug)]
+pub struct Node {
+    setup: Setup,
+    devices: BTreeMap<String, DeviceNode>,
+    aliases: Aliases,
+    connected: bool,
+    /// The primary host said it is online (always, without a primary host).
+    host_online: bool,
+    /// The NBIRTH of this session went out.
+    born: bool,
+    /// The `seq` of the next numbered message.
+    seq: u8,
+    /// The session's bdSeq.
+    bd_seq: u8,
+    /// Refused commands logged per minute.
+    log_budget: crate::admission::LogBudget,
+    /// The last message numbered: its topic, stored and sent bytes.
+    last_out: Option<(String, Bytes, Bytes)>,
+}
+
+impl Node {
+    pub fn new(setup: Setup) -> Node {
+        let devices = setup
+            .devices
+            .iter()
+            .map(|(name, shapes)| {
+                let d = DeviceNode {
+                    shapes: shapes.clone(),
+                    status: Status::Unknown,
+                    declared: None,
+                    last: BTreeMap::new(),
+                };
+                (name.clone(), d)
+            })
+            .collect();
+        Node {
+            host_online: setup.primary_host.is_none(),
+            setup,
+            devices,
+            aliases: Aliases::default(),
+            connected: false,
+            born: false,
+            seq: 0,
+            bd_seq: 0,
+            log_budget: crate::admission::LogBudget::new(20),
+            last_out: None,
+        }
+    }
+
+    /// The devices or their channels changed (a reload): the node describes the new ones, with
+    /// a rebirth when it is born.
+    pub fn reshape(
+        &mut self,
+        devices: Vec<(String, Vec<ChannelShape>)>,
+        now_ms: u64,
+    ) -> Vec<Message> {
+        let mut old = std::mem::take(&mut self.devices);
+        for (name, shapes) in &devices {
+            let kept = old.remove(name);
+            let d = DeviceNode {
+                shapes: shapes.clone(),
+                status: kept.as_ref().map_or(Status::Unknown, |d| d.status),
+                declared: None,
+                last: kept.map(|d| d.last).unwrap_or_default(),
+            };
+            self.devices.insert(name.clone(), d);
+        }
+        self.setup.devices = devices;
+        if self.connected && self.born {
+            self.births(now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// The filters the node reads: its NCMD and DCMDs, and its primary host's state.
+    pub fn subscriptions(&self, commands: bool) -> Vec<String> {
+        let t = &self.setup.topics;
+        let mut out = vec![t.node(Kind::NCmd)];
+        if commands {
+            out.push(t.device(Kind::DCmd, "+"));
+        }
+        if let Some(host) = &self.setup.primary_host {
+            out.push(Topics::state(host));
+        }
+        out
+    }
+
+    /// A new session starts with `bd_seq`; its will is the NDEATH carrying it.
+    pub fn will(&mut self, bd_seq: u8, now_ms: u64) -> (String, Bytes) {
+        self.bd_seq = bd_seq;
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics: vec![Metric::new(
+                BD_SEQ,
+                None,
+                datatype::INT64,
+                Some(Value::Long(bd_seq.into())),
+            )],
+            ..Payload::default()
+        };
+        (
+            self.setup.topics.node(Kind::NDeath),
+            payload.encode().into(),
+        )
+    }
+
+    /// The NDEATH of this session, for a clean stop (the broker sends the will otherwise).
+    pub fn death(&mut self, now_ms: u64) -> Message {
+        let (topic, payload) = self.will(self.bd_seq, now_ms);
+        self.born = false;
+        Message::new(topic, payload, 1, false)
+    }
+
+    /// A command topic of this node (NCMD, DCMD).
+    pub fn is_command(&self, topic: &str) -> bool {
+        matches!(
+            self.setup.topics.parse(topic),
+            Some((Kind::NCmd | Kind::DCmd, _))
+        )
+    }
+
+    /// Connected: the births, unless the primary host is not online yet.
+    pub fn connected(&mut self, now_ms: u64) -> Vec<Message> {
+        self.connected = true;
+        if self.host_online {
+            self.births(now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// The session is over: everything is born again in the next one.
+    pub fn disconnected(&mut self) {
+        self.connected = false;
+        self.born = false;
+        self.last_out = None;
+        for d in self.devices.values_mut() {
+            d.declared = None;
+        }
+    }
+
+    /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0.
+    pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
+        self.born = true;
+        self.last_out = None;
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics: vec![
+                Metric::new(
+                    BD_SEQ,
+                    None,
+                    datatype::INT64,
+                    Some(Value::Long(self.bd_seq.into())),
+                ),
+                Metric::new(
+                    REBIRTH,
+                    None,
+                    datatype::BOOLEAN,
+                    Some(Value::Boolean(false)),
+                ),
+            ],
+            seq: Some(self.number(Kind::NBirth)),
+            ..Payload::default()
+        };
+        let mut out = vec![self.message(self.setup.topics.node(Kind::NBirth), &payload)];
+        let names: Vec<String> = self.devices.keys().cloned().collect();
+        for name in names {
+            if self.devices[&name].status != Status::Offline {
+                let mut m = self.device_birth(&name, now_ms);
+                out.append(&mut m);
+            }
+        }
+        out
+    }
+
+    /// The DBIRTH of `device` (numbered now: births go straight to the wire).
+    fn device_birth(&mut self, device: &str, now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let metrics = metrics::birth(device, &d.shapes, &d.last, &mut self.aliases);
+        d.declared = Some(metrics.iter().filter_map(|m| m.name.clone()).collect());
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics,
+            seq: Some(self.number(Kind::DBirth)),
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DBirth, device);
+        vec![self.message(topic, &payload)]
+    }
+
+    /// The messages of one event of the buses.
+    pub fn event(&mut self, event: &Output, now_ms: u64) -> Vec<Message> {
+        match event {
+            Output::Reading(r) => self.readings(&r.device, std::slice::from_ref(r), now_ms),
+            Output::DeviceReadings { device, readings } => self.readings(device, readings, now_ms),
+            Output::DeviceStatus { device, online } => {
+                if *online {
+                    self.online(device, now_ms)
+                } else {
+                    self.offline(device)
+                }
+            }
+            Output::DeviceProblem { device, status } if *status == "wrong_model" => {
+                self.offline(device)
+            }
+            _ => Vec::new(),
+        }
+    }
+
+    /// A device answers: its DBIRTH when the session has none for it.
+    fn online(&mut self, device: &str, now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        d.status = Status::Online;
+        if self.connected && self.born && d.declared.is_none() {
+            self.device_birth(device, now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
+    /// A device is lost (offline, or the wrong model): its DDEATH when it was born.
+    fn offline(&mut self, device: &str) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        d.status = Status::Offline;
+        if d.declared.take().is_none() || !self.connected {
+            return Vec::new();
+        }
+        let payload = Payload {
+            timestamp: Some(crate::reading::unix_ms(std::time::SystemTime::now())),
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DDeath, device);
+        vec![self.message(topic, &payload)]
+    }
+
+    /// One DDATA with the readings of one poll (after a DBIRTH when the device needs one:
+    /// first reading of the session, or a channel that changed its kind).
+    fn readings(&mut self, device: &str, readings: &[Reading], now_ms: u64) -> Vec<Message> {
+        let Some(d) = self.devices.get_mut(device) else {
+            return Vec::new();
+        };
+        let mut metrics = Vec::new();
+        for r in readings {
+            let Some(shape) = d.shapes.iter_mut().find(|s| *s.name == *r.channel) else {
+                continue;
+            };
+            if shape.kind != r.kind {
+                shape.kind = r.kind; // a mode change: its total changes type
+                d.declared = None;
+            }
+            metrics.extend(metrics::data(r, shape, &mut self.aliases));
+            d.last.insert(r.channel.to_string(), r.clone());
+        }
+        if metrics.is_empty() {
+            return Vec::new();
+        }
+        // Made while the host cannot see it (away, or held for the primary host): history.
+        if !(self.connected && self.born) {
+            for m in &mut metrics {
+                m.is_historical = Some(true);
+            }
+        }
+        let mut out = self.online(device, now_ms);
+        let payload = Payload {
+            timestamp: readings.iter().map(|r| crate::reading::unix_ms(r.ts)).max(),
+            metrics,
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.device(Kind::DData, device);
+        out.push(self.message(topic, &payload));
+        out
+    }
+
+    fn message(&self, topic: String, payload: &Payload) -> Message {
+        Message::new(topic, payload.encode(), self.setup.qos, false)
+    }
+
+    /// The `seq` of the next message of `kind`: an NBIRTH starts again at 0.
+    fn number(&mut self, kind: Kind) -> u64 {
+        if kind == Kind::NBirth {
+            self.seq = 0;
+        }
+        let n = self.seq;
+        self.seq = n.wrapping_add(1);
+        n.into()
+    }
+
+    /// A message of the outbox goes to the wire: the node's own are numbered, DDATA gets the
+    /// aliases this session declared, and what was stored before this session (`replay`) is
+    /// marked historical. `None` for what is not the node's (or cannot be read: sent as is).
+    pub fn outgoing(&mut self, topic: &str, payload: &[u8], replay: bool) -> Option<Bytes> {
+        let (kind, device) = self.setup.topics.parse(topic)?;
+        if !kind.numbered() {
+            return None;
+        }
+        // The client refused the last one (its queue was full) and it is offered again: the
+        // same number, or the host would see a gap.
+        if let Some((t, stored, sent)) = &self.last_out
+            && t == topic
+            && stored[..] == *payload
+        {
+            return Some(sent.clone());
+        }
+        let sent = self.number_on_the_wire(kind, device, payload, replay)?;
+        self.last_out = (kind != Kind::NBirth).then(|| {
+            (
+                topic.to_string(),
+                Bytes::copy_from_slice(payload),
+                sent.clone(),
+            )
+        });
+        Some(sent)
+    }
+
+    fn number_on_the_wire(
+        &mut self,
+        kind: Kind,
+        device: Option<&str>,
+        payload: &[u8],
+        replay: bool,
+    ) -> Option<Bytes> {
+        let mut p = Payload::decode(payload).ok()?;
+        p.seq = Some(self.number(kind));
+        match kind {
+            Kind::NBirth => {
+                for m in p
+                    .metrics
+                    .iter_mut()
+                    .filter(|m| m.name.as_deref() == Some(BD_SEQ))
+                {
+                    m.value = Some(Value::Long(self.bd_seq.into()));
+                }
+            }
+            Kind::DData | Kind::NData => {
+                let declared = device
+                    .and_then(|d| self.devices.get(d))
+                    .and_then(|d| d.declared.as_ref());
+                for m in &mut p.metrics {
+                    alias_only(m, declared);
+                    if replay {
+                        m.is_historical = Some(true);
+                    }
+                }
+            }
+            _ => {}
+        }
+        Some(p.encode().into())
+    }
+
+    /// A message on one of the node's subscriptions: births for a rebirth request or the
+    /// primary host coming online, commands for DCMD writes. Anything else is not the node's.
+    pub fn received(&mut self, topic: &str, payload: &[u8], now_ms: u64) -> Reaction {
+        if let Some(host) = &self.setup.primary_host
+            && topic == Topics::state(host)
+        {
+            return self.host_state(payload, now_ms);
+        }
+        match self.setup.topics.parse(topic) {
+            Some((Kind::NCmd, None)) => self.node_command(payload, now_ms).into(),
+            Some((Kind::DCmd, Some(device))) => Reaction {
+                commands: self.device_command(device, payload),
+                ..Reaction::default()
+            },
+            _ => Reaction::default(),
+        }
+    }
+
+    /// Connected and waiting for the primary host: the MQTT task keeps the outbox (what it
+    /// holds goes out after the births, flagged historical).
+    pub fn holding(&self) -> bool {
+        self.connected && !self.born
+    }
+
+    /// `spBv1.0/STATE/<host>`: online, the births at once (ahead of what was held for them);
+    /// offline, an NDEATH and quiet until the host is back (the spec's node disconnects; this
+    /// one keeps its connection for the other formats and holds its output).
+    fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Reaction {
+        let Some(online) = super::command::host_online(payload) else {
+            self.refused("primary host STATE", "not {\"online\": bool, …}");
+            return Reaction::default();
+        };
+        let was = self.host_online;
+        self.host_online = online;
+        let mut at_once = Vec::new();
+        if online && !was && self.connected && !self.born {
+            tracing::info!("Sparkplug primary host online: publishing births");
+            at_once = self.births(now_ms);
+        }
+        if !online && was {
+            tracing::warn!("Sparkplug primary host offline: output held until it is back");
+            if self.connected && self.born {
+                at_once.push(self.death(now_ms));
+            }
+            self.born = false;
+            for d in self.devices.values_mut() {
+                d.declared = None;
+            }
+        }
+        Reaction {
+            at_once,
+            ..Reaction::default()
+        }
+    }
+
+    /// NCMD: `Node Control/Rebirth` = true is answered with every birth again.
+    fn node_command(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
+        match super::command::node(payload) {
+            Ok(true) if self.connected && self.host_online => {
+                tracing::info!("Sparkplug host asked for a rebirth");
+                self.births(now_ms)
+            }
+            Ok(_) => Vec::new(),
+            Err(e) => {
+                self.refused("NCMD", &e.to_string());
+                Vec::new()
+            }
+        }
+    }
+
+    /// DCMD: writes to `<c>/Clear` and `<c>/Preset`, as commands for the command router.
+    fn device_command(&mut self, device: &str, payload: &[u8]) -> Vec<Incoming> {
+        let writes = match self.devices.get(device) {
+            None => Err(format!("{device:?} is not a device of this node")),
+            Some(d) => {
+                let names = |alias: u64| {
+                    d.declared
+                        .iter()
+                        .flatten()
+                        .find(|n| self.aliases.get(device, n) == Some(alias))
+                        .cloned()
+                };
+                super::command::device(payload, names).map_err(|e| format!("{device}: {e}"))
+            }
+        };
+        match writes {
+            Ok(writes) => writes
+                .into_iter()
+                .map(|w| w.incoming(&self.setup.commands, device))
+                .collect(),
+            Err(why) => {
+                self.refused("DCMD", &why);
+                Vec::new()
+            }
+        }
+    }
+
+    /// Logs a refused command or state, within the budget (a flood of bad commands is counted, not
+    /// logged line by line).
+    fn refused(&mut self, what: &str, why: &str) {
+        let (log, suppressed) = self.log_budget.allow(tokio::time::Instant::now());
+        if let Some(n) = suppressed {
+            tracing::warn!(
+                suppressed = n,
+                "Sparkplug commands refused in the last minute, not logged one by one"
+            );
+        }
+        if log {
+            tracing::warn!("Sparkplug {what} refused: {why}");
+        }
+    }
+}
+
+/// A DDATA metric as it goes out: its alias alone when this session's DBIRTH declared its name,
+/// else its name alone (a host reads either; an alias the host never saw would be an error).
+fn alias_only(m: &mut Metric, declared: Option<&HashSet<String>>) {
+    let known = match (&m.name, declared) {
+        (Some(name), Some(set)) => set.contains(name),
+        _ => false,
+    };
+    if known && m.alias.is_some() {
+        m.name = None;
+        m.datatype = None;
+    } else if m.name.is_some() {
+        m.alias = None;
+    }
+}
+
+#[cfg(test)]
+#[path = "node_tests.rs"]
+mod tests;

@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""A Sparkplug B host for the integration tests, on pysparkplug (an implementation not written
+here, on Eclipse Tahu's protobuf): subscribes to spBv1.0/# on the test's broker and prints one
+JSON line per message, decoded the way a host decodes it (DDATA through the DBIRTH that
+declared its aliases). Reads commands from stdin, one JSON line each:
+  {"ncmd": "<group>/<node>", "rebirth": true}
+  {"dcmd": "<group>/<node>/<device>", "metric": "a0/Clear", "type": "BOOLEAN", "value": true}
+  {"state": "<host>", "online": true}      (a primary host's retained STATE, spec 3.0)
+Usage: sparkplug_host.py <port> [persistent]   (persistent: a session the broker keeps)
+"""
+
+import json
+import sys
+import threading
+import time
+
+import paho.mqtt.client as mqtt
+from pysparkplug import DataType, DBirth, DCmd, DData, Metric, NBirth, NCmd
+from pysparkplug._protobuf import Payload as PBPayload
+
+births = {}  # (group, node, device or None) -> Birth
+out_lock = threading.Lock()
+
+
+def emit(obj):
+    with out_lock:
+        sys.stdout.write(json.dumps(obj) + "\n")
+        sys.stdout.flush()
+
+
+def props(pb_metric):
+    if not pb_metric.HasField("properties"):
+        return {}
+    p = pb_metric.properties
+    return {k: v.string_value for k, v in zip(p.keys, p.values)}
+
+
+def metric_json(m, pb_metric=None):
+    return {
+        "name": m.name,
+        "alias": m.alias,
+        "datatype": DataType(m.datatype).name,
+        "value": m.value,
+        "is_null": m.is_null,
+        "is_historical": m.is_historical,
+        "timestamp": m.timestamp,
+        "properties": props(pb_metric) if pb_metric is not None else {},
+    }
+
+
+def decode(topic, raw):
+    levels = topic.split("/")
+    if levels[1] == "STATE":
+        return {"topic": topic, "type": "STATE", "payload": raw.decode(errors="replace")}
+    _, group, kind, node = levels[:4]
+    device = levels[4] if len(levels) > 4 else None
+    key = (group, node, device)
+    line = {"topic": topic, "type": kind, "node": node, "device": device}
+    pb = PBPayload.FromString(raw)
+    line["seq"] = pb.seq if pb.HasField("seq") else None
+    line["timestamp"] = pb.timestamp if pb.HasField("timestamp") else None
+    if kind in ("NBIRTH", "DBIRTH"):
+        cls = NBirth if kind == "NBIRTH" else DBirth
+        birth = cls.decode(raw)
+        births[key] = birth
+        if kind == "NBIRTH":
+            # A new node birth invalidates the births of its devices.
+            for k in [k for k in births if k[:2] == (group, node) and k[2] is not None]:
+                del births[k]
+        line["metrics"] = [metric_json(m, p) for m, p in zip(birth.metrics, pb.metrics)]
+    elif kind == "DDATA":
+        birth = births.get(key)
+        if birth is None:
+            line["error"] = "DDATA before its DBIRTH"
+            return line
+        try:
+            data = DData.decode(raw, birth=birth)
+        except KeyError as e:
+            line["error"] = f"alias {e} was not declared in the DBIRTH"
+            return line
+        line["metrics"] = [
+            dict(metric_json(m), named_on_wire=p.HasField("name"))
+            for m, p in zip(data.metrics, pb.metrics)
+        ]
+    else:  # NDEATH, DDEATH, NDATA
+        line["metrics"] = [
+            {"name": m.name, "value": m.long_value if m.HasField("long_value") else None}
+            for m in pb.metrics
+        ]
+    return line
+
+
+def on_message(client, userdata, msg):
+    try:
+        emit(decode(msg.topic, msg.payload))
+    except Exception as e:  # a payload this host cannot read is a finding, not a crash
+        emit({"topic": msg.topic, "error": f"{type(e).__name__}: {e}"})
+
+
+def on_connect(client, userdata, flags, rc):
+    client.subscribe("spBv1.0/#", qos=1)
+
+
+def command(client, line):
+    cmd = json.loads(line)
+    now = int(time.time() * 1000)
+    if "ncmd" in cmd:
+        group, node = cmd["ncmd"].split("/")
+        metric = Metric(now, "Node Control/Rebirth", DataType.BOOLEAN, value=True)
+        payload = NCmd(now, (metric,)).encode(include_dtypes=True)
+        client.publish(f"spBv1.0/{group}/NCMD/{node}", payload, qos=0)
+    elif "dcmd" in cmd:
+        group, node, device = cmd["dcmd"].split("/")
+        dt = DataType[cmd.get("type", "BOOLEAN")]
+        metric = Metric(now, cmd["metric"], dt, value=cmd["value"])
+        payload = DCmd(now, (metric,)).encode(include_dtypes=True)
+        client.publish(f"spBv1.0/{group}/DCMD/{node}/{device}", payload, qos=0)
+    elif "state" in cmd:
+        body = json.dumps({"online": cmd["online"], "timestamp": now})
+        client.publish(f"spBv1.0/STATE/{cmd['state']}", body, qos=1, retain=True)
+    emit({"type": "SENT", "command": cmd})
+
+
+def main():
+    port = int(sys.argv[1])
+    persistent = sys.argv[2:] == ["persistent"]
+    client = mqtt.Client(client_id=f"sparkplug-host-{port}", clean_session=not persistent)
+    client.on_connect = on_connect
+    client.on_message = on_message
+    while True:
+        try:
+            client.connect("127.0.0.1", port, keepalive=30)
+            break
+        except OSError:
+            time.sleep(0.2)
+    client.loop_start()
+    while not client.is_connected():
+        time.sleep(0.05)
+    time.sleep(0.3)  # the SUBACK
+    emit({"type": "READY"})
+    for line in sys.stdin:
+        if line.strip():
+            command(client, line)
+    client.loop_stop()
+
+
+if __name__ == "__main__":
+    main()
