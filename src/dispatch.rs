@@ -173,6 +173,7 @@ impl Router {
             units,
             id,
             reply: reply.clone(),
+            progress: crate::publish::topics::Topics::scan_progress(&msg.topic),
         };
         if tx.try_send(req).is_err() {
             refuse(

@@ -3,7 +3,8 @@
 //! Pure. A read costs its frame overhead (request, answer header and CRC, two silent intervals,
 //! the device's turnaround), and bridging a gap of `g` unused registers costs `2g` characters of
 //! answer. Boundaries are chosen by dynamic programming over the sorted values, never inside a
-//! 32-bit value, never across a hole the device refused (exception 02), at most 125 registers.
+//! 32-bit value, never across a hole the device refused (exception 02), at most 125 registers,
+//! or fewer when the line is noisy (a limit from `bus::sizing`; a single value is never split).
 
 use std::ops::Range;
 use std::time::Duration;
@@ -68,24 +69,56 @@ pub fn read_chars(registers: u16) -> f64 {
 pub struct PollPlan {
     pub registers: Vec<Register>,
     pub blocks: Vec<Block>,
-    /// What it was built for: holes known, the wire's prices.
+    /// What it was built for: holes known, the wire's prices, the longest read allowed.
     holes: usize,
     wire: Wire,
+    limit: u16,
 }
 
 impl PollPlan {
     pub fn new(registers: &[Register], holes: &[Range<u16>], wire: &Wire) -> PollPlan {
+        PollPlan::within(registers, holes, wire, MAX_READ)
+    }
+
+    /// A plan whose reads are at most `limit` registers long (a value longer than that is
+    /// still read whole, alone).
+    pub fn within(
+        registers: &[Register],
+        holes: &[Range<u16>],
+        wire: &Wire,
+        limit: u16,
+    ) -> PollPlan {
         PollPlan {
             registers: registers.to_vec(),
-            blocks: plan_reads(registers, holes, wire),
+            blocks: plan_reads_within(registers, holes, wire, limit),
             holes: holes.len(),
             wire: *wire,
+            limit,
         }
     }
 
-    /// Still the plan for these registers, holes and prices.
+    /// Still the plan for these registers, holes and prices (at the full read length).
     pub fn fits(&self, registers: &[Register], holes: usize, wire: &Wire) -> bool {
-        self.registers == registers && self.holes == holes && self.wire == *wire
+        self.fits_within(registers, holes, wire, MAX_READ)
+    }
+
+    /// Still the plan for these registers, holes, prices and longest read.
+    pub fn fits_within(
+        &self,
+        registers: &[Register],
+        holes: usize,
+        wire: &Wire,
+        limit: u16,
+    ) -> bool {
+        self.registers == registers
+            && self.holes == holes
+            && self.wire == *wire
+            && self.limit == limit
+    }
+
+    /// The longest read of the plan, in registers.
+    pub fn longest(&self) -> u16 {
+        self.blocks.iter().map(|b| b.len).max().unwrap_or(0)
     }
 
     /// Registers read per poll (the plan may bridge gaps).
@@ -170,6 +203,17 @@ impl LineTiming {
 
 /// Splits the values of one device poll into reads. `holes` are ranges the device refused.
 pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec<Block> {
+    plan_reads_within(values, holes, wire, MAX_READ)
+}
+
+/// [`plan_reads`] with reads of at most `limit` registers, except that a value longer than
+/// `limit` is read whole on its own (a 32-bit value is never split, even at a limit of 1).
+pub fn plan_reads_within(
+    values: &[Register],
+    holes: &[Range<u16>],
+    wire: &Wire,
+    limit: u16,
+) -> Vec<Block> {
     let mut spans: Vec<Range<u16>> = values.iter().map(|r| r.address..r.end()).collect();
     spans.sort_by_key(|s| (s.start, s.end));
     // Merge overlapping values (the same register asked twice) so no value is split.
@@ -193,7 +237,8 @@ pub fn plan_reads(values: &[Register], holes: &[Range<u16>], wire: &Wire) -> Vec
         for i in (1..=j).rev() {
             let start = merged[i - 1].start;
             let end = merged[j - 1].end;
-            if end - start > MAX_READ {
+            let len = end - start;
+            if len > MAX_READ || (i < j && len > limit) {
                 break;
             }
             if i < j && crosses_hole(merged[i - 1].end..merged[i].start) {
@@ -325,6 +370,36 @@ mod tests {
         for r in &v {
             assert!(blocks.iter().any(|b| b.covers(r)), "{r:?} is split");
         }
+    }
+
+    #[test]
+    fn a_limit_splits_a_block_without_splitting_a_value() {
+        // 4 u32 values side by side: one read of 8 at full length.
+        let v = [u32_at(16), u32_at(18), u32_at(20), u32_at(22)];
+        let at = |limit| plan_reads_within(&v, &[], &wire(1000.0), limit);
+        assert_eq!(at(MAX_READ), vec![Block { start: 16, len: 8 }]);
+        assert_eq!(
+            at(4),
+            vec![Block { start: 16, len: 4 }, Block { start: 20, len: 4 }]
+        );
+        // A limit of 3 cannot take two values: one value a read.
+        assert_eq!(at(3).len(), 4);
+        // Nor can a limit of 1 split a 32-bit value: it is read whole, alone.
+        assert_eq!(at(1), at(2));
+        assert!(at(1).iter().all(|b| b.len == 2));
+    }
+
+    #[test]
+    fn a_plan_within_a_limit_is_another_plan() {
+        let v = [u32_at(16), u32_at(18)];
+        let plan = PollPlan::within(&v, &[], &wire(20.0), 2);
+        assert_eq!(plan.describe(), "2 request(s) [16+2, 18+2], 4 registers");
+        assert_eq!(plan.longest(), 2);
+        assert!(plan.fits_within(&v, 0, &wire(20.0), 2));
+        assert!(
+            !plan.fits(&v, 0, &wire(20.0)),
+            "the full length is another plan"
+        );
     }
 
     #[test]

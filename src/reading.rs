@@ -71,6 +71,11 @@ pub enum Output {
         correlation: Option<bytes::Bytes>,
         outcome: crate::outcome::Outcome,
     },
+    /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
+    ScanProgress {
+        topic: String,
+        progress: Box<crate::bus::survey::ScanProgress>,
+    },
     /// A state save of the bus is waiting: it may record the seq of every reading sent before
     /// this only once those are durable (acknowledged by the broker, or fsynced in the spool),
     /// which the MQTT task says through the checkpoint. After a crash the next run's first

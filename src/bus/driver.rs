@@ -86,6 +86,11 @@ pub trait DeviceState {
     fn turnaround(&self) -> Option<f64> {
         None
     }
+    /// How the device's poll is cut into requests now, for the bus stats (Modbus: reads
+    /// shortened on a noisy line).
+    fn request_size(&self) -> Option<super::stats::RequestSize> {
+        None
+    }
     /// Adds what the protocol keeps across restarts to the bus's state (Modbus: the holes).
     fn save(&self, _state: &mut BusState) {}
     /// The key of that state in the state file, so saved state no device claims is kept.

@@ -630,7 +630,7 @@ impl AsyncWrite for FlushingPort {
             this.expected = answer_len_for(data);
             this.port.with(|s| {
                 s.clear_input().map_err(io::Error::other)?;
-                s.watch()
+                s.await_answer()
             })?;
         }
         this.port.with(|s| Pin::new(s).poll_write(cx, data))

@@ -14,11 +14,14 @@ use super::device::{At, ChannelRt, DeviceRt, ProtocolError};
 use super::driver::DeviceState;
 use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
+use super::retry::{Lost, NOISE_RETRIES, Next, Tries};
 use super::run::RunState;
+use super::sizing::{Change, Prices, Sizing};
+use super::stats::RequestSize;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, Direction};
 use crate::decode::decode;
-use crate::plan::{Block, Wire, plan_reads};
+use crate::plan::{Block, PollPlan, Wire, plan_reads_within};
 use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
 use crate::reading::Reading;
 use crate::state::device_key;
@@ -53,12 +56,6 @@ impl From<LinkError> for PollError {
         PollError::Protocol(ModbusError::Link(e))
     }
 }
-
-/// Times a read is asked again after noise (timeout, garbled, mismatch), when the device's
-/// availability says it is worth it ([`Availability::worth_retrying`]).
-///
-/// [`Availability::worth_retrying`]: super::availability::Availability::worth_retrying
-const NOISE_RETRIES: u32 = 2;
 
 /// Registers read in one poll, by block.
 pub(super) struct Snapshot {
@@ -108,7 +105,11 @@ pub struct ModbusDevice {
     last_slow: Option<Instant>,
     slow_every: Duration,
     /// The plan of the last read asked for (the count poll asks for the same every time).
-    plan_memo: Option<crate::plan::PollPlan>,
+    plan_memo: Option<PollPlan>,
+    /// The longest read allowed now: shorter after answers lost to noise.
+    sizing: Sizing,
+    /// How the count poll is cut into requests now, for the bus stats.
+    poll_shape: Option<RequestSize>,
     /// Measured turnaround (seconds, moving average), RTU only.
     turnaround: Option<f64>,
     /// The module's identity is to be checked before the next poll (at discovery, after a
@@ -133,6 +134,8 @@ impl ModbusDevice {
             last_slow: None,
             slow_every: bus.slow_poll,
             plan_memo: None,
+            sizing: Sizing::default(),
+            poll_shape: None,
             turnaround: None,
             identify_due: true,
             known: Arc::from(Vec::new()),
@@ -185,6 +188,10 @@ impl DeviceState for ModbusDevice {
         self.turnaround
     }
 
+    fn request_size(&self) -> Option<RequestSize> {
+        self.poll_shape
+    }
+
     fn save(&self, state: &mut crate::state::BusState) {
         if !self.holes.is_empty() {
             state.holes.insert(
@@ -217,7 +224,8 @@ impl DeviceRt<ModbusDevice> {
     ) -> Result<Vec<Reading>, PollError> {
         self.discover(link, preempt).await?;
         let fast = std::mem::take(&mut self.proto.fast);
-        let snapshot = self.read_registers(link, &fast, preempt).await;
+        let snapshot = self.read_blocks(link, &fast, Lost::LeftOut, preempt).await;
+        self.note_poll_shape(&fast);
         self.proto.fast = fast;
         let snapshot = snapshot?;
         let order = self.profile.word_order;
@@ -231,6 +239,10 @@ impl DeviceRt<ModbusDevice> {
             .zip(&self.proto.channels)
             .enumerate()
         {
+            // A channel is published whole or not at all: every register it polls arrived.
+            if !ch.spec.polled().all(|r| snapshot.get(&r).is_some()) {
+                continue;
+            }
             let Some((words, at)) = snapshot.get(&ch.spec.count) else {
                 continue;
             };
@@ -505,18 +517,32 @@ impl DeviceRt<ModbusDevice> {
         self.proto.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
     }
 
-    /// Reads `regs` in planned blocks. A bridged block refused with exception 02 teaches a hole
-    /// and is split at once.
+    /// Reads `regs` in planned blocks, all of them or none. A bridged block refused with
+    /// exception 02 teaches a hole and is split at once.
     pub(super) async fn read_registers(
         &mut self,
         link: &mut Link,
         regs: &[Register],
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<Snapshot, PollError> {
+        self.read_blocks(link, regs, Lost::FailsAll, preempt).await
+    }
+
+    /// Reads `regs` in planned blocks; a block lost to the line is asked again, shortened when
+    /// the device's [`Sizing`] shortens reads, and then failed or left out as `lost` says.
+    async fn read_blocks(
+        &mut self,
+        link: &mut Link,
+        regs: &[Register],
+        lost: Lost,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Snapshot, PollError> {
         let mut blocks = self.plan(regs);
         let mut out = Vec::with_capacity(blocks.len());
+        let mut left_out: Vec<Block> = Vec::new();
+        let mut last_loss = None;
+        let mut tries = Tries::new(lost);
         let mut i = 0;
-        let mut retries = 0;
         while i < blocks.len() {
             if preempt() {
                 return Err(PollError::Preempted);
@@ -525,19 +551,35 @@ impl DeviceRt<ModbusDevice> {
             let timeout = self.timeout_for(link, b.len);
             let started = Instant::now();
             let answer = match link.read(self.proto.unit, b.start, b.len, timeout).await {
-                // A device that lost one request or answer to noise is asked again: on a noisy
-                // line a corrupted request gets no answer at all, and three of those in a row
-                // must not make a healthy device offline. An offline device that stays silent
-                // is not asked twice (a dead one costs the others one timeout per probe).
-                Err(e) if self.asks_again(&e, retries) => {
-                    retries += 1;
+                // Asked again (see `retry`), in shorter reads when the line shortened them.
+                Err(e) if e.is_noise() => {
+                    let shortened = self.resize(link, |s, p| s.lost(b.len, p))
+                        && b.len > self.proto.sizing.limit();
+                    let heard = e.device_answered();
+                    match tries.lost(heard, self.availability.worth_retrying(heard)) {
+                        Next::Again if shortened => {
+                            blocks.truncate(i);
+                            blocks.extend(self.plan_rest(regs, &out, &left_out));
+                        }
+                        Next::Again => {}
+                        Next::LeaveOut => {
+                            left_out.push(b);
+                            last_loss = Some(e);
+                            i += 1;
+                        }
+                        Next::Stop if lost == Lost::FailsAll || out.is_empty() => {
+                            return Err(e.into());
+                        }
+                        Next::Stop => break,
+                    }
                     continue;
                 }
                 other => other?,
             };
-            retries = 0;
+            tries.answered();
             match answer {
                 Ok(words) => {
+                    self.resize(link, |s, p| s.answered(b.len, p));
                     let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
                     self.record_latency(latency, link, b.len);
                     out.push((b, words, At::now()));
@@ -547,13 +589,8 @@ impl DeviceRt<ModbusDevice> {
                     let gaps = b.gaps(regs);
                     tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
                     self.proto.holes.extend(gaps);
-                    let rest: Vec<Register> = regs
-                        .iter()
-                        .filter(|r| !out.iter().any(|(done, ..): &(Block, _, _)| done.covers(r)))
-                        .copied()
-                        .collect();
                     blocks.truncate(i);
-                    blocks.extend(plan_reads(&rest, &self.proto.holes, &self.proto.wire));
+                    blocks.extend(self.plan_rest(regs, &out, &left_out));
                 }
                 Err(exception) => {
                     return Err(PollError::Protocol(ModbusError::Refused {
@@ -564,22 +601,94 @@ impl DeviceRt<ModbusDevice> {
                 }
             }
         }
-        Ok(Snapshot { blocks: out })
+        match last_loss {
+            // Nothing arrived: the poll failed as a whole.
+            Some(e) if out.is_empty() => Err(e.into()),
+            _ => Ok(Snapshot { blocks: out }),
+        }
     }
 
-    /// The reads for `regs`: planned once and reused while the registers, the holes and the
-    /// wire's prices stay the same (the count poll asks for the same registers every time).
+    /// The reads of the registers in `regs` neither read (`done`) nor given up (`left_out`)
+    /// yet in this poll, at the current holes and length limit.
+    fn plan_rest(
+        &self,
+        regs: &[Register],
+        done: &[(Block, Vec<u16>, At)],
+        left_out: &[Block],
+    ) -> Vec<Block> {
+        let rest: Vec<Register> = regs
+            .iter()
+            .filter(|r| !done.iter().any(|(b, ..)| b.covers(r)))
+            .filter(|r| !left_out.iter().any(|b| b.covers(r)))
+            .copied()
+            .collect();
+        plan_reads_within(
+            &rest,
+            &self.proto.holes,
+            &self.proto.wire,
+            self.proto.sizing.limit(),
+        )
+    }
+
+    /// Tells the device's [`Sizing`] what a read did, on an RTU line (TCP carries no broken
+    /// characters); `true` when it shortened reads. A change from or back to full length is
+    /// logged; the steps between are debug (a noisy line moves them often).
+    fn resize(
+        &mut self,
+        link: &Link,
+        event: impl FnOnce(&mut Sizing, &Prices) -> Option<Change>,
+    ) -> bool {
+        let Some(timing) = link.timing_for(self.proto.unit) else {
+            return false;
+        };
+        let prices = Prices {
+            overhead: self.proto.wire.request_overhead,
+            loss: self.proto.answer_timeout.as_secs_f64() / timing.char_time().as_secs_f64(),
+        };
+        let was_full = self.proto.sizing.is_full();
+        let change = event(&mut self.proto.sizing, &prices);
+        let limit = self.proto.sizing.limit();
+        match change {
+            Some(Change::Shortened(_)) if was_full => {
+                tracing::info!(device = %self.name, limit, "answers lost on the line: reads shortened to at most {limit} registers");
+            }
+            Some(Change::Grown(_)) if self.proto.sizing.is_full() => {
+                tracing::info!(device = %self.name, "the line is clean again: reads back to full length");
+            }
+            Some(change) => tracing::debug!(device = %self.name, ?change, "read length"),
+            None => {}
+        }
+        matches!(change, Some(Change::Shortened(_)))
+    }
+
+    /// The reads for `regs`: planned once and reused while the registers, the holes, the
+    /// wire's prices and the length limit stay the same (the count poll asks for the same
+    /// registers every time).
     fn plan(&mut self, regs: &[Register]) -> Vec<Block> {
+        let limit = self.proto.sizing.limit();
         if let Some(p) = &self.proto.plan_memo
-            && p.fits(regs, self.proto.holes.len(), &self.proto.wire)
+            && p.fits_within(regs, self.proto.holes.len(), &self.proto.wire, limit)
         {
             return p.blocks.clone();
         }
-        let p = crate::plan::PollPlan::new(regs, &self.proto.holes, &self.proto.wire);
+        let p = PollPlan::within(regs, &self.proto.holes, &self.proto.wire, limit);
         tracing::debug!(device = %self.name, plan = %p.describe(), "poll plan");
         let blocks = p.blocks.clone();
         self.proto.plan_memo = Some(p);
         blocks
+    }
+
+    /// Records how the count poll (`fast`) is cut into requests now, for the stats and the
+    /// metrics: the plan the next poll uses.
+    fn note_poll_shape(&mut self, fast: &[Register]) {
+        let blocks = self.plan(fast);
+        let shape = RequestSize {
+            limit: self.proto.sizing.limit(),
+            requests: blocks.len(),
+            longest: blocks.iter().map(|b| b.len).max().unwrap_or(0),
+        };
+        self.metrics.request_size(shape.limit, shape.requests);
+        self.proto.poll_shape = Some(shape);
     }
 
     /// The answer timeout plus the time the request and answer take on the line.

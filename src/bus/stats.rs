@@ -54,6 +54,24 @@ pub struct DeviceStats {
     pub latency_p50_ms: Option<f64>,
     pub latency_p99_ms: Option<f64>,
     pub last_error: Option<String>,
+    /// The longest read the device's poll may use now, in registers: 125 on a clean line,
+    /// fewer after answers lost to noise (`null` for a protocol that does not plan reads).
+    pub request_limit: Option<u16>,
+    /// Requests of one count poll now (more while reads are shortened).
+    pub requests_per_poll: Option<usize>,
+    /// The longest of those requests, in registers.
+    pub longest_request: Option<u16>,
+}
+
+/// How a device's count poll is cut into requests now (a driver that plans its reads).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct RequestSize {
+    /// The longest read allowed, in registers.
+    pub limit: u16,
+    /// Requests of one count poll.
+    pub requests: usize,
+    /// The longest of them, in registers.
+    pub longest: u16,
 }
 
 fn percentile(sorted: &[f64], p: f64) -> Option<f64> {
@@ -78,6 +96,7 @@ pub(super) fn of<P: DeviceState>(
     for (d, s) in devices.iter().zip(slots) {
         let mut lat: Vec<f64> = d.latencies.iter().copied().collect();
         lat.sort_by(f64::total_cmp);
+        let size = d.proto.request_size();
         let stats = DeviceStats {
             online: d.online(),
             poll_ms: ms(d.config.poll.as_secs_f64()),
@@ -87,6 +106,9 @@ pub(super) fn of<P: DeviceState>(
             latency_p50_ms: percentile(&lat, 0.5).map(ms),
             latency_p99_ms: percentile(&lat, 0.99).map(ms),
             last_error: d.availability.last_error().map(str::to_string),
+            request_limit: size.map(|s| s.limit),
+            requests_per_poll: size.map(|s| s.requests),
+            longest_request: size.map(|s| s.longest),
         };
         per_device.insert(d.name.to_string(), stats);
     }

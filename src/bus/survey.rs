@@ -1,11 +1,13 @@
 //! A bus scan requested over MQTT (`<root>/bus/<bus>/scan`), carried out by the running bus in
 //! its idle line time: one unit is asked only when the next poll is due later than the longest
 //! the question can take, so configured devices keep their poll rate. Units of configured
-//! devices are not asked. One scan per bus at a time; results go to `<root>/bus/<bus>/scan/result`
-//! (and the MQTT v5 response topic).
+//! devices are not asked. One scan per bus at a time; each module found is reported on
+//! `<root>/bus/<bus>/scan/progress` as it answers (a scan of a busy line takes minutes), and the
+//! result goes to `<root>/bus/<bus>/scan/result` (and the MQTT v5 response topic).
 
 use std::time::Duration;
 
+use serde::Serialize;
 use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
@@ -27,6 +29,21 @@ pub struct ScanRequest {
     pub units: Vec<u8>,
     pub id: Option<String>,
     pub reply: Reply,
+    /// Where each module found is reported as it answers (`<request topic>/progress`).
+    pub progress: String,
+}
+
+/// A module the scan found, reported as it answers (the result lists it again).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ScanProgress {
+    pub bus: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
+    pub found: Found,
+    /// Units asked so far, and still to ask.
+    pub asked: usize,
+    pub pending: usize,
+    pub elapsed_ms: u64,
 }
 
 /// `<root>/bus/<bus>/scan` → the bus name.
@@ -102,11 +119,26 @@ impl Survey {
         self.pending.last().copied()
     }
 
-    /// The answer of the unit [`Survey::next_unit`] gave (`None`: silent).
-    pub fn record(&mut self, found: Option<Found>) {
+    /// The answer of the unit [`Survey::next_unit`] gave (`None`: silent); a module found is
+    /// reported at once (the progress message).
+    pub fn record(
+        &mut self,
+        found: Option<Found>,
+        bus: &str,
+        now: Instant,
+    ) -> Option<ScanProgress> {
         self.pending.pop();
         self.asked += 1;
-        self.found.extend(found);
+        let found = found?;
+        self.found.push(found.clone());
+        Some(ScanProgress {
+            bus: bus.to_string(),
+            id: self.request.id.clone(),
+            found,
+            asked: self.asked,
+            pending: self.pending.len(),
+            elapsed_ms: (now - self.started).as_millis() as u64,
+        })
     }
 
     /// Done, or out of time.
@@ -196,7 +228,13 @@ pub async fn idle_step(
             }
             _ => None,
         };
-        s.record(found);
+        if let Some(progress) = s.record(found, bus, Instant::now()) {
+            tracing::info!(bus, unit = progress.found.unit, "scan found a module");
+            let _ = out.send(Output::ScanProgress {
+                topic: s.request.progress.clone(),
+                progress: Box::new(progress),
+            });
+        }
     }
     let now = Instant::now();
     if s.finished(now) {
@@ -260,13 +298,18 @@ mod tests {
             units: vec![1, 2, 3, 4],
             id: Some("x".into()),
             reply: Reply::default(),
+            progress: "pg/bus/line1/scan/progress".into(),
         };
         let t = Instant::now();
         let mut s = Survey::new(req, &[2, 9], t);
         let mut asked = Vec::new();
         while let Some(u) = s.next_unit() {
             asked.push(u);
-            s.record(None);
+            assert_eq!(
+                s.record(None, "line1", t),
+                None,
+                "a silent unit is no progress"
+            );
         }
         assert_eq!(asked, [1, 3, 4]);
         let r = Outcome::Scan(s.result("line1", t)).to_json();
@@ -279,5 +322,43 @@ mod tests {
             ),
             (json!([2]), json!(true), json!("x"))
         );
+    }
+
+    #[test]
+    fn a_module_found_is_reported_at_once_with_the_scan_id_and_again_in_the_result() {
+        let req = ScanRequest {
+            units: vec![4, 5, 6],
+            id: Some("survey-1".into()),
+            reply: Reply::default(),
+            progress: "pg/bus/line1/scan/progress".into(),
+        };
+        let t = Instant::now();
+        use serde_json::json;
+        let mut s = Survey::new(req, &[], t);
+        assert_eq!(s.record(None, "line1", t), None);
+        let found = Found {
+            baud: Some(9600),
+            unit: 5,
+            model: Some("wj157".into()),
+            modes: vec![0],
+            channels: vec!["enc0".into()],
+            note: None,
+        };
+        let progress = s
+            .record(
+                Some(found.clone()),
+                "line1",
+                t + Duration::from_millis(1500),
+            )
+            .expect("reported");
+        let v = serde_json::to_value(&progress).unwrap();
+        assert_eq!(
+            v,
+            json!({"bus": "line1", "id": "survey-1", "found": found, "asked": 2, "pending": 1,
+                   "elapsed_ms": 1500})
+        );
+        s.record(None, "line1", t);
+        let result = Outcome::Scan(s.result("line1", t)).to_json();
+        assert_eq!(result["found"], json!([found]));
     }
 }

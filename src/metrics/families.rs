@@ -29,6 +29,8 @@ pub(super) struct Families {
     pub device_garbled: IntCounterVec,
     pub device_exceptions: IntCounterVec,
     pub device_latency: HistogramVec,
+    pub device_request_limit: IntGaugeVec,
+    pub device_requests_per_poll: IntGaugeVec,
     pub bus_transactions: IntCounterVec,
     pub bus_reconnects: IntCounterVec,
     pub bus_line_faults: IntCounterVec,
@@ -112,6 +114,14 @@ const DEVICE_GARBLED: Family = (
 const DEVICE_EXCEPTIONS: Family = (
     "pulsegate_device_exception_answers_total",
     "Modbus exception answers.",
+);
+const DEVICE_REQUEST_LIMIT: Family = (
+    "pulsegate_device_request_limit_registers",
+    "The longest read the device's poll may use now: 125 on a clean line, fewer after answers lost to noise.",
+);
+const DEVICE_REQUESTS_PER_POLL: Family = (
+    "pulsegate_device_requests_per_poll",
+    "Requests one count poll of the device takes now (more while reads are shortened).",
 );
 const BUS_TRANSACTIONS: Family = (
     "pulsegate_bus_transactions_total",
@@ -206,6 +216,8 @@ impl Families {
             let _ = self.device_garbled.remove_label_values(&l);
             let _ = self.device_exceptions.remove_label_values(&l);
             let _ = self.device_latency.remove_label_values(&l);
+            let _ = self.device_request_limit.remove_label_values(&l);
+            let _ = self.device_requests_per_poll.remove_label_values(&l);
         }
         for b in &gone.buses {
             let l = [b.as_str()];
@@ -240,6 +252,8 @@ impl Families {
                 )
                 .expect("valid histogram"),
             ),
+            device_request_limit: family!(r, IntGaugeVec, DEVICE_REQUEST_LIMIT, DEVICE),
+            device_requests_per_poll: family!(r, IntGaugeVec, DEVICE_REQUESTS_PER_POLL, DEVICE),
             bus_transactions: family!(r, IntCounterVec, BUS_TRANSACTIONS, BUS),
             bus_reconnects: family!(r, IntCounterVec, BUS_RECONNECTS, BUS),
             bus_line_faults: family!(r, IntCounterVec, BUS_LINE_FAULTS, BUS),

@@ -265,6 +265,8 @@ impl BusMetrics {
                 garbled: f.device_garbled.with_label_values(&l),
                 exceptions: f.device_exceptions.with_label_values(&l),
                 latency: f.device_latency.with_label_values(&l),
+                request_limit: f.device_request_limit.with_label_values(&l),
+                requests_per_poll: f.device_requests_per_poll.with_label_values(&l),
                 channels: HashMap::new(),
             }),
         }
@@ -335,6 +337,8 @@ struct DeviceHandles {
     garbled: IntCounter,
     exceptions: IntCounter,
     latency: Histogram,
+    request_limit: IntGauge,
+    requests_per_poll: IntGauge,
     channels: HashMap<Arc<str>, ChannelMetrics>,
 }
 
@@ -358,6 +362,14 @@ impl DeviceMetrics {
     pub fn latency(&self, d: Duration) {
         if let Some(h) = &self.inner {
             h.latency.observe(d.as_secs_f64());
+        }
+    }
+
+    /// How the count poll is cut now: the longest read allowed and the requests it takes.
+    pub fn request_size(&self, limit: u16, requests: usize) {
+        if let Some(h) = &self.inner {
+            h.request_limit.set(i64::from(limit));
+            h.requests_per_poll.set(requests as i64);
         }
     }
 

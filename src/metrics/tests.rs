@@ -215,6 +215,25 @@ fn metrics_that_are_off_record_nothing_and_expose_nothing() {
     assert_eq!(m.encode(), "");
 }
 
+#[test]
+fn a_devices_request_size_shows_the_limit_and_the_requests_of_a_poll() {
+    let m = Metrics::new();
+    let d = m.bus("line1").device("doors");
+    d.request_size(125, 2);
+    let text = m.encode();
+    assert!(
+        text.contains(
+            "pulsegate_device_request_limit_registers{bus=\"line1\",device=\"doors\"} 125"
+        )
+    );
+    assert!(text.contains("pulsegate_device_requests_per_poll{bus=\"line1\",device=\"doors\"} 2"));
+    d.request_size(1, 48);
+    let text = m.encode();
+    assert!(
+        text.contains("pulsegate_device_request_limit_registers{bus=\"line1\",device=\"doors\"} 1")
+    );
+}
+
 fn config(text: &str) -> Config {
     Config::from_toml(
         text,
@@ -241,6 +260,7 @@ fn a_reload_forgets_every_series_of_a_device_channel_or_bus_that_is_gone() {
         let mut d = b.device(device);
         d.up(Some(true));
         d.latency(Duration::from_millis(30));
+        d.request_size(8, 10);
         d.reading(&reading(device, "a0", 5, 1.0, false));
         d.reading(&reading(device, "gone0", 5, 1.0, false));
         handles.push(d);

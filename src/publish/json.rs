@@ -108,6 +108,11 @@ impl Format for Json {
                     self.retain,
                 )]
             }
+            Output::ScanProgress { topic, progress } => {
+                let body = serde_json::to_string(&**progress).unwrap_or_default();
+                // Made again by the next scan: chatter, never spooled.
+                vec![Message::chatter(topic.clone(), body, 1, false)]
+            }
             Output::Checkpoint(_) => Vec::new(),
         }
     }

@@ -68,6 +68,11 @@ impl Topics {
         format!("{request}/result")
     }
 
+    /// `<request>/progress`: where a scan reports each module as it is found.
+    pub fn scan_progress(request: &str) -> String {
+        format!("{request}/progress")
+    }
+
     /// The filters that take commands and scan requests: `<root>/+/+/cmd`, `<root>/+/cmd`,
     /// `<root>/bus/+/scan`.
     pub fn command_filters(&self) -> [String; 3] {

@@ -584,6 +584,99 @@ model = "zh-yx1600"
     assert_eq!(refused["error"], "unknown_bus");
 }
 
+/// A whole scan through the service in the idle time of a busy 9600-baud line takes minutes; a
+/// module at a low unit is named on the progress topic, with the scan's id, as soon as it
+/// answers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_of_a_busy_line_names_a_module_at_a_low_unit_within_45_s() {
+    use rumqttc::v5::mqttbytes::QoS;
+    let plant = plant(
+        r#"
+[buses.line]
+line = { baud = 9600, turnaround = "2ms" }
+[buses.line.devices.press]
+unit = 1
+model = "yl67"
+[buses.line.devices.doors]
+unit = 3
+model = "zh-yx1600"
+"#,
+    )
+    .await;
+    let broker = Broker::start();
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let dir = temp_dir("commission-busy-scan");
+    let devices = [
+        ("line", "press", 1, "yl67", "500ms"),
+        ("line", "doors", 3, "zh-yx1600", "500ms"),
+    ];
+    let text = gateway_toml(&plant, broker.port, &dir, &devices, "")
+        .replace("baud = 115200", "baud = 9600")
+        .replace(
+            "state_flush = \"500ms\"",
+            "state_flush = \"500ms\"\nstats_interval = \"2s\"",
+        );
+    let gw = Gateway::start(&write_config(&dir, &text));
+    // The polls keep the line busy most of the time.
+    let busy = sub
+        .wait_for(
+            "pulsegate/test/bus/line/stats",
+            Duration::from_secs(20),
+            |m| m.json()["utilisation"].as_f64() >= Some(0.5),
+        )
+        .await
+        .expect("a busy line");
+    println!("busy scan: line use {}", busy.json()["utilisation"]);
+
+    // A WJ157 is wired onto the running line at unit 5.
+    let wj157 = pulsegate::profile::Profiles::builtin()
+        .get("wj157")
+        .unwrap();
+    let module = pulsegate::sim::SimModule::new(wj157, &[0]).unwrap();
+    plant
+        .bus("line")
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(5, module);
+
+    let asked = std::time::Instant::now();
+    sub.client
+        .publish(
+            "pulsegate/test/bus/line/scan",
+            QoS::AtLeastOnce,
+            false,
+            r#"{"id": "busy-1"}"#,
+        )
+        .await
+        .unwrap();
+    let progress = sub
+        .wait_for(
+            "pulsegate/test/bus/line/scan/progress",
+            Duration::from_secs(45),
+            |m| m.json()["found"]["unit"] == 5,
+        )
+        .await
+        .unwrap_or_else(|| {
+            panic!(
+                "the module at unit 5 named within 45 s of the request:\n{}",
+                gw.log_text()
+            )
+        })
+        .json();
+    println!(
+        "busy scan: unit 5 named after {:?}: {progress}",
+        asked.elapsed()
+    );
+    assert_eq!(progress["id"], "busy-1", "{progress}");
+    assert_eq!(progress["bus"], "line", "{progress}");
+    assert_eq!(progress["found"]["model"], "wj157", "{progress}");
+    assert!(progress["pending"].as_u64() > Some(200), "{progress}");
+    // The scan goes on: its result (all 245 units) is still to come.
+    assert!(sub.on("pulsegate/test/bus/line/scan/result").is_empty());
+}
+
 /// Starts `pulsegate ARGS`, sends SIGINT after `after`, and returns its output.
 async fn pg_interrupted(args: &[&str], after: Duration) -> Output {
     let child = tokio::process::Command::new(bin())

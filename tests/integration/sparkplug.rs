@@ -387,9 +387,14 @@ async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
     let held = of_type(&lines, "DDATA")
         .take_while(|l| l["metrics"][0]["is_historical"] == true)
         .count();
+    let shape: Vec<String> = lines
+        .iter()
+        .take(40)
+        .map(|l| format!("{}:{}", l["type"], l["metrics"][0]["is_historical"]))
+        .collect();
     assert!(
         held > 10,
-        "what was polled while waiting follows, as history: {held}"
+        "what was polled while waiting follows, as history: {held}\n{shape:?}"
     );
     assert_seq_unbroken(&lines);
     no_errors(&lines);
