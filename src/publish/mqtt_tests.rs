@@ -201,25 +201,7 @@ async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs
 }
 
 fn reading(seq: u64) -> Output {
-    Output::Reading(crate::reading::Reading {
-        device: "d".into(),
-        channel: "enc0".into(),
-        ts: std::time::SystemTime::UNIX_EPOCH,
-        count: 1,
-        freq_hz: None,
-        rpm: None,
-        update: crate::counter::Update {
-            delta: 1,
-            total: 1,
-            seq,
-            rate_hz: None,
-            event: None,
-        },
-        after_seq: None,
-        meter: None,
-        kind: crate::profile::ChannelKind::Encoder,
-        units: None,
-    })
+    Output::Reading(crate::reading::Reading::sample("d", "enc0", seq))
 }
 
 /// Readings wait for their batch (an acknowledgement of something else does not send them);
