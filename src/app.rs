@@ -11,6 +11,7 @@ use tokio_util::sync::CancellationToken;
 use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
+use crate::driver::modbus::survey::ScanRequest;
 use crate::health::Health;
 use crate::metrics::Metrics;
 use crate::reading::Output;
@@ -21,7 +22,7 @@ struct Running {
     stop: CancellationToken,
     task: JoinHandle<()>,
     commands: UnboundedSender<BusCommand>,
-    scans: tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>,
+    scans: tokio::sync::mpsc::Sender<ScanRequest>,
 }
 
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
@@ -187,11 +188,10 @@ fn start_bus(
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
     let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
-        .with_scans(scan_rx)
         .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
-        task: tokio::spawn(task.run(stop.clone())),
+        task: crate::driver::spawn(task, bus, scan_rx, stop.clone()),
         stop,
         commands: cmd_tx,
         scans: scan_tx,
@@ -200,7 +200,7 @@ fn start_bus(
 
 fn scan_senders(
     running: &BTreeMap<String, Running>,
-) -> HashMap<String, tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>> {
+) -> HashMap<String, tokio::sync::mpsc::Sender<ScanRequest>> {
     running
         .iter()
         .map(|(n, r)| (n.clone(), r.scans.clone()))

@@ -13,9 +13,9 @@ use tokio::time::Instant;
 
 use crate::admission::{Admission, LogBudget};
 use crate::bus::BusCommand;
-use crate::bus::survey::{self, ScanRequest};
 use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
+use crate::driver::modbus::survey::{self, ScanRequest};
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
 use crate::publish::topics::ResponseRule;
 use crate::reading::Output;

@@ -22,6 +22,7 @@ pub mod counter;
 pub mod decode;
 pub mod demo;
 pub mod dispatch;
+pub mod driver;
 pub mod health;
 pub mod metrics;
 pub mod outbox;

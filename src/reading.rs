@@ -60,7 +60,7 @@ pub enum Output {
     /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
     ScanProgress {
         topic: String,
-        progress: Box<crate::bus::survey::ScanProgress>,
+        progress: Box<crate::driver::modbus::survey::ScanProgress>,
     },
     /// A state save of the bus is waiting: it may record the seq of every reading sent before
     /// this only once those are durable (acknowledged by the broker, or fsynced in the spool),

@@ -280,16 +280,16 @@ pub(super) fn wrong_model<P>(
     });
 }
 
-/// A quadrature pair's mode words disagree (or agree again): status `mode_mismatch` while they
-/// do, `online` again after.
-pub(super) fn mode_mismatch<P>(d: &mut DeviceRt<P>, out: &UnboundedSender<Output>) {
-    let Some(now) = d.take_mismatch_change() else {
+/// A problem of the device's own began or ended (Modbus: a quadrature pair's mode words
+/// disagree): its status while it lasts, `online` again after.
+pub(super) fn status_change<P: DeviceState>(d: &mut DeviceRt<P>, out: &UnboundedSender<Output>) {
+    let Some(now) = d.proto.status_change() else {
         return;
     };
     let status = match now {
-        Some(_) => Output::DeviceProblem {
+        Some(status) => Output::DeviceProblem {
             device: d.name.clone(),
-            status: "mode_mismatch",
+            status,
         },
         None => Output::DeviceStatus {
             device: d.name.clone(),

@@ -5,20 +5,10 @@ mod availability;
 pub mod device;
 pub mod driver;
 mod emit;
-mod execute;
-mod identity;
 mod ledger;
-pub mod link;
-pub mod modbus;
-mod retry;
-mod run;
 mod saver;
 pub mod schedule;
-mod serial;
-pub mod sizing;
 pub mod stats;
-pub mod survey;
-mod timer;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -57,8 +47,6 @@ pub struct BusTask {
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
     metrics: BusMetrics,
-    /// Scan requests from MQTT, asked in idle line time.
-    scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
     emitter: emit::Emitter,
 }
 
@@ -80,7 +68,6 @@ impl BusTask {
             commands,
             heart,
             metrics: BusMetrics::default(),
-            scans: None,
         }
     }
 
@@ -90,21 +77,10 @@ impl BusTask {
         self
     }
 
-    /// Takes scan requests from `scans` (see [`survey`]).
-    pub fn with_scans(mut self, scans: tokio::sync::mpsc::Receiver<survey::ScanRequest>) -> Self {
-        self.scans = Some(scans);
-        self
-    }
-
-    /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
+    /// Polls over `driver` (the bus's protocol, built by the caller; a scripted one in tests)
+    /// until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
-    pub async fn run(mut self, shutdown: CancellationToken) {
-        let driver = driver::Modbus::for_bus(&self.bus).with_scans(self.scans.take());
-        self.run_with(driver, shutdown).await;
-    }
-
-    /// [`BusTask::run`] over a given driver (a protocol, or a scripted one in tests).
-    pub async fn run_with<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
+    pub async fn run<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
         let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
@@ -297,12 +273,13 @@ impl BusTask {
                 let d = &mut core.devices[i];
                 d.note_good_poll();
                 availability::answered(d, &name, &self.out);
-                availability::mode_mismatch(d, &self.out);
+                availability::status_change(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
                 core.durable.publish(outputs, i, &core.devices, &self.out);
                 core.slots[i].advance(now);
             }
-            Err(PollError::WrongModel(why)) => {
+            Err(e) if e.out_of_service().is_some() => {
+                let why = e.out_of_service().unwrap_or_default().to_string();
                 availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
             }

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use tokio_modbus::ExceptionCode;
 
-use crate::bus::link::{Link, LinkError};
+use crate::driver::modbus::link::{Link, LinkError};
 use crate::profile::{Profile, Profiles};
 
 /// What a unit that answered turned out to be.

@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use super::CommissionError;
 use super::holder::holders;
-use crate::bus::link::{Link, LinkError};
 use crate::config::{Link as LinkConfig, Parity};
+use crate::driver::modbus::link::{Link, LinkError};
 
 /// Where the modules are.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -24,7 +24,7 @@ pub use line::timeout_for as line_timeout;
 pub use scan::{Found, parse_units, scan_bauds};
 pub use snippet::config_snippet;
 
-use crate::bus::link::LinkError;
+use crate::driver::modbus::link::LinkError;
 
 /// Why a commissioning command stopped.
 #[derive(Debug, thiserror::Error)]

@@ -3,7 +3,7 @@
 
 use super::CommissionError;
 use super::line::{Target, timeout_for};
-use crate::bus::link::Link;
+use crate::driver::modbus::link::Link;
 
 /// A register address or value: decimal or 0x-prefixed hex, 0..=65535.
 pub fn parse_u16(text: &str) -> Result<u16, String> {

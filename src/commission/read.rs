@@ -12,10 +12,10 @@ use super::CommissionError;
 use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
 use crate::bus::device::DeviceRt;
-use crate::bus::link::Link;
-use crate::bus::modbus::{ModbusDevice, ModbusError};
 use crate::command::{Op, Reply, Request};
 use crate::config::{Bus, ChannelConfig, Device, Run};
+use crate::driver::modbus::link::Link;
+use crate::driver::modbus::{ModbusDevice, ModbusError};
 use crate::plan::Wire;
 use crate::profile::{Profile, Profiles};
 

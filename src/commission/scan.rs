@@ -7,7 +7,7 @@ use tokio_util::sync::CancellationToken;
 use super::CommissionError;
 use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
-use crate::bus::link::{Link, LinkError};
+use crate::driver::modbus::link::{Link, LinkError};
 use crate::profile::{Profile, Profiles};
 
 /// A unit that answered.

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use super::CommissionError;
 use super::line::{Target, timeout_for};
-use crate::bus::link::Link;
+use crate::driver::modbus::link::Link;
 use crate::profile::{Applies, ChannelSpec, Place, Profile, Setting};
 
 /// One requested change: setting name, channel (per-channel settings), value as typed.

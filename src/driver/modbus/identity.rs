@@ -7,9 +7,9 @@ use std::sync::Arc;
 
 use tokio_modbus::ExceptionCode;
 
-use super::device::DeviceRt;
+use super::device::{ModbusDevice, PollError};
 use super::link::Link;
-use super::modbus::{ModbusDevice, PollError};
+use crate::bus::device::DeviceRt;
 use crate::profile::{Profile, Profiles};
 
 /// The identification of one known model.

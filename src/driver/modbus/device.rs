@@ -10,14 +10,14 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::{At, ChannelRt, DeviceRt, ProtocolError};
-use super::driver::DeviceState;
 use super::identity::{Identity, Verdict};
 use super::link::{Link, LinkError};
 use super::retry::{Lost, NOISE_RETRIES, Next, Tries};
-use super::run::RunState;
+use super::run_state::RunState;
 use super::sizing::{Change, Prices, Sizing};
-use super::stats::RequestSize;
+use crate::bus::device::{At, ChannelRt, DeviceRt, ProtocolError};
+use crate::bus::driver::DeviceState;
+use crate::bus::stats::RequestSize;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, Direction};
 use crate::decode::decode;
@@ -37,19 +37,29 @@ pub enum ModbusError {
         len: u16,
         exception: ExceptionCode,
     },
+    /// The module is not the configured model: out of service, no readings.
+    #[error("wrong model: {0}")]
+    WrongModel(String),
 }
 
 impl ProtocolError for ModbusError {
     fn device_answered(&self) -> bool {
         match self {
             ModbusError::Link(l) => l.device_answered(),
-            ModbusError::Refused { .. } => true,
+            ModbusError::Refused { .. } | ModbusError::WrongModel(_) => true,
+        }
+    }
+
+    fn out_of_service(&self) -> Option<&str> {
+        match self {
+            ModbusError::WrongModel(why) => Some(why),
+            _ => None,
         }
     }
 }
 
 /// A poll error of the Modbus driver.
-pub type PollError = super::device::PollError<ModbusError>;
+pub type PollError = crate::bus::device::PollError<ModbusError>;
 
 impl From<LinkError> for PollError {
     fn from(e: LinkError) -> PollError {
@@ -85,6 +95,10 @@ pub(super) struct ModbusChannel {
     window_bad: bool,
     /// The power-on state was checked (and set where configured) in this run.
     pub(super) power_on_done: bool,
+    /// What to do when the counter is found stopped (modules with a command register).
+    pub(super) run: Run,
+    /// Resume the counter when it is found paused.
+    pub(super) resume_paused: bool,
 }
 
 /// What a Modbus driver keeps of one device: its unit, the register plan and what shapes it
@@ -118,6 +132,10 @@ pub struct ModbusDevice {
     /// Identification of every known model, to name what a wrong module is.
     pub(super) known: Arc<[Identity]>,
     unidentified_warned: bool,
+    /// Quadrature pairs whose two mode words disagree, described; and its last change, not
+    /// yet published.
+    mode_mismatch: Option<String>,
+    mismatch_changed: Option<Option<String>>,
 }
 
 impl ModbusDevice {
@@ -140,6 +158,8 @@ impl ModbusDevice {
             identify_due: true,
             known: Arc::from(Vec::new()),
             unidentified_warned: false,
+            mode_mismatch: None,
+            mismatch_changed: None,
         }
     }
 
@@ -165,6 +185,21 @@ impl ModbusDevice {
         self.identify_due = true;
         self.last_slow = None;
     }
+
+    /// Records the mode-word mismatch of device `name` found now (logged once per change).
+    pub(super) fn set_mismatch(&mut self, name: &str, now: Option<String>) {
+        if self.mode_mismatch == now {
+            return;
+        }
+        match &now {
+            Some(why) => {
+                tracing::error!(device = %name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
+            }
+            None => tracing::info!(device = %name, "mode words agree again"),
+        }
+        self.mode_mismatch = now.clone();
+        self.mismatch_changed = Some(now);
+    }
 }
 
 impl DeviceState for ModbusDevice {
@@ -177,6 +212,11 @@ impl DeviceState for ModbusDevice {
         if matches!(e, PollError::Protocol(ModbusError::Refused { .. })) && self.discovered() {
             self.module_restarted();
         }
+    }
+
+    fn status_change(&mut self) -> Option<Option<&'static str>> {
+        let now = self.mismatch_changed.take()?;
+        Some(now.map(|_| "mode_mismatch"))
     }
 
     fn went_offline(&mut self) {
@@ -263,14 +303,14 @@ impl DeviceRt<ModbusDevice> {
                 _ => None,
             };
             if let Some((w, _)) = mb.command.and_then(|r| snapshot.get(&r)) {
-                match super::run::run_state(&ch.spec, w[0]) {
+                match super::run_state::run_state(&ch.spec, w[0]) {
                     // The module cleared it; the gateway starts it after this read.
-                    RunState::Stopped if ch.run != Run::Leave => {
+                    RunState::Stopped if mb.run != Run::Leave => {
                         stopped.push((i, count, at, freq_hz, rpm));
                         continue;
                     }
                     RunState::Running(d) => ch.counter.spec.direction = d,
-                    RunState::Paused if ch.resume_paused => paused.push(i),
+                    RunState::Paused if mb.resume_paused => paused.push(i),
                     _ => {}
                 }
             }
@@ -342,7 +382,7 @@ impl DeviceRt<ModbusDevice> {
                     tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
                 }
             }
-            Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
+            Verdict::Wrong(why) => return Err(PollError::Protocol(ModbusError::WrongModel(why))),
         }
         self.proto.identify_due = false;
         if let Some(was) = self.wrong_model.take() {
@@ -406,7 +446,9 @@ impl DeviceRt<ModbusDevice> {
         // The module does not count such a pair: publish no channel that never moves.
         specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
         let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
-        self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
+        let name = self.name.clone();
+        self.proto
+            .set_mismatch(&name, (!described.is_empty()).then(|| described.join("; ")));
         if self.proto.modes.as_ref() != Some(&modes) {
             if self.proto.modes.is_some() {
                 tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
@@ -497,14 +539,14 @@ impl DeviceRt<ModbusDevice> {
                 (None, None) => Counter::new(counter_spec),
             };
             self.proto.channels.push(ModbusChannel {
-                command: super::run::command_register(&spec),
+                command: super::run_state::command_register(&spec),
+                run: overrides.run,
+                resume_paused: overrides.resume_paused,
                 ..ModbusChannel::default()
             });
             self.channels.push(ChannelRt {
                 name: Arc::from(spec.name.as_str()),
                 ppr: overrides.ppr,
-                run: overrides.run,
-                resume_paused: overrides.resume_paused,
                 spec,
                 counter,
             });

@@ -4,9 +4,9 @@
 //! and its reading says so (`reset`); `run = "leave"` leaves it to another system; a paused
 //! counter is left paused.
 
-use super::device::{At, DeviceRt};
+use super::device::ModbusDevice;
 use super::link::Link;
-use super::modbus::ModbusDevice;
+use crate::bus::device::{At, DeviceRt};
 use crate::config::Run;
 use crate::counter::{Direction, Event};
 use crate::profile::{ChannelKind, ChannelSpec, Register};
@@ -66,7 +66,7 @@ impl DeviceRt<ModbusDevice> {
     /// kept, so nothing is rebased; the next reads count on.
     pub(super) async fn resume_paused(&mut self, link: &mut Link, i: usize) {
         let ch = &self.channels[i];
-        let Some(code) = start_code(&ch.spec, ch.run) else {
+        let Some(code) = start_code(&ch.spec, self.proto.channels[i].run) else {
             return;
         };
         let (name, register) = (ch.name.clone(), ch.spec.clear.register);
@@ -101,7 +101,8 @@ impl DeviceRt<ModbusDevice> {
             let (Some(p), true, false) = (ch.spec.power_on, configured, done) else {
                 continue;
             };
-            let down = ch.run == Run::Down && ch.spec.kind == ChannelKind::Counter;
+            let down =
+                self.proto.channels[i].run == Run::Down && ch.spec.kind == ChannelKind::Counter;
             let name = ch.name.clone();
             let word = match link.read(self.proto.unit, p.address, 1, timeout).await {
                 Ok(Ok(w)) => w[0],
@@ -142,7 +143,7 @@ impl DeviceRt<ModbusDevice> {
         rpm: Option<f64>,
     ) -> Option<Reading> {
         let ch = &self.channels[i];
-        let code = start_code(&ch.spec, ch.run)?;
+        let code = start_code(&ch.spec, self.proto.channels[i].run)?;
         let register = ch.spec.clear.register;
         let timeout = self.timeout_for(link, 1);
         match link
