@@ -75,7 +75,7 @@ pub async fn run_with_reloads(
         health: mqtt_health,
         boot,
         metrics: mqtt_metrics,
-        formats: crate::publish::format::chosen(&config),
+        formats: crate::publish::formats::chosen(&config),
     };
     let mqtt = tokio::spawn(crate::publish::mqtt::run(
         task,

@@ -153,9 +153,9 @@ pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
 }
 
 /// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd` (the rule
-/// lives with the other topic rules in [`crate::publish::topics`]).
+/// lives with the other topic rules in [`crate::topics`]).
 pub fn parse_topic<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
-    crate::publish::topics::parse_command(root, topic)
+    crate::topics::parse_command(root, topic)
 }
 
 /// The parts of a payload before the device is known: op, id.

@@ -17,8 +17,8 @@ use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
 use crate::config::Config;
 use crate::driver::modbus::survey::{self, ScanRequest};
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
-use crate::publish::topics::ResponseRule;
 use crate::reading::Output;
+use crate::topics::ResponseRule;
 
 fn targets_of(
     config: &Config,
@@ -124,7 +124,7 @@ impl Router {
     /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
     fn scan(&self, bus: &str, msg: &Incoming) {
         let mut reply = Reply {
-            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
+            topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         let refuse = |reply: &Reply, code: &'static str, message: String| {
@@ -173,7 +173,7 @@ impl Router {
             units,
             id,
             reply: reply.clone(),
-            progress: crate::publish::topics::Topics::scan_progress(&msg.topic),
+            progress: crate::topics::Topics::scan_progress(&msg.topic),
         };
         if tx.try_send(req).is_err() {
             refuse(
@@ -217,7 +217,7 @@ impl Router {
             return;
         };
         let mut reply = Reply {
-            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
+            topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {

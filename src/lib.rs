@@ -37,3 +37,4 @@ pub mod sim;
 pub mod state;
 pub mod state_lock;
 pub mod systemd;
+pub mod topics;

@@ -123,7 +123,7 @@ pub fn id_from_host(host: &str) -> Option<String> {
         })
         .collect();
     let id = id.trim_matches('-').to_string();
-    super::is_topic_safe(&id).then_some(id)
+    crate::topics::is_topic_safe(&id).then_some(id)
 }
 
 fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Gateway {
@@ -144,7 +144,7 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
     };
     if let Some(id) = t.opt::<String>("id", errs) {
         g.id_from_hostname = None;
-        if super::is_topic_safe(&id) {
+        if crate::topics::is_topic_safe(&id) {
             g.id = id;
         } else {
             errs.push(
@@ -216,7 +216,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         batch: DEFAULT_BATCH,
     };
     let Some(mut t) = table else { return m };
-    if let Some(list) = super::sparkplug::formats(&mut t, crate::publish::format::NAMES, errs) {
+    if let Some(list) = super::sparkplug::formats(&mut t, super::publish::FORMAT_NAMES, errs) {
         m.format = list;
     }
     if let Some(v) = t.opt::<String>("protocol", errs) {
@@ -381,7 +381,7 @@ fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
 fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Option<Bus> {
     let path = format!("buses.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) {
+    if !crate::topics::is_topic_safe(name) {
         errs.push(
             &path,
             t.origin(),
@@ -550,7 +550,7 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
+    if !crate::topics::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
         errs.push(
             &path,
             t.origin(),

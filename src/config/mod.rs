@@ -149,7 +149,7 @@ pub struct Mqtt {
     pub commands: bool,
     /// `mqtt.protocol`: "5" (default) or "3.1.1".
     pub protocol: MqttProtocol,
-    /// `mqtt.format`: how events become payloads, each one of [`crate::publish::format::NAMES`]
+    /// `mqtt.format`: how events become payloads, each one of [`publish::FORMAT_NAMES`]
     /// (a list runs them side by side: `["json", "sparkplug"]`).
     pub format: Vec<String>,
     /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
@@ -359,16 +359,6 @@ impl Config {
     pub fn enabled_devices(&self) -> impl Iterator<Item = (&Bus, &Device)> {
         self.devices().filter(|(b, d)| b.enabled && d.enabled)
     }
-}
-
-/// A name that can stand as one level of an MQTT topic and as a key in the environment:
-/// letters, digits, `-` and `_`, not empty, no wildcards or separators.
-pub fn is_topic_safe(name: &str) -> bool {
-    !name.is_empty()
-        && name.len() <= 64
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
 #[cfg(test)]

@@ -2,6 +2,9 @@
 //! `min_interval`, `payload`), and `[homeassistant]`.
 
 use super::walk::{Errors, MAX_DURATION, Table, join};
+/// The formats `mqtt.format` may name (each built by `publish::formats::build`).
+pub const FORMAT_NAMES: &[&str] = &["json", "sparkplug"];
+
 use crate::publish::policy::{PayloadMode, PolicyOverride, PublishMode};
 
 /// Reads `publish`, `heartbeat` and `min_interval` of one table (`"0s"`: none).

@@ -427,7 +427,7 @@ impl Profile {
                 if !seen.insert(ch.name.clone()) {
                     return Err(format!("channel name {} appears twice", ch.name));
                 }
-                if !crate::config::is_topic_safe(&ch.name) {
+                if !crate::topics::is_topic_safe(&ch.name) {
                     return Err(format!("channel name {:?} is not safe in a topic", ch.name));
                 }
                 if ch.count.end() as u32 > 0xFFFF {

@@ -7,7 +7,8 @@ use std::time::SystemTime;
 use serde_json::Value;
 
 use super::discovery::Discovery;
-use super::format::{Stage, chosen};
+use super::format::Stage;
+use super::formats::chosen;
 use crate::config::Config;
 use crate::counter::Update;
 use crate::profile::ChannelKind;

@@ -3,10 +3,12 @@
 use std::time::{Duration, SystemTime};
 
 use super::*;
+use crate::config::publish::FORMAT_NAMES as NAMES;
 use crate::counter::Update;
 use crate::outbox::{MemoryStore, Outbox, Step, Store};
-use crate::publish::topics::Topics;
+use crate::publish::formats::build;
 use crate::reading::Reading;
+use crate::topics::Topics;
 
 fn reading(total: i64) -> Reading {
     Reading {

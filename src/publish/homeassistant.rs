@@ -10,11 +10,11 @@ use std::collections::BTreeSet;
 use serde_json::{Value, json};
 
 use super::policy::PayloadMode;
-use super::topics::Topics;
 use super::units::rate_device_class;
 use crate::config::channel::ChannelUnits;
 use crate::config::{Config, Device};
 use crate::profile::{ChannelKind, ChannelSpec};
+use crate::topics::Topics;
 
 /// Where discovery goes and what it points at.
 #[derive(Debug, Clone)]

@@ -4,6 +4,7 @@ pub mod batch;
 pub mod decimal;
 pub mod discovery;
 pub mod format;
+pub mod formats;
 pub mod homeassistant;
 pub mod json;
 pub mod mqtt;
@@ -15,7 +16,6 @@ pub mod sparkplug;
 pub mod spool;
 pub mod spool_place;
 pub mod tls;
-pub mod topics;
 pub mod units;
 
 #[cfg(test)]

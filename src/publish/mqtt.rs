@@ -35,12 +35,12 @@ use super::format::{Format, Stage};
 use super::poller::{Polled, Poller, Routes};
 use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
 use super::spool::Spool;
-use super::topics::Topics;
 use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
 use crate::health::Heart;
 use crate::outbox::{Message, Outbox, Step};
 use crate::reading::{Checkpoint, Output};
+use crate::topics::Topics;
 
 pub use crate::outbox::unsendable;
 
@@ -220,7 +220,7 @@ pub struct Task {
     pub health: Arc<crate::health::Health>,
     pub boot: crate::boot::Boot,
     pub metrics: crate::metrics::Metrics,
-    /// The output stage's formats ([`super::format::chosen`]).
+    /// The output stage's formats ([`super::formats::chosen`]).
     pub formats: Vec<Box<dyn Format>>,
 }
 

@@ -48,7 +48,7 @@ pub struct ScanProgress {
 
 /// `<root>/bus/<bus>/scan` → the bus name.
 pub fn parse_scan_topic<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
-    crate::publish::topics::parse_scan(root, topic)
+    crate::topics::parse_scan(root, topic)
 }
 
 /// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.

@@ -39,7 +39,7 @@ pub enum Write {
 impl Write {
     /// The same request as a JSON command on the device's channel command topic, so it goes
     /// through the router's checks and admission like any other.
-    pub fn incoming(&self, topics: &crate::publish::topics::Topics, device: &str) -> Incoming {
+    pub fn incoming(&self, topics: &crate::topics::Topics, device: &str) -> Incoming {
         let (channel, body) = match self {
             Write::Clear { channel } => (channel, serde_json::json!({"op": "clear"})),
             Write::Preset { channel, value } => {

@@ -50,7 +50,7 @@ struct DeviceNode {
 pub struct Setup {
     pub topics: Topics,
     /// Where DCMD writes go: the JSON command topics the command router takes.
-    pub commands: crate::publish::topics::Topics,
+    pub commands: crate::topics::Topics,
     pub primary_host: Option<String>,
     /// QoS of births and data (the will is QoS 1).
     pub qos: u8,

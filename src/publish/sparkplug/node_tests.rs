@@ -19,7 +19,7 @@ fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
 fn setup(host: Option<&str>) -> Setup {
     Setup {
         topics: Topics::new("plant", "e1"),
-        commands: crate::publish::topics::Topics::new("pg/e1"),
+        commands: crate::topics::Topics::new("pg/e1"),
         primary_host: host.map(str::to_string),
         qos: 1,
         devices: vec![

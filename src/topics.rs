@@ -1,6 +1,19 @@
 //! Topic names under the gateway's root, both ways: what the gateway publishes, what it
 //! subscribes to, and how an arriving topic is read. The one place for these rules. Pure.
 
+/// The namespace of Sparkplug B.
+pub const SPARKPLUG_NAMESPACE: &str = "spBv1.0";
+
+/// A name that can stand as one level of an MQTT topic and as a key in the environment:
+/// letters, digits, `-` and `_`, not empty, no wildcards or separators.
+pub fn is_topic_safe(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
 /// Topics of one gateway.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Topics {
@@ -140,7 +153,7 @@ impl ResponseRule {
         if under(&self.discovery_prefix) {
             return Err("it is under the Home Assistant discovery prefix");
         }
-        if under(super::sparkplug::topic::NAMESPACE) {
+        if under(SPARKPLUG_NAMESPACE) {
             return Err("it is in the Sparkplug B namespace (births, data and deaths of nodes)");
         }
         if matches!(topic.rsplit('/').next(), Some("cmd" | "scan")) {
