@@ -24,7 +24,7 @@ pub struct Reading {
     /// input counter in one mode and an encoder in another).
     pub kind: crate::profile::ChannelKind,
     /// Engineering units of the channel, when it has a `scale`.
-    pub units: Option<Arc<crate::config::channel::ChannelUnits>>,
+    pub units: Option<Arc<crate::config::units::ChannelUnits>>,
 }
 
 /// Everything a bus task reports.

@@ -315,7 +315,7 @@ fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
     let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
     if let Some(tls) = &tls
         && files_exist
-        && let Err(e) = crate::publish::tls::client_config(tls)
+        && let Err(e) = crate::config::tls::client_config(tls)
     {
         errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
     }

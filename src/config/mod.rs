@@ -6,10 +6,14 @@
 
 pub mod channel;
 mod check;
+pub mod decimal;
 mod metrics;
+pub mod policy;
 pub mod publish;
 mod socket;
 pub mod sparkplug;
+pub mod tls;
+pub mod units;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -26,7 +30,7 @@ pub use metrics::Metrics as MetricsEndpoint;
 pub use publish::HomeAssistant;
 pub use sparkplug::Sparkplug;
 
-use crate::publish::policy::{PayloadMode, PolicyOverride};
+use crate::config::policy::{PayloadMode, PolicyOverride};
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";

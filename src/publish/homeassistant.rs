@@ -9,9 +9,9 @@ use std::collections::BTreeSet;
 
 use serde_json::{Value, json};
 
-use super::policy::PayloadMode;
-use super::units::rate_device_class;
-use crate::config::channel::ChannelUnits;
+use crate::config::policy::PayloadMode;
+use crate::config::units::ChannelUnits;
+use crate::config::units::rate_device_class;
 use crate::config::{Config, Device};
 use crate::profile::{ChannelKind, ChannelSpec};
 use crate::topics::Topics;

@@ -9,8 +9,8 @@ use crate::topics::Topics;
 use std::collections::HashSet;
 
 use crate::config::Config;
+use crate::config::policy::PayloadMode;
 use crate::outbox::{Message, Will};
-use crate::publish::policy::PayloadMode;
 use crate::reading::{Output, Reading};
 
 /// Today's payloads.

@@ -172,7 +172,7 @@ impl Shell {
 /// The client options of this gateway: a fresh client is built from them after every failure
 /// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
 /// never falls back to plaintext.
-pub fn client_options(config: &Mqtt) -> Result<Options, super::tls::TlsError> {
+pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
     let login = config.username.as_ref().map(|user| {
         let password = config.password.as_ref().map(|p| p.0.clone());
         (user.clone(), password.unwrap_or_default())
@@ -194,16 +194,18 @@ pub fn client_options(config: &Mqtt) -> Result<Options, super::tls::TlsError> {
 /// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
 /// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
 /// TLS: `check` refuses that config, and a config built another way must fail closed too.
-fn broker_transport(config: &Mqtt) -> Result<(String, Option<Transport>), super::tls::TlsError> {
+fn broker_transport(
+    config: &Mqtt,
+) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
     match (&config.socket, &config.tls) {
-        (Some(path), Some(_)) => Err(super::tls::TlsError::OverSocket {
+        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
             socket: path.display().to_string(),
         }),
         (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
         (None, Some(tls)) => Ok((
             config.host.clone(),
             Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-                super::tls::client_config(tls)?,
+                crate::config::tls::client_config(tls)?,
             ))),
         )),
         (None, None) => Ok((config.host.clone(), None)),

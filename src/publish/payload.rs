@@ -54,9 +54,9 @@ pub fn device(readings: &[Reading]) -> String {
 fn json_of(r: &Reading) -> ReadingJson {
     let units = r.units.as_deref();
     let value = units
-        .and_then(|u| super::units::value(u, r.update.total))
+        .and_then(|u| crate::config::units::value(u, r.update.total))
         .and_then(|v| RawValue::from_string(v.to_string()).ok());
-    let rate = units.and_then(|u| super::units::rate(u, r.update.rate_hz?));
+    let rate = units.and_then(|u| crate::config::units::rate(u, r.update.rate_hz?));
     ReadingJson {
         ts: humantime::format_rfc3339_millis(r.ts).to_string(),
         count: r.count,
@@ -136,8 +136,8 @@ mod tests {
     }
 
     fn metered(total: i64, scale: &str, rate_hz: f64) -> Reading {
-        use crate::config::channel::ChannelUnits;
-        use crate::publish::{decimal::Decimal, units::RatePer};
+        use crate::config::units::ChannelUnits;
+        use crate::config::{decimal::Decimal, units::RatePer};
         Reading {
             device: "meter".into(),
             channel: "a0".into(),
