@@ -13,8 +13,9 @@ use tokio::time::Instant;
 
 use crate::admission::{Admission, LogBudget};
 use crate::bus::BusCommand;
-use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
+use crate::command::{self, CommandError, Reply, Request};
 use crate::config::Config;
+use crate::dedupe::{Dedupe, Seen};
 use crate::driver::modbus::survey::{self, ScanRequest};
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
 use crate::reading::Output;

@@ -20,6 +20,7 @@ pub mod commission;
 pub mod config;
 pub mod counter;
 pub mod decode;
+pub mod dedupe;
 pub mod demo;
 pub mod dispatch;
 pub mod driver;

@@ -9,9 +9,10 @@ use tokio_util::sync::CancellationToken;
 
 use super::CommissionError;
 use super::line::Target;
-use super::scan::{Found, ScanEvent};
+use super::scan::ScanEvent;
 use super::setup::Wanted;
 use crate::command::Op;
+use crate::outcome::Found;
 use crate::profile::Profiles;
 
 /// How to reach the modules.

@@ -21,7 +21,7 @@ pub use cli::{Commission, run};
 pub use holder::{Holder, holders};
 pub use identify::{Identified, identify_words};
 pub use line::timeout_for as line_timeout;
-pub use scan::{Found, parse_units, scan_bauds};
+pub use scan::{parse_units, scan_bauds};
 pub use snippet::config_snippet;
 
 use crate::driver::modbus::link::LinkError;

@@ -8,24 +8,8 @@ use super::CommissionError;
 use super::identify::{Identified, identify};
 use super::line::{Target, timeout_for};
 use crate::driver::modbus::link::{Link, LinkError};
+use crate::outcome::Found;
 use crate::profile::{Profile, Profiles};
-
-/// A unit that answered.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct Found {
-    /// The baud rate it answered at (`None` on Modbus TCP).
-    pub baud: Option<u32>,
-    pub unit: u8,
-    /// Its model, when a profile's identification matched.
-    pub model: Option<String>,
-    /// Raw work-mode registers, in the profile's order.
-    pub modes: Vec<u16>,
-    /// Its channels in those work modes.
-    pub channels: Vec<String>,
-    /// Anything worth knowing (unknown model, modes not readable).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub note: Option<String>,
-}
 
 /// What happened during a scan, for progress display.
 #[derive(Debug)]

@@ -15,7 +15,8 @@ use tokio_util::sync::CancellationToken;
 
 use super::link::Link;
 use crate::command::Reply;
-use crate::commission::scan::{Found, describe, parse_units};
+use crate::commission::scan::{describe, parse_units};
+use crate::outcome::Found;
 use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
