@@ -199,6 +199,18 @@ impl LineTiming {
     pub fn chars(&self, chars: f64) -> Duration {
         self.char_time().mul_f64(chars)
     }
+
+    /// Time on the wire of a read of `registers` registers: request and answer.
+    pub fn read_time(&self, registers: u16) -> Duration {
+        self.chars(read_chars(registers))
+    }
+}
+
+/// How long to wait for the answer to a read of `registers` registers: the device's `answer`
+/// time plus the time request and answer take on the line (`timing`; none on TCP). The one
+/// place for this rule: the bus's polls and the commissioning commands both ask it.
+pub fn read_timeout(answer: Duration, timing: Option<&LineTiming>, registers: u16) -> Duration {
+    answer + timing.map(|t| t.read_time(registers)).unwrap_or_default()
 }
 
 /// Splits the values of one device poll into reads. `holes` are ranges the device refused.

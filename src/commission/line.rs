@@ -124,13 +124,3 @@ fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
         },
     }
 }
-
-/// The answer timeout for a request of `len` registers: the models' answer time plus the time
-/// the request and answer take on the line.
-pub fn timeout_for(answer: Duration, link: &Link, len: u16) -> Duration {
-    let line = link
-        .timing()
-        .map(|t| t.chars(crate::plan::read_chars(len)))
-        .unwrap_or_default();
-    answer + line
-}

@@ -735,11 +735,8 @@ impl DeviceRt<ModbusDevice> {
 
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
-        let line = link
-            .timing_for(self.proto.unit)
-            .map(|t| t.chars(crate::plan::read_chars(len)))
-            .unwrap_or_default();
-        self.proto.answer_timeout + line
+        let timing = link.timing_for(self.proto.unit);
+        crate::plan::read_timeout(self.proto.answer_timeout, timing.as_ref(), len)
     }
 
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
@@ -751,7 +748,7 @@ impl DeviceRt<ModbusDevice> {
         }
         self.latencies.push_back(d.as_secs_f64());
         if let Some(t) = link.timing_for(self.proto.unit) {
-            let line = t.chars(crate::plan::read_chars(len));
+            let line = t.read_time(len);
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.proto.turnaround = Some(match self.proto.turnaround {
                 Some(old) => old * 0.9 + turnaround * 0.1,

@@ -122,6 +122,12 @@ impl Link {
         }
     }
 
+    /// How long to wait for the answer to a read of `len` registers from a device that takes
+    /// `answer` to answer, at the line's own rate ([`crate::plan::read_timeout`]).
+    pub fn timeout_for(&self, answer: Duration, len: u16) -> Duration {
+        crate::plan::read_timeout(answer, self.timing().as_ref(), len)
+    }
+
     /// Character timing of the line while talking to `unit` (its own rate where it has one).
     pub fn timing_for(&self, unit: u8) -> Option<LineTiming> {
         let mut config = self.config.clone();

@@ -8,6 +8,7 @@ mod device;
 mod execute;
 pub mod identity;
 pub mod link;
+pub mod probe;
 mod retry;
 mod run_state;
 mod serial;

@@ -14,8 +14,8 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::link::Link;
+use super::probe::{describe, parse_units};
 use crate::command::Reply;
-use crate::commission::scan::{describe, parse_units};
 use crate::outcome::Found;
 use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
@@ -202,8 +202,8 @@ pub async fn idle_step(
         return false;
     };
     let profiles = Profiles::builtin();
-    let answer = crate::commission::scan::answer_time(&profiles);
-    let timeout = crate::commission::line_timeout(answer, link, 3);
+    let answer = super::probe::answer_time(&profiles);
+    let timeout = link.timeout_for(answer, 3);
     let cost = timeout
         + link
             .timing()
@@ -216,11 +216,7 @@ pub async fn idle_step(
         && !shutdown.is_cancelled()
     {
         used = true;
-        let found = match crate::commission::identify::identify(
-            link, &profiles, unit, timeout, false,
-        )
-        .await
-        {
+        let found = match super::probe::identify(link, &profiles, unit, timeout, false).await {
             Ok(Some(identified)) => {
                 let baud = link.timing().map(|t| t.baud);
                 let mut f = describe(link, baud, unit, identified, timeout, Some(next_due)).await;
