@@ -11,12 +11,13 @@ use tokio::sync::mpsc::{Receiver, UnboundedSender};
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 
-use crate::admission::{Admission, LogBudget};
+use crate::admission::Admission;
 use crate::bus::BusCommand;
 use crate::command::{self, CommandError, Reply, Request};
 use crate::config::Config;
 use crate::dedupe::{Dedupe, Seen};
 use crate::driver::modbus::survey::{self, ScanRequest};
+use crate::log_budget::LogBudget;
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
 use crate::reading::Output;
 use crate::topics::ResponseRule;

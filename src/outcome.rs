@@ -23,6 +23,19 @@ pub struct Found {
     pub note: Option<String>,
 }
 
+/// A module the scan found, reported as it answers (the result lists it again).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ScanProgress {
+    pub bus: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
+    pub found: Found,
+    /// Units asked so far, and still to ask.
+    pub asked: usize,
+    pub pending: usize,
+    pub elapsed_ms: u64,
+}
+
 /// The answer to a command or a scan.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {

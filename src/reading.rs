@@ -49,7 +49,7 @@ pub enum Output {
     /// Health of a bus.
     BusStats {
         bus: Arc<str>,
-        stats: Box<crate::bus::stats::BusStats>,
+        stats: Box<crate::bus_health::BusStats>,
     },
     /// The answer to a command or a scan, and the topics it goes to.
     CommandResult {
@@ -60,7 +60,7 @@ pub enum Output {
     /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
     ScanProgress {
         topic: String,
-        progress: Box<crate::driver::modbus::survey::ScanProgress>,
+        progress: Box<crate::outcome::ScanProgress>,
     },
     /// A state save of the bus is waiting: it may record the seq of every reading sent before
     /// this only once those are durable (acknowledged by the broker, or fsynced in the spool),

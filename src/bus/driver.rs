@@ -11,7 +11,7 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::device::{DeviceRt, PollError, ProtocolError};
-use super::stats::WireCounters;
+use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
 use crate::reading::{Output, Reading};
@@ -83,7 +83,7 @@ pub trait DeviceState {
     }
     /// How the device's poll is cut into requests now, for the bus stats (Modbus: reads
     /// shortened on a noisy line).
-    fn request_size(&self) -> Option<super::stats::RequestSize> {
+    fn request_size(&self) -> Option<crate::bus_health::RequestSize> {
         None
     }
     /// Adds what the protocol keeps across restarts to the bus's state (Modbus: the holes).

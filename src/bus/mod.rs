@@ -9,6 +9,7 @@ mod ledger;
 mod saver;
 pub mod schedule;
 pub mod stats;
+mod status;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -19,6 +20,7 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
+use crate::bus_health::WireCounters;
 use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
@@ -29,7 +31,6 @@ use device::DeviceRt;
 pub use device::PollError;
 use driver::{DeviceState, Driver};
 use schedule::{Slot, earliest};
-use stats::WireCounters;
 
 /// A checked command for a device on this bus, and where its outcome goes.
 pub struct BusCommand {
@@ -272,15 +273,15 @@ impl BusTask {
                 self.heart.set_up(true);
                 let d = &mut core.devices[i];
                 d.note_good_poll();
-                availability::answered(d, &name, &self.out);
-                availability::status_change(d, &self.out);
+                status::answered(d, &name, &self.out);
+                status::status_change(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
                 core.durable.publish(outputs, i, &core.devices, &self.out);
                 core.slots[i].advance(now);
             }
             Err(e) if e.out_of_service().is_some() => {
                 let why = e.out_of_service().unwrap_or_default().to_string();
-                availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
+                status::wrong_model(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
             }
             Err(e) => {
@@ -291,7 +292,7 @@ impl BusTask {
                     self.metrics.line_fault();
                 }
                 let d = &mut core.devices[i];
-                match availability::failed(d, &e, line_fault, &name, &self.out) {
+                match status::failed(d, &e, line_fault, &name, &self.out) {
                     Some(wait) => core.slots[i].defer_to(now + wait),
                     None => core.slots[i].advance(now),
                 }

@@ -69,7 +69,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         ("pg/e1/press1/status", &b"offline"[..])
     );
     assert_eq!((m[0].qos, m[0].retain), (1, true));
-    let stats = crate::bus::stats::BusStats {
+    let stats = crate::bus_health::BusStats {
         utilisation: 0.5,
         transactions: 3,
         transactions_per_s: 0.1,

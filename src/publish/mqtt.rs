@@ -667,9 +667,9 @@ struct Watch {
     up: Option<bool>,
     /// Chatter dropped when last logged, and the budget of those lines.
     chatter_dropped: u64,
-    chatter_log: crate::admission::LogBudget,
+    chatter_log: crate::log_budget::LogBudget,
     takeovers: u64,
-    takeover_log: crate::admission::LogBudget,
+    takeover_log: crate::log_budget::LogBudget,
     /// Wait before the next attempt after a failure.
     pause: Duration,
     /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
@@ -681,9 +681,9 @@ impl Watch {
         Watch {
             up: None,
             chatter_dropped: 0,
-            chatter_log: crate::admission::LogBudget::new(1),
+            chatter_log: crate::log_budget::LogBudget::new(1),
             takeovers: 0,
-            takeover_log: crate::admission::LogBudget::new(1),
+            takeover_log: crate::log_budget::LogBudget::new(1),
             pause: Duration::from_secs(1),
             protocol_named: false,
         }

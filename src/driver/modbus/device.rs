@@ -17,7 +17,7 @@ use super::run_state::RunState;
 use super::sizing::{Change, Prices, Sizing};
 use crate::bus::device::{At, ChannelRt, DeviceRt, ProtocolError};
 use crate::bus::driver::DeviceState;
-use crate::bus::stats::RequestSize;
+use crate::bus_health::RequestSize;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::counter::{Counter, CounterSpec, Direction};
 use crate::decode::decode;

@@ -72,7 +72,7 @@ impl LinkError {
 /// A transaction's outcome: the link failed, or the device answered (possibly an exception).
 pub type Answer<T> = Result<Result<T, ExceptionCode>, LinkError>;
 
-pub use crate::bus::stats::WireCounters;
+use crate::bus_health::WireCounters;
 
 /// One bus's wire.
 pub struct Link {

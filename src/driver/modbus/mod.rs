@@ -23,7 +23,7 @@ use tokio::sync::mpsc::Receiver;
 
 use crate::bus::device::{DeviceRt, PollError};
 use crate::bus::driver::{Driver, Executed, Idle, Preempt};
-use crate::bus::stats::WireCounters;
+use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
 use crate::plan::Wire;

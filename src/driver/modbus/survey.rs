@@ -7,7 +7,6 @@
 
 use std::time::Duration;
 
-use serde::Serialize;
 use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
@@ -16,7 +15,7 @@ use tokio_util::sync::CancellationToken;
 use super::link::Link;
 use super::probe::{describe, parse_units};
 use crate::command::Reply;
-use crate::outcome::Found;
+use crate::outcome::{Found, ScanProgress};
 use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
@@ -32,19 +31,6 @@ pub struct ScanRequest {
     pub reply: Reply,
     /// Where each module found is reported as it answers (`<request topic>/progress`).
     pub progress: String,
-}
-
-/// A module the scan found, reported as it answers (the result lists it again).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ScanProgress {
-    pub bus: String,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub id: Option<String>,
-    pub found: Found,
-    /// Units asked so far, and still to ask.
-    pub asked: usize,
-    pub pending: usize,
-    pub elapsed_ms: u64,
 }
 
 /// `<root>/bus/<bus>/scan` → the bus name.

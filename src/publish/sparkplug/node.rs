@@ -74,7 +74,7 @@ pub struct Node {
     /// The session's bdSeq.
     bd_seq: u8,
     /// Refused commands logged per minute.
-    log_budget: crate::admission::LogBudget,
+    log_budget: crate::log_budget::LogBudget,
     /// The last message numbered: its topic, stored and sent bytes.
     last_out: Option<(String, Bytes, Bytes)>,
 }
@@ -103,7 +103,7 @@ impl Node {
             born: false,
             seq: 0,
             bd_seq: 0,
-            log_budget: crate::admission::LogBudget::new(20),
+            log_budget: crate::log_budget::LogBudget::new(20),
             last_out: None,
         }
     }
