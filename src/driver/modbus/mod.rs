@@ -5,11 +5,13 @@
 //! of a noisy line (`sizing.rs`, `retry.rs`). Only this folder knows Modbus.
 
 mod device;
+mod discover;
 mod execute;
 pub mod identity;
 pub mod link;
 pub mod probe;
 mod retry;
+mod run_control;
 mod run_state;
 mod serial;
 pub mod sizing;
