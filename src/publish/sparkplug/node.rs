@@ -20,8 +20,6 @@ use crate::outbox::Message;
 use crate::publish::format::Reaction;
 use crate::reading::{Output, Reading};
 
-/// The NBIRTH metric a host writes to ask for a rebirth.
-pub const REBIRTH: &str = "Node Control/Rebirth";
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.
 pub const BD_SEQ: &str = "bdSeq";
 
@@ -215,7 +213,7 @@ impl Node {
                     Some(Value::Long(self.bd_seq.into())),
                 ),
                 Metric::new(
-                    REBIRTH,
+                    super::command::REBIRTH,
                     None,
                     datatype::BOOLEAN,
                     Some(Value::Boolean(false)),

@@ -3,7 +3,7 @@ use std::time::{Duration, SystemTime};
 use super::*;
 use crate::counter::{Event, Update};
 use crate::profile::ChannelKind;
-use crate::publish::sparkplug::command::dcmd;
+use crate::publish::sparkplug::command::{REBIRTH, dcmd};
 
 fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
     ChannelShape {
