@@ -301,6 +301,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
                     kind: ch.kind,
                     units: None,
                     after_seq: None,
+                    meter: None,
                 };
                 let body = pulsegate::publish::payload::reading(&r);
                 std::hint::black_box(body);

@@ -11,6 +11,9 @@ pub enum Op {
     Clear,
     Preset(i64),
     ClearAll,
+    /// Moves the channel's published meter reading to the meter's display; touches neither the
+    /// module nor the total.
+    SetReading(crate::decimal::Decimal),
 }
 
 impl Op {
@@ -19,6 +22,7 @@ impl Op {
             Op::Clear => "clear",
             Op::Preset(_) => "preset",
             Op::ClearAll => "clear_all",
+            Op::SetReading(_) => "set_reading",
         }
     }
 }
@@ -53,12 +57,18 @@ pub enum CommandError {
     NotJson(String),
     #[error("missing \"op\"")]
     MissingOp,
-    #[error("unknown op {0:?}: use clear or preset on a channel, clear_all on a device")]
+    #[error(
+        "unknown op {0:?}: use clear, preset or set_reading on a channel, clear_all on a device"
+    )]
     UnknownOp(String),
     #[error("preset needs \"value\"")]
     MissingValue,
     #[error("\"value\" must be an integer, got {0}")]
     NotInteger(String),
+    #[error("\"value\" must be a decimal number such as \"12345.678\": {0}")]
+    NotDecimal(String),
+    #[error("channel {channel} has no scale: a meter reading is in its unit (set `scale`)")]
+    NoScale { channel: String },
     #[error("{value} is outside the range of channel {channel}")]
     OutOfRange { channel: String, value: i64 },
     #[error("unexpected field {0:?}")]
@@ -98,6 +108,8 @@ impl CommandError {
             CommandError::UnknownOp(_) => "unknown_op",
             CommandError::MissingValue => "missing_value",
             CommandError::NotInteger(_) => "bad_value",
+            CommandError::NotDecimal(_) => "bad_value",
+            CommandError::NoScale { .. } => "no_scale",
             CommandError::OutOfRange { .. } => "out_of_range",
             CommandError::UnexpectedField(_) => "unexpected_field",
             CommandError::BadId => "bad_id",
@@ -196,7 +208,7 @@ pub fn parse_payload(
     };
     let fail = |e| Err((id.clone(), e));
     let allowed: &[&str] = match map.get("op") {
-        Some(Value::String(op)) if op == "preset" => &["op", "id", "value"],
+        Some(Value::String(op)) if op == "preset" || op == "set_reading" => &["op", "id", "value"],
         _ => &["op", "id"],
     };
     if let Some(k) = map.keys().find(|k| !allowed.contains(&k.as_str())) {
@@ -208,6 +220,9 @@ pub fn parse_payload(
             ("clear", true) => Op::Clear,
             ("preset", true) => Op::Preset(preset_value(&map).map_err(|e| (id.clone(), e))?),
             ("clear_all", false) => Op::ClearAll,
+            ("set_reading", true) => {
+                Op::SetReading(reading_value(&map).map_err(|e| (id.clone(), e))?)
+            }
             _ => return fail(CommandError::UnknownOp(op.clone())),
         },
         Some(other) => return fail(CommandError::UnknownOp(other.to_string())),
@@ -223,6 +238,17 @@ fn preset_value(map: &Map<String, Value>) -> Result<i64, CommandError> {
             .ok_or_else(|| CommandError::NotInteger(n.to_string())),
         Some(other) => Err(CommandError::NotInteger(other.to_string())),
     }
+}
+
+/// `value` of a set_reading: decimal text or a JSON number, taken exactly as written.
+fn reading_value(map: &Map<String, Value>) -> Result<crate::decimal::Decimal, CommandError> {
+    let text = match map.get("value") {
+        None | Some(Value::Null) => return Err(CommandError::MissingValue),
+        Some(Value::String(s)) => s.clone(),
+        Some(Value::Number(n)) => n.to_string(),
+        Some(other) => return Err(CommandError::NotDecimal(other.to_string())),
+    };
+    crate::decimal::Decimal::parse(&text).map_err(|e| CommandError::NotDecimal(e.to_string()))
 }
 
 /// The result JSON of a command.
@@ -263,6 +289,40 @@ mod tests {
             .unwrap_err()
             .1
             .code()
+    }
+
+    #[test]
+    fn set_reading_takes_decimal_text_or_a_number_exactly_as_written() {
+        use crate::decimal::Decimal;
+        let d = |t| Op::SetReading(Decimal::parse(t).unwrap());
+        let text = br#"{"op":"set_reading","value":"12345.678","id":"swap"}"#;
+        let p = parse_payload(text, true).unwrap();
+        assert_eq!((p.op, p.id.as_deref()), (d("12345.678"), Some("swap")));
+        let number = br#"{"op":"set_reading","value":12345.678}"#;
+        assert_eq!(parse_payload(number, true).unwrap().op, d("12345.678"));
+        assert_eq!(d("12345.678").name(), "set_reading");
+    }
+
+    #[test]
+    fn set_reading_refuses_what_is_not_a_reading_and_is_not_a_device_command() {
+        for (payload, code) in [
+            (&br#"{"op":"set_reading"}"#[..], "missing_value"),
+            (br#"{"op":"set_reading","value":"12,5"}"#, "bad_value"),
+            (br#"{"op":"set_reading","value":"1e99"}"#, "bad_value"),
+            (br#"{"op":"set_reading","value":true}"#, "bad_value"),
+            (
+                br#"{"op":"set_reading","value":"1","scale":2}"#,
+                "unexpected_field",
+            ),
+        ] {
+            let (_, e) = parse_payload(payload, true).unwrap_err();
+            assert_eq!(e.code(), code, "{}", String::from_utf8_lossy(payload));
+        }
+        let device_wide = br#"{"op":"set_reading","value":"1"}"#;
+        assert_eq!(
+            parse_payload(device_wide, false).unwrap_err().1.code(),
+            "unknown_op"
+        );
     }
 
     #[test]

@@ -15,21 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Something other than counting happened on a channel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Event {
-    /// The count wrapped around its 32-bit range.
-    Rollover,
-    /// The module restarted or someone else cleared it; delta is the count since then.
-    Reset,
-    /// The gateway cleared the channel.
-    Cleared,
-    /// The gateway preset the channel.
-    Preset,
-    /// The gateway or the device was away; the delta covers the whole gap.
-    Gap,
-}
+use crate::event::Event;
 
 /// When a count was read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -136,6 +122,13 @@ pub struct CounterState {
     /// datasheet maximum): bounds what a wrap after a long absence can be.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub peak_hz: u64,
+    /// The open interval and record seq of each configured period (keyed by the period as
+    /// written): a restart mid-interval still closes it from its saved start.
+    #[serde(default, skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    pub intervals: std::collections::BTreeMap<String, crate::metering::IntervalState>,
+    /// The offset of the channel's meter reading (`set_reading`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter: Option<crate::metering::meter::MeterOffset>,
 }
 
 fn is_zero(v: &u64) -> bool {

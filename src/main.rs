@@ -61,6 +61,19 @@ enum Command {
         #[command(subcommand)]
         action: StateAction,
     },
+    /// Set a channel's meter reading to the meter's display (the running gateway does it; the
+    /// total, the deltas and the intervals do not move, and nothing is written to the module).
+    SetReading {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+        device: String,
+        channel: String,
+        /// The meter's display, in the channel's unit (e.g. 12345.678).
+        value: String,
+        /// How long to wait for the gateway's result.
+        #[arg(long, default_value = "10s")]
+        wait: humantime::Duration,
+    },
     /// Serve simulated modules on pseudo-terminals and TCP ports.
     Simulate {
         #[arg(long)]
@@ -242,6 +255,13 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             };
             state_command(&config, action)
         }
+        Command::SetReading {
+            config,
+            device,
+            channel,
+            value,
+            wait,
+        } => set_reading(&config, &device, &channel, &value, wait.into()).await,
         Command::Simulate { config } => {
             let text = std::fs::read_to_string(&config)
                 .with_context(|| format!("reading {}", config.display()))?;
@@ -266,6 +286,27 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `pulsegate set-reading`: prints the gateway's result; exit 0 when it says ok.
+async fn set_reading(
+    config: &std::path::Path,
+    device: &str,
+    channel: &str,
+    value: &str,
+    wait: std::time::Duration,
+) -> anyhow::Result<ExitCode> {
+    let config = match load(config) {
+        Ok(c) => c,
+        Err(code) => return Ok(code),
+    };
+    let result = pulsegate::setreading::run(&config, device, channel, value, wait).await?;
+    println!("{result}");
+    Ok(if result["ok"] == true {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
 }
 
 /// `pulsegate state list|prune`.

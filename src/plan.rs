@@ -4,7 +4,7 @@
 //! the device's turnaround), and bridging a gap of `g` unused registers costs `2g` characters of
 //! answer. Boundaries are chosen by dynamic programming over the sorted values, never inside a
 //! 32-bit value, never across a hole the device refused (exception 02), at most 125 registers,
-//! or fewer when the line is noisy (a limit from `bus::sizing`; a single value is never split).
+//! or fewer when the line is noisy (a limit from `driver::modbus::sizing`; a single value is never split).
 
 use std::ops::Range;
 use std::time::Duration;

@@ -25,6 +25,20 @@ pub struct Reading {
     pub kind: crate::profile::ChannelKind,
     /// Engineering units of the channel, when it has a `scale`.
     pub units: Option<Arc<crate::config::units::ChannelUnits>>,
+    /// The offset `set_reading` gave the channel's meter reading, if any.
+    pub meter: Option<crate::metering::meter::MeterOffset>,
+}
+
+/// A closed interval of one channel and period (`<root>/<device>/<channel>/interval/<period>`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IntervalRecord {
+    pub device: Arc<str>,
+    pub channel: Arc<str>,
+    /// The period as the config writes it (`15min`).
+    pub period: Arc<str>,
+    pub record: crate::metering::Record,
+    /// Engineering units of the channel, when it has a `scale` (the record's `value`).
+    pub units: Option<Arc<crate::config::units::ChannelUnits>>,
 }
 
 /// Everything a bus task reports.
@@ -68,6 +82,8 @@ pub enum Output {
     /// readings count from the saved seqs (`after_seq`): a reading up to them must not be one
     /// that died in memory. Publishes nothing.
     Checkpoint(Checkpoint),
+    /// A closed interval record: owed like a reading (spooled, in order).
+    Interval(Box<IntervalRecord>),
 }
 
 /// A state save's question to the MQTT task: "is everything sent before me durable?" Answered

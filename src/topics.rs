@@ -56,6 +56,11 @@ impl Topics {
         format!("{}/{device}/{channel}", self.root)
     }
 
+    /// `<root>/<device>/<channel>/interval/<period>`: interval records of one period.
+    pub fn interval(&self, device: &str, channel: &str, period: &str) -> String {
+        format!("{}/interval/{period}", self.reading(device, channel))
+    }
+
     /// `<root>/bus/<bus>/stats`: bus health.
     pub fn bus_stats(&self, bus: &str) -> String {
         format!("{}/bus/{bus}/stats", self.root)

@@ -407,6 +407,7 @@ fn reading_of(seq: u64) -> Output {
             event: None,
         },
         after_seq: None,
+        meter: None,
         kind: crate::profile::ChannelKind::Encoder,
         units: None,
     })

@@ -92,6 +92,7 @@ impl ChannelRt {
             kind: self.spec.kind,
             units: None,
             after_seq: None,
+            meter: None,
         }
     }
 }

@@ -11,13 +11,15 @@ use super::device::DeviceRt;
 use crate::config::Gateway;
 use crate::config::policy::{Gate, PayloadMode, Policy, PolicyOverride};
 use crate::config::units::ChannelUnits;
-use crate::reading::{Output, Reading, unix_ms};
+use crate::metering::{Clock, Period, Read};
+use crate::reading::{IntervalRecord, Output, Reading, unix_ms};
 
-/// One channel's gate, policy and units.
+/// One channel's gate, policy, units and interval periods.
 struct ChannelOut {
     gate: Gate,
     policy: Policy,
     units: Option<Arc<ChannelUnits>>,
+    periods: Vec<(Period, Arc<str>)>,
 }
 
 /// The publish state of every channel of a bus.
@@ -25,6 +27,9 @@ pub(super) struct Emitter {
     policy: PolicyOverride,
     payload: PayloadMode,
     channels: HashMap<(Arc<str>, Arc<str>), ChannelOut>,
+    /// `gateway.timezone` and `gateway.intervals`.
+    clock: Clock,
+    gateway: Gateway,
 }
 
 impl Emitter {
@@ -33,11 +38,63 @@ impl Emitter {
             policy: gateway.publish,
             payload: gateway.payload,
             channels: HashMap::new(),
+            clock: gateway.clock.clone(),
+            gateway: gateway.clone(),
         }
+    }
+
+    /// The next interval boundary after `now_ms` of any channel of `d` (Unix ms).
+    pub(super) fn next_boundary<P>(&self, d: &DeviceRt<P>, now_ms: i64) -> Option<i64> {
+        let gateway = self.gateway.intervals.as_deref();
+        let mut periods: Vec<&Period> = d
+            .channels
+            .iter()
+            .flat_map(|c| d.config.intervals_of(gateway, &c.name))
+            .collect();
+        // Channels mostly share their periods: each is reckoned once.
+        periods.sort_by_key(|p| p.ms());
+        periods.dedup_by_key(|p| p.ms());
+        periods.iter().map(|p| self.clock.next(p, now_ms)).min()
+    }
+
+    /// Books each reading into its channel's intervals: the records they close (before the
+    /// publish policy, which may skip a reading but never its pulses).
+    fn intervals<P>(&mut self, d: &mut DeviceRt<P>, readings: &[Reading]) -> Vec<Output> {
+        let mut out = Vec::new();
+        for r in readings {
+            let c = self.channel(d, &r.channel);
+            if c.periods.is_empty() {
+                continue;
+            }
+            let (periods, units) = (c.periods.clone(), c.units.clone());
+            let Some(ch) = d.channels.iter_mut().find(|c| c.name == r.channel) else {
+                continue;
+            };
+            let read = Read {
+                at_ms: unix_ms(r.ts) as i64,
+                total: r.update.total,
+                event: r.update.event,
+            };
+            for (period, text) in periods {
+                let state = ch.counter.state.intervals.entry(text.to_string());
+                let Some(record) = state.or_default().observe(&self.clock, &period, read) else {
+                    continue;
+                };
+                out.push(Output::Interval(Box::new(IntervalRecord {
+                    device: d.name.clone(),
+                    channel: r.channel.clone(),
+                    period: text,
+                    record,
+                    units: units.clone(),
+                })));
+            }
+        }
+        out
     }
 
     fn channel<P>(&mut self, d: &DeviceRt<P>, channel: &Arc<str>) -> &mut ChannelOut {
         let gateway = self.policy;
+        let all = &self.gateway;
         self.channels
             .entry((d.name.clone(), channel.clone()))
             .or_insert_with(|| {
@@ -49,10 +106,17 @@ impl Emitter {
                 let units = config
                     .filter(|c| c.units.scale.is_some())
                     .map(|c| Arc::new(c.units.clone()));
+                let periods = d
+                    .config
+                    .intervals_of(all.intervals.as_deref(), channel)
+                    .iter()
+                    .map(|p| (p.clone(), Arc::from(p.text())))
+                    .collect();
                 ChannelOut {
                     gate: Gate::default(),
                     policy,
                     units,
+                    periods,
                 }
             })
     }
@@ -62,6 +126,7 @@ impl Emitter {
     /// With `payload = "device"`, a poll in which any channel is due publishes all of them in
     /// one message.
     pub(super) fn emit<P>(&mut self, d: &mut DeviceRt<P>, readings: Vec<Reading>) -> Vec<Output> {
+        let records = self.intervals(d, &readings);
         let payload = d.config.payload.unwrap_or(self.payload);
         let wants: Vec<bool> = readings
             .iter()
@@ -77,6 +142,11 @@ impl Emitter {
             if want || all {
                 r.update = c.gate.publish(unix_ms(r.ts), r.count, &r.update);
                 r.units = c.units.clone();
+                r.meter = d
+                    .channels
+                    .iter()
+                    .find(|ch| ch.name == r.channel)
+                    .and_then(|ch| ch.counter.state.meter.clone());
                 published.push(r);
             } else {
                 c.gate.skip(&r.update);
@@ -84,13 +154,15 @@ impl Emitter {
             }
         }
         // One event for the poll: how it goes on the wire (a message per channel or per device)
-        // is the format's business.
-        if published.is_empty() {
-            return Vec::new();
+        // is the format's business. The records it closed follow it.
+        let mut outputs = Vec::with_capacity(1 + records.len());
+        if !published.is_empty() {
+            outputs.push(Output::DeviceReadings {
+                device: d.name.clone(),
+                readings: published,
+            });
         }
-        vec![Output::DeviceReadings {
-            device: d.name.clone(),
-            readings: published,
-        }]
+        outputs.extend(records);
+        outputs
     }
 }

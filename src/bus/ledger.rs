@@ -27,7 +27,10 @@ impl Ledger {
     /// A save of `channels` completed: their seqs are durable.
     pub fn durable(&mut self, channels: &BTreeMap<String, u64>) {
         for (key, seq) in channels {
-            let limit = seq.saturating_add(HEADROOM);
+            // An interval record goes out only once a save holds it closed: after a crash its
+            // seq can never come again, nor its interval be closed a second time.
+            let headroom = if is_record_key(key) { 0 } else { HEADROOM };
+            let limit = seq.saturating_add(headroom);
             let e = self.limits.entry(key.clone()).or_insert(limit);
             *e = (*e).max(limit);
         }
@@ -39,9 +42,25 @@ impl Ledger {
     }
 }
 
-/// The seqs in a state snapshot, by channel key.
+/// The seqs in a state snapshot, by channel key; and the seq of the last record of each
+/// interval period, by [`record_key`].
 pub fn seqs(channels: &BTreeMap<String, CounterState>) -> BTreeMap<String, u64> {
-    channels.iter().map(|(k, s)| (k.clone(), s.seq)).collect()
+    let mut out: BTreeMap<String, u64> = channels.iter().map(|(k, s)| (k.clone(), s.seq)).collect();
+    for (key, s) in channels {
+        for (period, st) in &s.intervals {
+            out.insert(record_key(key, period), st.seq);
+        }
+    }
+    out
+}
+
+/// The ledger's key of channel `key`'s interval records of `period`.
+pub fn record_key(key: &str, period: &str) -> String {
+    format!("{key}#interval/{period}")
+}
+
+fn is_record_key(key: &str) -> bool {
+    key.contains("#interval/")
 }
 
 /// Moves every saved seq past what a crashed run could have published. Returns each channel's
@@ -58,6 +77,16 @@ pub fn after_crash(channels: &mut BTreeMap<String, CounterState>) -> BTreeMap<St
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_interval_record_waits_for_the_save_that_closed_it_without_headroom() {
+        let key = record_key("1/yl67/di0", "15min");
+        let mut ledger = Ledger::default();
+        assert!(!ledger.allows(&key, 1), "never saved");
+        ledger.durable(&BTreeMap::from([(key.clone(), 3)]));
+        assert!(ledger.allows(&key, 3));
+        assert!(!ledger.allows(&key, 4), "not saved yet");
+    }
 
     #[test]
     fn a_channel_never_saved_may_not_publish_until_a_save_completes() {

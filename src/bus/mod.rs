@@ -6,6 +6,7 @@ pub mod device;
 pub mod driver;
 mod emit;
 mod ledger;
+mod meter;
 mod saver;
 pub mod schedule;
 pub mod stats;
@@ -86,7 +87,7 @@ impl BusTask {
             return;
         };
         let stall = stall_hook(&self.bus.name);
-        while let Some(i) = earliest(&core.slots) {
+        while let Some(i) = earliest(&core.slots, Instant::now(), core.after_boundary) {
             self.heart.beat();
             if stall.is_some_and(|at| core.start.elapsed() >= at) {
                 tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
@@ -98,6 +99,7 @@ impl BusTask {
                 Next::Stop => break,
                 Next::Poll => {}
             }
+            core.after_boundary = core.slots[i].boundary_due(Instant::now());
             let commands = &self.commands;
             let owed = core.poll_owed;
             // A poll owed after a command runs to its end; otherwise it gives way to a command.
@@ -174,10 +176,15 @@ impl BusTask {
         let now = Instant::now();
         core.poll_owed = core
             .owed
-            .is_some_and(|until| now < until && core.slots[i].due <= now);
+            .is_some_and(|until| now < until && core.slots[i].next_at() <= now);
         core.durable.collect(&core.devices, &self.out).await;
         if !core.poll_owed {
             core.owed = None;
+            // A meter reading set now is saved at once, not at the next periodic flush.
+            let op = |c: &BusCommand| matches!(c.request.op, crate::command::Op::SetReading(_));
+            if core.pending.iter().any(op) {
+                core.flush_at = Instant::now();
+            }
             let started = Instant::now();
             if let Some((from, readings)) =
                 run_one_command(&mut core.pending, &mut core.devices, &mut core.driver).await
@@ -190,7 +197,7 @@ impl BusTask {
                 return Next::Loop;
             }
             let idle = driver::Idle {
-                until: core.slots[i].due,
+                until: core.slots[i].next_at(),
                 bus: &core.name,
                 out: &self.out,
                 shutdown,
@@ -218,7 +225,7 @@ impl BusTask {
         if now >= core.stats_at {
             self.report_stats(core, now);
         }
-        if core.slots[i].due > now {
+        if core.slots[i].next_at() > now {
             Next::Loop
         } else {
             Next::Poll
@@ -277,12 +284,14 @@ impl BusTask {
                 status::status_change(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
                 core.durable.publish(outputs, i, &core.devices, &self.out);
-                core.slots[i].advance(now);
+                core.slots[i].advance_if_due(now);
+                self.rearm(core, i);
             }
             Err(e) if e.out_of_service().is_some() => {
                 let why = e.out_of_service().unwrap_or_default().to_string();
                 status::wrong_model(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
+                self.rearm(core, i);
             }
             Err(e) => {
                 let line_fault = core.driver.is_line_fault(&e);
@@ -294,10 +303,25 @@ impl BusTask {
                 let d = &mut core.devices[i];
                 match status::failed(d, &e, line_fault, &name, &self.out) {
                     Some(wait) => core.slots[i].defer_to(now + wait),
-                    None => core.slots[i].advance(now),
+                    None => core.slots[i].advance_if_due(now),
                 }
+                self.rearm(core, i);
             }
         }
+    }
+
+    /// Sets device `i`'s next interval boundary read (none while it is offline: its probes
+    /// follow the backoff, and a boundary it misses makes a `merged` record, never a guess).
+    fn rearm<D: Driver>(&self, core: &mut Core<D>, i: usize) {
+        let d = &core.devices[i];
+        core.slots[i].boundary = if d.online() == Some(false) {
+            None
+        } else {
+            let now_ms = crate::reading::unix_ms(std::time::SystemTime::now()) as i64;
+            self.emitter.next_boundary(d, now_ms).map(|b| {
+                Instant::now() + Duration::from_millis(u64::try_from(b - now_ms).unwrap_or(0))
+            })
+        };
     }
 
     /// Saves the state (clean), says the devices are offline, closes the line.
@@ -346,6 +370,8 @@ struct Core<D: Driver> {
     /// line): a burst of commands slows polling at most by half, never starves it.
     owed: Option<Instant>,
     poll_owed: bool,
+    /// The last poll was an interval boundary read (see [`schedule::earliest`]).
+    after_boundary: bool,
 }
 
 impl<D: Driver> Core<D> {
@@ -378,6 +404,7 @@ impl<D: Driver> Core<D> {
             pending: Vec::new(),
             owed: None,
             poll_owed: false,
+            after_boundary: false,
         }
     }
 
@@ -388,7 +415,7 @@ impl<D: Driver> Core<D> {
         let expiry = self.pending.iter().map(|c| c.request.expires).min();
         let soon = if self.durable.holding() { 20 } else { 1000 };
         self.slots[i]
-            .due
+            .next_at()
             .min(Instant::now() + Duration::from_millis(soon))
             .min(self.flush_at)
             .min(self.stats_at)
@@ -454,6 +481,11 @@ async fn run_one_command<D: driver::Driver>(
                 .send(Err(CommandError::UnknownDevice(c.request.device.clone())));
             continue;
         };
+        if let crate::command::Op::SetReading(display) = c.request.op {
+            let channel = c.request.channel.as_deref();
+            let _ = c.done.send(meter::set_reading(d, channel, &display));
+            continue;
+        }
         if ran.is_none() && d.online() == Some(true) && driver.ready_for_commands(d) {
             let before = driver.wire().0;
             let executed = driver.execute(d, &c.request).await;

@@ -284,10 +284,16 @@ impl Durable {
         let d = &devices[from];
         let key = |r: &Reading| d.state_key(&r.channel);
         for o in outputs {
-            let keys = readings_of(&o)
-                .iter()
-                .map(|r| (key(r), r.update.seq))
-                .collect();
+            let keys = match &o {
+                Output::Interval(i) => vec![(
+                    super::ledger::record_key(&d.state_key(&i.channel), &i.period),
+                    i.record.seq,
+                )],
+                _ => readings_of(&o)
+                    .iter()
+                    .map(|r| (key(r), r.update.seq))
+                    .collect(),
+            };
             self.held.push_back((keys, o));
         }
         self.release(out);

@@ -123,6 +123,7 @@ pub(super) fn poller(
         channels,
         publish: Default::default(),
         payload: None,
+        intervals: None,
         enabled: true,
     };
     let wire = match link.timing() {

@@ -6,9 +6,9 @@
 use config::ValueKind;
 
 use super::walk::{Errors, Table, join};
-use crate::config::decimal::Decimal;
 use crate::config::policy::PolicyOverride;
 use crate::config::units::{ChannelUnits, RatePer, device_class_accepts};
+use crate::decimal::Decimal;
 use crate::profile::Profile;
 
 /// What the gateway does with a ZH-YX1600 counter it finds stopped (command register 0, after
@@ -46,6 +46,8 @@ pub struct ChannelConfig {
     pub units: ChannelUnits,
     /// Publish policy keys of this channel (over the device's).
     pub publish: PolicyOverride,
+    /// `intervals` of this channel, when it overrides its device's.
+    pub intervals: Option<Vec<crate::metering::Period>>,
 }
 
 impl Default for ChannelConfig {
@@ -59,6 +61,7 @@ impl Default for ChannelConfig {
             resume_paused: false,
             units: ChannelUnits::default(),
             publish: PolicyOverride::default(),
+            intervals: None,
         }
     }
 }
@@ -124,6 +127,7 @@ pub(super) fn channel(
     }
     let units = units(&mut ct, errs);
     let publish = super::publish::policy(&mut ct, errs);
+    let intervals = super::metering::intervals(&mut ct, errs);
     ct.finish(errs);
     ChannelConfig {
         ppr,
@@ -134,6 +138,7 @@ pub(super) fn channel(
         resume_paused,
         units,
         publish,
+        intervals,
     }
 }
 

@@ -137,6 +137,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
         profile_dir: config_dir.join("profiles"),
         publish: Default::default(),
         payload: Default::default(),
+        clock: Default::default(),
+        intervals: None,
     };
     let Some(mut t) = table else {
         refuse_unusable_host(&g, errs);
@@ -172,6 +174,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
     }
     g.publish = super::publish::policy(&mut t, errs);
     g.payload = super::publish::payload(&mut t, errs).unwrap_or_default();
+    g.clock = super::metering::timezone(&mut t, errs);
+    g.intervals = super::metering::intervals(&mut t, errs);
     t.finish(errs);
     refuse_unusable_host(&g, errs);
     g
@@ -596,6 +600,7 @@ fn device(
     }
     let publish = super::publish::policy(&mut t, errs);
     let payload = super::publish::payload(&mut t, errs);
+    let intervals = super::metering::intervals(&mut t, errs);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -619,6 +624,7 @@ fn device(
         enabled,
         publish,
         payload,
+        intervals,
     })
 }
 

@@ -6,7 +6,7 @@
 
 pub mod channel;
 mod check;
-pub mod decimal;
+mod metering;
 mod metrics;
 pub mod policy;
 pub mod publish;
@@ -105,6 +105,10 @@ pub struct Gateway {
     pub publish: PolicyOverride,
     /// One message per channel or per device, unless a device says otherwise.
     pub payload: PayloadMode,
+    /// `timezone`: the local clock interval boundaries follow (default UTC).
+    pub clock: crate::metering::Clock,
+    /// `intervals` of every channel unless a device or channel says otherwise.
+    pub intervals: Option<Vec<crate::metering::Period>>,
 }
 
 /// A secret (the MQTT password): never printed, never logged.
@@ -272,6 +276,8 @@ pub struct Device {
     pub publish: PolicyOverride,
     /// `payload` of this device, when it overrides the gateway's.
     pub payload: Option<PayloadMode>,
+    /// `intervals` of this device, when it overrides the gateway's.
+    pub intervals: Option<Vec<crate::metering::Period>>,
 }
 
 impl PartialEq for Device {
@@ -289,10 +295,26 @@ impl PartialEq for Device {
             && self.profile.fingerprint == other.profile.fingerprint
             && self.publish == other.publish
             && self.payload == other.payload
+            && self.intervals == other.intervals
     }
 }
 
 impl Device {
+    /// The interval periods of `channel`: its own `intervals`, else the device's, else the
+    /// gateway's.
+    pub fn intervals_of<'a>(
+        &'a self,
+        gateway: Option<&'a [crate::metering::Period]>,
+        channel: &str,
+    ) -> &'a [crate::metering::Period] {
+        self.channels
+            .get(channel)
+            .and_then(|c| c.intervals.as_deref())
+            .or(self.intervals.as_deref())
+            .or(gateway)
+            .unwrap_or_default()
+    }
+
     /// Answer timeout of this device on `bus`.
     pub fn answer_timeout(&self, bus: &Bus) -> Duration {
         self.timeout

@@ -1,7 +1,7 @@
 //! Engineering units of a reading: the scaled total (`value`) and the scaled rate (`rate`), and
 //! which Home Assistant device classes fit which units. Pure.
 
-use super::decimal::Decimal;
+use crate::decimal::Decimal;
 
 /// A channel's engineering units. Without `scale`, readings carry raw pulses only.
 #[derive(Debug, Clone, Default, PartialEq)]

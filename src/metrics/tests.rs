@@ -13,6 +13,7 @@ fn reading(device: &str, channel: &str, total: i64, rate: f64, encoder: bool) ->
         freq_hz: None,
         rpm: None,
         after_seq: None,
+        meter: None,
         kind: if encoder {
             crate::profile::ChannelKind::Encoder
         } else {

@@ -67,6 +67,7 @@ fn reading(device: &str, channel: &str) -> Reading {
         },
         units: None,
         after_seq: None,
+        meter: None,
     }
 }
 
@@ -402,5 +403,89 @@ fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
         reloaded
             .iter()
             .any(|m| m.topic == press_total && m.payload.is_empty())
+    );
+}
+
+#[test]
+fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval_period() {
+    let text = CONFIG.replace(
+        "[buses.line1.devices.meter.channels.a0]",
+        "intervals = [\"15min\", \"1d\"]\n[buses.line1.devices.meter.channels.a0]",
+    );
+    let mut d = Discovery::new(&config(&text));
+    d.start();
+    assert!(!d.reading(&reading("meter", "a0")).is_empty());
+    let total = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
+    assert_eq!(
+        total["state_class"], "total_increasing",
+        "consumption never jumps"
+    );
+    let r = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u3_a0_reading/config",
+    );
+    assert_eq!(r["state_class"], "total");
+    assert_eq!(r["device_class"], "energy");
+    assert_eq!(r["unit_of_measurement"], "kWh");
+    assert_eq!(r["state_topic"], "pulsegate/edge/meter/a0");
+    assert!(r["value_template"].as_str().unwrap().contains("'reading'"));
+    assert!(
+        r["last_reset_value_template"]
+            .as_str()
+            .unwrap()
+            .contains("reading_since")
+    );
+    assert_eq!(r["unique_id"], "pulsegate_edge_line1_u3_a0_reading");
+    for period in ["15min", "1d"] {
+        let topic = format!("homeassistant/sensor/edge/line1_u3_a0_interval_{period}/config");
+        let v = json(&mut d, &topic);
+        assert_eq!(v["state_class"], "total");
+        assert_eq!(v["last_reset_value_template"], "{{ value_json.start }}");
+        assert_eq!(v["value_template"], "{{ value_json.value }}");
+        assert_eq!(
+            v["state_topic"],
+            format!("pulsegate/edge/meter/a0/interval/{period}")
+        );
+        assert_eq!(v["device_class"], "energy");
+        assert_eq!(
+            v["default_entity_id"],
+            format!("sensor.edge_meter_a0_interval_{period}")
+        );
+    }
+    // An encoder's position is no meter: no reading, no intervals; the press has no intervals
+    // and no scale: neither.
+    use crate::publish::ha_entity::{Module, Site};
+    use crate::publish::homeassistant::{channel_entities, channel_spec};
+    let c = config(&text);
+    let site = Site::of(&c);
+    let objects = |device: &str, channel: &str, kind| -> Vec<String> {
+        let (bus, dev) = c.devices().find(|(_, d)| d.name == device).unwrap();
+        let m = Module {
+            bus: &bus.name,
+            device: dev,
+        };
+        let spec = channel_spec(m, channel, kind).unwrap();
+        channel_entities(&site, m, &spec)
+            .into_iter()
+            .map(|e| e.object_id)
+            .collect()
+    };
+    let meter_a0 = objects("meter", "a0", ChannelKind::Counter);
+    assert!(
+        meter_a0.iter().any(|o| o.ends_with("a0_interval_1d")),
+        "{meter_a0:?}"
+    );
+    let enc = objects("meter", "enc0", ChannelKind::Encoder);
+    assert!(
+        !enc.iter()
+            .any(|o| o.contains("reading") || o.contains("interval")),
+        "{enc:?}"
+    );
+    let press = objects("press", "a0", ChannelKind::Counter);
+    assert!(
+        !press
+            .iter()
+            .any(|o| o.contains("reading") || o.contains("interval")),
+        "{press:?}"
     );
 }

@@ -26,6 +26,7 @@ fn reading(total: i64) -> Reading {
             event: None,
         },
         after_seq: None,
+        meter: None,
         kind: crate::profile::ChannelKind::Encoder,
         units: None,
     }

@@ -7,146 +7,13 @@
 
 use std::collections::BTreeSet;
 
-use serde_json::{Value, json};
+use serde_json::json;
 
-use crate::config::policy::PayloadMode;
+use super::ha_entity::{Entity, Module, Site, State, common, merge, origin, sensor};
+use crate::config::Config;
 use crate::config::units::ChannelUnits;
 use crate::config::units::rate_device_class;
-use crate::config::{Config, Device};
 use crate::profile::{ChannelKind, ChannelSpec};
-use crate::topics::Topics;
-
-/// Where discovery goes and what it points at.
-#[derive(Debug, Clone)]
-pub struct Site {
-    /// Discovery prefix (`homeassistant`).
-    pub prefix: String,
-    /// Gateway id: the node id of every config topic.
-    pub gateway: String,
-    /// Our own topics (state, status, commands).
-    pub topics: Topics,
-    /// The gateway's default payload shape.
-    pub payload: PayloadMode,
-}
-
-impl Site {
-    pub fn of(config: &Config) -> Site {
-        Site {
-            prefix: config.homeassistant.prefix.clone(),
-            gateway: config.gateway.id.clone(),
-            topics: Topics::new(&config.mqtt.topic_root),
-            payload: config.gateway.payload,
-        }
-    }
-
-    /// `<prefix>/status`, where Home Assistant says `online` after it starts.
-    pub fn ha_status(&self) -> String {
-        format!("{}/status", self.prefix)
-    }
-
-    /// Filter of every config topic of this gateway.
-    pub fn config_filter(&self) -> String {
-        format!("{}/+/{}/+/config", self.prefix, self.gateway)
-    }
-
-    fn gateway_identifier(&self) -> String {
-        format!("pulsegate_{}", self.gateway)
-    }
-}
-
-/// One discovered entity: its component (`sensor`, `button`), object id and config payload.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Entity {
-    pub component: &'static str,
-    pub object_id: String,
-    pub config: Value,
-}
-
-impl Entity {
-    /// `<prefix>/<component>/<gateway>/<object_id>/config`.
-    pub fn topic(&self, site: &Site) -> String {
-        format!(
-            "{}/{}/{}/{}/config",
-            site.prefix, self.component, site.gateway, self.object_id
-        )
-    }
-}
-
-/// A module: a device of the config and the bus it is on.
-#[derive(Debug, Clone, Copy)]
-pub struct Module<'a> {
-    pub bus: &'a str,
-    pub device: &'a Device,
-}
-
-impl Module<'_> {
-    /// The module's place on the wire, stable across renames.
-    fn key(&self) -> String {
-        format!("{}_u{}", self.bus, self.device.unit)
-    }
-
-    fn payload(&self, site: &Site) -> PayloadMode {
-        self.device.payload.unwrap_or(site.payload)
-    }
-}
-
-fn origin() -> Value {
-    json!({ "name": "pulsegate", "sw_version": env!("CARGO_PKG_VERSION") })
-}
-
-/// Available only while the gateway and the module both say exactly `online` (a module's
-/// `offline`, `wrong_model` or anything else makes its entities unavailable).
-fn availability(site: &Site, device: &str) -> Value {
-    let only_online = "{{ 'online' if value == 'online' else 'offline' }}";
-    json!([
-        { "topic": site.topics.gateway_status(), "value_template": only_online,
-          "payload_available": "online", "payload_not_available": "offline" },
-        { "topic": site.topics.device_status(device), "value_template": only_online,
-          "payload_available": "online", "payload_not_available": "offline" },
-    ])
-}
-
-fn module_device(site: &Site, m: Module<'_>) -> Value {
-    let profile = &m.device.profile;
-    let mut device = json!({
-        "identifiers": [format!("{}_{}", site.gateway_identifier(), m.key())],
-        "name": m.device.name,
-        "model": profile.title,
-        "model_id": profile.model,
-        "serial_number": format!("{} unit {}", m.bus, m.device.unit),
-        "via_device": site.gateway_identifier(),
-    });
-    // The profile's maker is that of its own model; an alias (IBF67 on the YL67 map) may be
-    // another maker's, so it gets none.
-    if let Some(maker) = profile
-        .manufacturer
-        .as_ref()
-        .filter(|_| m.device.model == profile.model)
-    {
-        device["manufacturer"] = maker.clone().into();
-    }
-    device
-}
-
-/// The keys every entity of a module shares.
-fn common(site: &Site, m: Module<'_>, component: &str, object: &str, name: &str) -> Value {
-    json!({
-        "name": name,
-        "unique_id": format!("{}_{}_{object}", site.gateway_identifier(), m.key()),
-        "default_entity_id": format!("{component}.{}_{}_{object}", site.gateway, m.device.name),
-        "device": module_device(site, m),
-        "availability": availability(site, &m.device.name),
-        "availability_mode": "all",
-        "origin": origin(),
-    })
-}
-
-fn merge(mut base: Value, more: Value) -> Value {
-    if let (Some(b), Value::Object(m)) = (base.as_object_mut(), more) {
-        b.extend(m);
-    }
-    base
-}
 
 /// The gateway's own device, with its status as a diagnostic sensor so `via_device` resolves.
 pub fn gateway_entities(site: &Site) -> Vec<Entity> {
@@ -193,61 +60,6 @@ pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
         object_id: format!("{}_{object}", m.key()),
         config,
     }]
-}
-
-/// Where a channel's readings arrive and how a template reaches one of its keys.
-struct State {
-    topic: String,
-    channel: Option<String>,
-}
-
-impl State {
-    fn of(site: &Site, m: Module<'_>, channel: &str) -> State {
-        match m.payload(site) {
-            PayloadMode::Channel => State {
-                topic: site.topics.reading(&m.device.name, channel),
-                channel: None,
-            },
-            PayloadMode::Device => State {
-                topic: site.topics.device(&m.device.name),
-                channel: Some(channel.to_string()),
-            },
-        }
-    }
-
-    /// A template of `key`; a message without it (or, per device, without the channel)
-    /// keeps the entity's state.
-    fn template(&self, key: &str) -> String {
-        match &self.channel {
-            None => {
-                format!("{{{{ value_json['{key}'] if '{key}' in value_json else this.state }}}}")
-            }
-            Some(c) => format!(
-                "{{{{ value_json['{c}']['{key}'] if '{c}' in value_json and '{key}' in \
-                 value_json['{c}'] else this.state }}}}"
-            ),
-        }
-    }
-
-    /// The attributes template: count, event and seq of the last reading.
-    fn attributes(&self) -> String {
-        let r = match &self.channel {
-            None => "value_json".to_string(),
-            Some(c) => format!("value_json.get('{c}', {{}})"),
-        };
-        format!(
-            "{{{{ {{'count': {r}.get('count'), 'event': {r}.get('event'), 'seq': {r}.get('seq')}} | tojson }}}}"
-        )
-    }
-}
-
-fn sensor(site: &Site, m: Module<'_>, object: String, name: String, more: Value) -> Entity {
-    let config = merge(common(site, m, "sensor", &object, &name), more);
-    Entity {
-        component: "sensor",
-        object_id: format!("{}_{object}", m.key()),
-        config,
-    }
 }
 
 /// The total (or an encoder's position) with its units, class and attributes.
@@ -330,6 +142,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
         .unwrap_or_default();
     let state = State::of(site, m, ch);
     let mut out = vec![total(site, m, spec, &units), rate(site, m, spec, &units)];
+    out.extend(super::meter_entities::entities(site, m, spec, &units));
     if spec.freq.is_some() {
         let more = json!({
             "state_topic": state.topic,

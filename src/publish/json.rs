@@ -99,6 +99,15 @@ impl Format for Json {
                 }
                 out
             }
+            Output::Interval(i) => {
+                let topic = t.interval(&i.device, &i.channel, &i.period);
+                vec![Message::new(
+                    topic,
+                    payload::interval(i),
+                    self.qos,
+                    self.retain,
+                )]
+            }
             Output::ScanProgress { topic, progress } => {
                 let body = serde_json::to_string(&**progress).unwrap_or_default();
                 // Made again by the next scan: chatter, never spooled.

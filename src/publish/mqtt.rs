@@ -194,7 +194,7 @@ pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsE
 /// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
 /// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
 /// TLS: `check` refuses that config, and a config built another way must fail closed too.
-fn broker_transport(
+pub(crate) fn broker_transport(
     config: &Mqtt,
 ) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
     match (&config.socket, &config.tls) {

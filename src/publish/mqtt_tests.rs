@@ -216,6 +216,7 @@ fn reading(seq: u64) -> Output {
             event: None,
         },
         after_seq: None,
+        meter: None,
         kind: crate::profile::ChannelKind::Encoder,
         units: None,
     })

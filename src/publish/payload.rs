@@ -5,8 +5,8 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 use serde_json::value::RawValue;
 
-use crate::counter::Event;
-use crate::reading::Reading;
+use crate::event::Event;
+use crate::reading::{IntervalRecord, Reading};
 
 /// The JSON of one reading.
 #[derive(Debug, Serialize)]
@@ -32,6 +32,64 @@ struct ReadingJson {
     /// The scaled rate, per the channel's `rate_per`.
     #[serde(skip_serializing_if = "Option::is_none")]
     rate: Option<f64>,
+    /// The meter reading: the scaled total plus the offset `set_reading` gave it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reading: Option<Box<RawValue>>,
+    /// When `set_reading` last moved the reading (its sensor's `last_reset`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reading_since: Option<String>,
+}
+
+/// The JSON of one interval record.
+#[derive(Debug, Serialize)]
+struct IntervalJson {
+    start: String,
+    end: String,
+    delta: i64,
+    /// The scaled delta: a JSON number whose text is exactly `delta × scale`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    value: Option<Box<RawValue>>,
+    total_start: i64,
+    total_end: i64,
+    read_lag_ms: Lags,
+    status: crate::metering::Status,
+    seq: u64,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    events: Vec<Event>,
+}
+
+/// How long after each boundary its read was.
+#[derive(Debug, Serialize)]
+struct Lags {
+    start: i64,
+    end: i64,
+}
+
+/// `{"start":"2026-12-02T17:15:00Z","end":"2026-12-02T17:30:00Z","delta":120,…}`
+pub fn interval(i: &IntervalRecord) -> String {
+    use crate::metering::clock::iso;
+    let r = &i.record;
+    let value = i
+        .units
+        .as_deref()
+        .and_then(|u| crate::config::units::value(u, r.delta))
+        .and_then(|v| RawValue::from_string(v.to_string()).ok());
+    let json = IntervalJson {
+        start: iso(r.start_ms),
+        end: iso(r.end_ms),
+        delta: r.delta,
+        value,
+        total_start: r.total_start,
+        total_end: r.total_end,
+        read_lag_ms: Lags {
+            start: r.lag_start_ms,
+            end: r.lag_end_ms,
+        },
+        status: r.status,
+        seq: r.seq,
+        events: r.events.clone(),
+    };
+    serde_json::to_string(&json).expect("record serializes")
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
@@ -57,6 +115,15 @@ fn json_of(r: &Reading) -> ReadingJson {
         .and_then(|u| crate::config::units::value(u, r.update.total))
         .and_then(|v| RawValue::from_string(v.to_string()).ok());
     let rate = units.and_then(|u| crate::config::units::rate(u, r.update.rate_hz?));
+    let reading = units
+        .and_then(|u| u.scale)
+        .and_then(|s| crate::metering::meter::reading(&s, r.update.total, r.meter.as_ref()))
+        .and_then(|v| RawValue::from_string(v.to_string()).ok());
+    let reading_since = r
+        .meter
+        .as_ref()
+        .filter(|_| reading.is_some())
+        .map(|m| crate::metering::clock::iso(m.since_ms));
     ReadingJson {
         ts: humantime::format_rfc3339_millis(r.ts).to_string(),
         count: r.count,
@@ -70,6 +137,8 @@ fn json_of(r: &Reading) -> ReadingJson {
         after_seq: r.after_seq,
         value,
         rate,
+        reading,
+        reading_since,
     }
 }
 
@@ -96,6 +165,7 @@ mod tests {
                 event: Some(Event::Rollover),
             },
             after_seq: None,
+            meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
         };
@@ -126,6 +196,7 @@ mod tests {
                 event: None,
             },
             after_seq: None,
+            meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
         };
@@ -137,7 +208,8 @@ mod tests {
 
     fn metered(total: i64, scale: &str, rate_hz: f64) -> Reading {
         use crate::config::units::ChannelUnits;
-        use crate::config::{decimal::Decimal, units::RatePer};
+        use crate::config::units::RatePer;
+        use crate::decimal::Decimal;
         Reading {
             device: "meter".into(),
             channel: "a0".into(),
@@ -159,6 +231,7 @@ mod tests {
                 ..Default::default()
             })),
             after_seq: None,
+            meter: None,
         }
     }
 

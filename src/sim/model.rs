@@ -127,7 +127,25 @@ pub struct SimModule {
     /// Read requests (FC03) this module has answered: a count of transactions that does not
     /// depend on the client (the benchmark compares the gateway with another Modbus master).
     pub reads: u64,
+    /// The last [`ANSWER_LOG`] reads this module answered (a test's own count between two
+    /// reads, e.g. an interval record's boundary reads).
+    pub answered: std::collections::VecDeque<Answered>,
 }
+
+/// One read a module answered.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Answered {
+    /// Plant seconds.
+    pub at: f64,
+    /// The registers read.
+    pub start: u16,
+    pub len: u16,
+    /// Pulses each channel had generated then, in channel order.
+    pub generated: Vec<i64>,
+}
+
+/// How many answered reads a module remembers.
+pub const ANSWER_LOG: usize = 4096;
 
 /// Words of `value` as a register of type `ty`, keeping the low bits like the module does.
 fn words_of(value: i64, ty: ValueType, order: crate::profile::WordOrder) -> Vec<u16> {
@@ -186,6 +204,7 @@ impl SimModule {
             baud: None,
             silent_on_unknown: false,
             reads: 0,
+            answered: std::collections::VecDeque::new(),
         };
         m.power_up(0.0)?;
         Ok(m)
@@ -364,6 +383,25 @@ impl SimModule {
             }
         }
         None
+    }
+
+    /// Notes a read of `len` registers from `start` answered at `now`.
+    pub fn note_answer(&mut self, now: f64, start: u16, len: u16) {
+        if self.answered.len() == ANSWER_LOG {
+            self.answered.pop_front();
+        }
+        let generated = self.channels.iter().map(|c| c.generated(now)).collect();
+        self.answered.push_back(Answered {
+            at: now,
+            start,
+            len,
+            generated,
+        });
+    }
+
+    /// Index of channel `name` in [`SimModule::answered`]'s lists.
+    pub fn channel_index(&self, name: &str) -> Option<usize> {
+        self.channels.iter().position(|c| c.spec.name == name)
     }
 
     /// FC03: reads `len` registers from `start`; any undescribed register refuses the read.

@@ -79,6 +79,7 @@ impl SimService {
             Request::ReadHoldingRegisters(start, len) => match m.read(now, start, len) {
                 Ok(words) => {
                     m.reads += 1;
+                    m.note_answer(now, start, len);
                     Response::ReadHoldingRegisters(words)
                 }
                 Err(ExceptionCode::IllegalDataAddress) if m.silent_on_unknown => return Ok(None),

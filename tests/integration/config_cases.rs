@@ -426,6 +426,43 @@ const CASES: &[(&str, &str, &str, &str)] = &[
         "buses.line5",
         "needs `port`",
     ),
+    // metering: intervals at every level, the time zone
+    (
+        "gateway.timezone",
+        "\"Europe/Berln\"",
+        "gateway.timezone",
+        "not an IANA time zone name",
+    ),
+    (
+        "gateway.intervals",
+        "[\"7min\"]",
+        "gateway.intervals",
+        "does not divide a day",
+    ),
+    (
+        "buses.line1.devices.press1.intervals",
+        "[\"15m\"]",
+        "buses.line1.devices.press1.intervals",
+        "for minutes",
+    ),
+    (
+        "buses.line1.devices.press1.channels.enc0.intervals",
+        "[\"1h\", \"60min\"]",
+        "buses.line1.devices.press1.channels.enc0.intervals",
+        "same period",
+    ),
+    (
+        "gateway.intervals",
+        "\"15min\"",
+        "gateway.intervals",
+        "invalid type",
+    ),
+    (
+        "gateway.intervals",
+        "[\"0.5s\"]",
+        "gateway.intervals",
+        "not a period",
+    ),
     // devices
     (
         "buses.line1.devices.press1.unit",

@@ -182,7 +182,7 @@ fn keys_within(v: &Value, allowed: &[&str], what: &str) {
 }
 
 /// Checks one discovery config against the platform's keys; returns its JSON.
-fn valid_config(topic: &str, payload: &str) -> Value {
+pub(crate) fn valid_config(topic: &str, payload: &str) -> Value {
     let v: Value = serde_json::from_str(payload).unwrap_or_else(|e| panic!("{topic}: {e}"));
     let component = topic.split('/').nth(1).unwrap();
     let allowed = match component {

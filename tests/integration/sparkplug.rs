@@ -366,7 +366,15 @@ async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
     let _gw = Gateway::start(&config);
     sub.expect_any("pulsegate/test/status", Duration::from_secs(10))
         .await;
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    // Polls while the host is away, counted by the module itself (on a loaded machine the
+    // gateway may take seconds to start polling): 40 of the WJ157's reads, discovery and a
+    // couple of seconds of polls.
+    let reads = || plant.with_module("line1", 2, |m, _| m.reads).unwrap();
+    let start = reads();
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while reads() < start + 40 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     let quiet = host.lines();
     assert!(
         quiet.iter().all(|l| l["type"] == "READY"),
@@ -387,14 +395,17 @@ async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
     let held = of_type(&lines, "DDATA")
         .take_while(|l| l["metrics"][0]["is_historical"] == true)
         .count();
+    let historical = of_type(&lines, "DDATA")
+        .filter(|l| l["metrics"][0]["is_historical"] == true)
+        .count();
     let shape: Vec<String> = lines
         .iter()
-        .take(40)
+        .take(12)
         .map(|l| format!("{}:{}", l["type"], l["metrics"][0]["is_historical"]))
         .collect();
     assert!(
         held > 10,
-        "what was polled while waiting follows, as history: {held}\n{shape:?}"
+        "what was polled while waiting follows, as history: {held} ({historical} historical in all)\n{shape:?}"
     );
     assert_seq_unbroken(&lines);
     no_errors(&lines);

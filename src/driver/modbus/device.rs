@@ -317,7 +317,7 @@ impl DeviceRt<ModbusDevice> {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
-            if update.event == Some(crate::counter::Event::Reset) {
+            if update.event == Some(crate::event::Event::Reset) {
                 restarted = true;
             }
             let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);

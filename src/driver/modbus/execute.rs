@@ -11,8 +11,8 @@ use super::link::Link;
 use crate::bus::device::DeviceRt;
 use crate::bus::driver::Executed;
 use crate::command::{CommandError, Op, Request};
-use crate::counter::Event;
 use crate::decode::{decode, encode_int};
+use crate::event::Event;
 use crate::profile::Register;
 use crate::reading::Reading;
 
@@ -128,6 +128,10 @@ impl DeviceRt<ModbusDevice> {
                     .await?;
                 Ok(0)
             }
+            // The bus core sets meter readings itself; nothing of it is ever written.
+            Op::SetReading(_) => Err(CommandError::WriteFailed(
+                "set_reading writes nothing to a module".into(),
+            )),
         }
     }
 

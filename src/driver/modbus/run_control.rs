@@ -7,7 +7,7 @@ use super::link::Link;
 use super::run_state::{RunState, run_state, start_code};
 use crate::bus::device::{At, DeviceRt};
 use crate::config::Run;
-use crate::counter::Event;
+use crate::event::Event;
 use crate::profile::ChannelKind;
 use crate::reading::Reading;
 

@@ -1,7 +1,8 @@
 use std::time::{Duration, SystemTime};
 
 use super::*;
-use crate::counter::{Event, Update};
+use crate::counter::Update;
+use crate::event::Event;
 use crate::profile::ChannelKind;
 use crate::publish::sparkplug::command::{REBIRTH, dcmd};
 
@@ -51,6 +52,7 @@ fn reading(device: &str, channel: &str, total: i64, ms: u64) -> Reading {
             event: None,
         },
         after_seq: None,
+        meter: None,
         kind: if channel.starts_with("enc") {
             ChannelKind::Encoder
         } else {

@@ -115,6 +115,32 @@ impl Decimal {
         .normalized()
     }
 
+    /// `self + other`, exactly (a scaled total plus a meter's offset); `None` when the exact
+    /// sum does not fit (numbers of wildly different scales, from hostile input).
+    pub fn plus(&self, other: &Decimal) -> Option<Decimal> {
+        let places = self.places.max(other.places);
+        let widen = |d: &Decimal| {
+            10i128
+                .checked_pow(places - d.places)
+                .and_then(|f| d.mantissa.checked_mul(f))
+        };
+        Some(
+            Decimal {
+                mantissa: widen(self)?.checked_add(widen(other)?)?,
+                places,
+            }
+            .normalized(),
+        )
+    }
+
+    /// `self - other`, exactly; `None` when it does not fit.
+    pub fn minus(&self, other: &Decimal) -> Option<Decimal> {
+        self.plus(&Decimal {
+            mantissa: -other.mantissa,
+            places: other.places,
+        })
+    }
+
     /// The nearest `f64`, for rates (which are measured, not counted).
     pub fn to_f64(&self) -> f64 {
         self.to_string().parse().unwrap_or(f64::NAN)
@@ -139,6 +165,19 @@ impl fmt::Display for Decimal {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn sums_are_exact_and_a_sum_that_does_not_fit_is_none_not_a_panic() {
+        let d = |t| Decimal::parse(t).unwrap();
+        assert_eq!(
+            d("12343.678").plus(&d("2.5")).unwrap().to_string(),
+            "12346.178"
+        );
+        assert_eq!(d("3").minus(&d("50")).unwrap().to_string(), "-47");
+        let tiny = d("0.000000000000000001e-18");
+        let huge = d("999999999999999999");
+        assert_eq!(huge.plus(&tiny), None);
+    }
 
     fn d(s: &str) -> Decimal {
         Decimal::parse(s).unwrap()

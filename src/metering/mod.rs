@@ -1,0 +1,16 @@
+//! Metering: clock-aligned interval records and meter readings. Pure.
+//!
+//! A pulse counter keeps counting while the gateway is away, so the consumption between two
+//! boundary reads is exact whatever happened between them. [`interval`] turns a channel's
+//! booked reads into records of its configured periods ([`period`]), on boundaries of the local
+//! clock of `gateway.timezone` ([`clock`]); [`meter`] keeps the offset that makes a channel's
+//! published `reading` match its meter's display.
+
+pub mod clock;
+pub mod interval;
+pub mod meter;
+pub mod period;
+
+pub use clock::Clock;
+pub use interval::{IntervalState, Read, Record, Status};
+pub use period::Period;

@@ -1,0 +1,94 @@
+//! Home Assistant entities of a metered channel (one with a `scale`): its meter reading and one
+//! consumption sensor per interval period. Pure.
+//!
+//! The channel's total stays the `total_increasing` consumption sensor (it never jumps). The
+//! meter reading may jump when `set_reading` matches it to the meter's display, so it is
+//! `state_class: total` with `last_reset` at the time it was set: Home Assistant's statistics
+//! start again from there instead of booking the jump. An interval sensor holds the last
+//! record's consumption with `last_reset` at the record's start, so every record is added once
+//! to the long-term statistics (the Energy dashboard takes both).
+
+use serde_json::{Value, json};
+
+use super::ha_entity::{Entity, Module, Site, State, sensor};
+use crate::config::units::ChannelUnits;
+use crate::profile::{ChannelKind, ChannelSpec};
+
+/// The meter-reading and interval sensors of channel `spec` of `m` (none for an encoder, whose
+/// position is not a meter, and no reading without a scale).
+pub fn entities(
+    site: &Site,
+    m: Module<'_>,
+    spec: &ChannelSpec,
+    units: &ChannelUnits,
+) -> Vec<Entity> {
+    if spec.kind == ChannelKind::Encoder {
+        return Vec::new();
+    }
+    let ch = &spec.name;
+    let mut out = Vec::new();
+    if units.scale.is_some() {
+        let state = State::of(site, m, ch);
+        let more = with_units(
+            json!({
+                "state_topic": state.topic,
+                "value_template": state.template("reading"),
+                "state_class": "total",
+                "last_reset_value_template": state.optional("reading_since"),
+            }),
+            units,
+        );
+        out.push(sensor(
+            site,
+            m,
+            format!("{ch}_reading"),
+            format!("{ch} meter reading"),
+            more,
+        ));
+    }
+    let periods = m.device.intervals_of(site.intervals.as_deref(), ch);
+    for p in periods {
+        let key = if units.scale.is_some() {
+            "value"
+        } else {
+            "delta"
+        };
+        let more = with_units(
+            json!({
+                "state_topic": site.topics.interval(&m.device.name, ch, p.text()),
+                "value_template": format!("{{{{ value_json.{key} }}}}"),
+                "state_class": "total",
+                "last_reset_value_template": "{{ value_json.start }}",
+                "json_attributes_topic": site.topics.interval(&m.device.name, ch, p.text()),
+                "json_attributes_template":
+                    "{{ {'end': value_json.end, 'status': value_json.status, 'seq': value_json.seq, 'events': value_json.get('events', [])} | tojson }}",
+            }),
+            units,
+        );
+        out.push(sensor(
+            site,
+            m,
+            format!("{ch}_interval_{}", p.text()),
+            format!("{ch} consumption per {}", p.text()),
+            more,
+        ));
+    }
+    out
+}
+
+/// The channel's unit, class and precision (pulses without a scale).
+fn with_units(mut more: Value, units: &ChannelUnits) -> Value {
+    match units.scale {
+        Some(s) => {
+            if let Some(u) = &units.unit {
+                more["unit_of_measurement"] = u.clone().into();
+            }
+            if let Some(class) = &units.device_class {
+                more["device_class"] = class.clone().into();
+            }
+            more["suggested_display_precision"] = s.places().into();
+        }
+        None => more["unit_of_measurement"] = "pulses".into(),
+    }
+    more
+}
