@@ -126,10 +126,7 @@ pub(super) fn poller(
         intervals: None,
         enabled: true,
     };
-    let wire = match link.timing() {
-        Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
-        None => Wire::tcp(),
-    };
+    let wire = Wire::for_line(link.timing().as_ref());
     let proto = ModbusDevice::new(&bus, &device, wire, Vec::new());
     DeviceRt::new(&bus, &device, &BTreeMap::new(), proto)
 }

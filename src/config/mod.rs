@@ -238,7 +238,7 @@ pub fn line_timing(link: &Link, guard: Duration) -> Option<crate::plan::LineTimi
             ..
         } => Some(crate::plan::LineTiming {
             baud: *baud,
-            bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
+            bits_per_char: crate::plan::bits_per_char(*parity != Parity::None, *stop_bits),
             guard,
         }),
         Link::Tcp { .. } => None,

@@ -74,10 +74,7 @@ impl Modbus {
 
     /// How the planner prices a read on this bus (until a device's turnaround is measured).
     pub fn wire_pricing(&self) -> Wire {
-        match self.link.timing() {
-            Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
-            None => Wire::tcp(),
-        }
+        Wire::for_line(self.link.timing().as_ref())
     }
 }
 
