@@ -156,12 +156,6 @@ pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
     Ok(())
 }
 
-/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd` (the rule
-/// lives with the other topic rules in [`crate::topics`]).
-pub fn parse_topic<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
-    crate::topics::parse_command(root, topic)
-}
-
 /// The parts of a payload before the device is known: op, id.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Parsed {
@@ -323,21 +317,6 @@ mod tests {
             parse_payload(device_wide, false).unwrap_err().1.code(),
             "unknown_op"
         );
-    }
-
-    #[test]
-    fn command_topics_name_device_and_channel() {
-        assert_eq!(
-            parse_topic("pg/e1", "pg/e1/press/enc0/cmd"),
-            Some(("press", Some("enc0")))
-        );
-        assert_eq!(
-            parse_topic("pg/e1", "pg/e1/press/cmd"),
-            Some(("press", None))
-        );
-        assert_eq!(parse_topic("pg/e1", "pg/e1/press/enc0/cmd/result"), None);
-        assert_eq!(parse_topic("pg/e1", "pg/e1/a/b/c/cmd"), None);
-        assert_eq!(parse_topic("pg/e1", "other/press/cmd"), None);
     }
 
     #[test]

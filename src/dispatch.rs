@@ -84,7 +84,7 @@ pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender
 
 /// The command router of a gateway.
 pub struct Router {
-    root: String,
+    topics: crate::topics::Topics,
     /// Where a response topic may point (see [`ResponseRule`]).
     responses: ResponseRule,
     targets: Targets,
@@ -107,7 +107,7 @@ impl Router {
         out: UnboundedSender<Output>,
     ) -> Router {
         Router {
-            root: config.mqtt.topic_root.clone(),
+            topics: crate::topics::Topics::new(&config.mqtt.topic_root),
             responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
@@ -212,10 +212,10 @@ impl Router {
             self.warn(&msg.topic, "ignoring a retained command message");
             return;
         }
-        if let Some(bus) = survey::parse_scan_topic(&self.root, &msg.topic) {
+        if let Some(bus) = self.topics.parse_scan(&msg.topic) {
             return self.scan(bus, &msg);
         }
-        let Some((device, channel)) = command::parse_topic(&self.root, &msg.topic) else {
+        let Some((device, channel)) = self.topics.parse_command(&msg.topic) else {
             return;
         };
         let mut reply = Reply {

@@ -27,10 +27,6 @@ impl Topics {
         }
     }
 
-    pub fn root(&self) -> &str {
-        &self.root
-    }
-
     /// `<root>/status`: retained online/offline of the gateway (its last will).
     pub fn gateway_status(&self) -> String {
         format!("{}/status", self.root)
@@ -96,7 +92,8 @@ impl Topics {
         ]
     }
 
-    /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+    /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`. The
+    /// one reader of command topics (the router asks it).
     pub fn parse_command<'a>(&self, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
         parse_command(&self.root, topic)
     }
@@ -169,7 +166,7 @@ impl ResponseRule {
 }
 
 /// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
-pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
+fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
     let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
     let rest = rest.strip_suffix("/cmd")?;
     match rest.split('/').collect::<Vec<_>>()[..] {
@@ -182,7 +179,7 @@ pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<
 }
 
 /// The bus of a scan request topic `<root>/bus/<bus>/scan`.
-pub fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
+fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
     let rest = topic.strip_prefix(root)?.strip_prefix("/bus/")?;
     let bus = rest.strip_suffix("/scan")?;
     (!bus.is_empty() && !bus.contains('/')).then_some(bus)
@@ -191,6 +188,29 @@ pub fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn command_topics_name_device_and_channel() {
+        assert_eq!(
+            parse_command("pg/e1", "pg/e1/press/enc0/cmd"),
+            Some(("press", Some("enc0")))
+        );
+        assert_eq!(
+            parse_command("pg/e1", "pg/e1/press/cmd"),
+            Some(("press", None))
+        );
+        assert_eq!(parse_command("pg/e1", "pg/e1/press/enc0/cmd/result"), None);
+        assert_eq!(parse_command("pg/e1", "pg/e1/a/b/c/cmd"), None);
+        assert_eq!(parse_command("pg/e1", "other/press/cmd"), None);
+    }
+
+    #[test]
+    fn the_scan_topic_names_one_bus_under_the_root() {
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus/line1/scan"), Some("line1"));
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus/line1/scan/result"), None);
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus//scan"), None);
+        assert_eq!(parse_scan("pg/gw", "pg/other/bus/line1/scan"), None);
+    }
 
     #[test]
     fn topics_sit_under_the_root() {

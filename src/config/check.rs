@@ -10,8 +10,7 @@ use super::walk::{Errors, Table, join};
 use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
-/// Longest answer timeout (a module that needs longer is not answering).
-pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
+use crate::profile::MAX_TIMEOUT;
 
 /// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
 pub const MAX_SPOOL_MB: u64 = 1 << 20;

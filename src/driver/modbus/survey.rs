@@ -33,11 +33,6 @@ pub struct ScanRequest {
     pub progress: String,
 }
 
-/// `<root>/bus/<bus>/scan` → the bus name.
-pub fn parse_scan_topic<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
-    crate::topics::parse_scan(root, topic)
-}
-
 /// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.
 pub fn parse_scan_payload(payload: &[u8]) -> Result<(Vec<u8>, Option<String>), String> {
     if payload.iter().all(u8::is_ascii_whitespace) {
@@ -240,20 +235,6 @@ fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_scan_topic_names_one_bus_under_the_root() {
-        assert_eq!(
-            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan"),
-            Some("line1")
-        );
-        assert_eq!(
-            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan/result"),
-            None
-        );
-        assert_eq!(parse_scan_topic("pg/gw", "pg/gw/bus//scan"), None);
-        assert_eq!(parse_scan_topic("pg/gw", "pg/other/bus/line1/scan"), None);
-    }
 
     #[test]
     fn a_payload_gives_units_and_id_and_nothing_else() {
