@@ -121,12 +121,13 @@ pub async fn run_with_reloads(
 /// Holds the state directory for the run (see [`crate::state_lock`]), so `pulsegate state prune
 /// --apply` refuses while the gateway runs. A directory that cannot be locked is logged, and the
 /// gateway runs on: polling matters more than the tool's guard.
-async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state_lock::StateLock> {
+async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state::lock::StateLock> {
     let dir = dir.to_path_buf();
-    let taken = tokio::task::spawn_blocking(move || crate::state_lock::StateLock::take(&dir)).await;
+    let taken =
+        tokio::task::spawn_blocking(move || crate::state::lock::StateLock::take(&dir)).await;
     match taken {
         Ok(Ok(lock)) => Some(lock),
-        Ok(Err(e @ crate::state_lock::LockError::Held { .. })) => {
+        Ok(Err(e @ crate::state::lock::LockError::Held { .. })) => {
             tracing::error!(
                 "{e}: two gateways on one state directory overwrite each other's counter state; give each its own gateway.state_dir"
             );

@@ -12,7 +12,7 @@ use crate::counter::{Counter, CounterState, Stamp};
 use crate::metrics::DeviceMetrics;
 use crate::profile::{ChannelSpec, Profile};
 use crate::reading::Reading;
-use crate::state::channel_key;
+use crate::state::{channel_key, is_channel_of};
 
 /// Why a poll produced no readings: the protocol's own failure `E` (Modbus:
 /// [`ModbusError`](super::modbus::ModbusError)), or one the core understands.
@@ -158,14 +158,13 @@ impl<P> DeviceRt<P> {
         saved: &BTreeMap<String, CounterState>,
         proto: P,
     ) -> DeviceRt<P> {
-        let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
             name: Arc::from(config.name.as_str()),
             profile: config.profile.clone(),
             channels: Vec::new(),
             saved: saved
                 .iter()
-                .filter(|(k, _)| k.starts_with(&prefix))
+                .filter(|(k, _)| is_channel_of(k, config.unit, &config.model))
                 .map(|(k, v)| (k.clone(), v.clone()))
                 .collect(),
             availability: super::availability::Availability::new(
