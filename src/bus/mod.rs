@@ -9,6 +9,8 @@ mod ledger;
 mod meter;
 mod saver;
 pub mod schedule;
+#[cfg(feature = "test-hooks")]
+mod stall;
 pub mod stats;
 mod status;
 
@@ -86,12 +88,13 @@ impl BusTask {
         let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
-        let stall = stall_hook(&self.bus.name);
+        #[cfg(feature = "test-hooks")]
+        let stall = stall::after(&self.bus.name).map(|after| Instant::now() + after);
         while let Some(i) = earliest(&core.slots, Instant::now(), core.after_boundary) {
             self.heart.beat();
-            if stall.is_some_and(|at| core.start.elapsed() >= at) {
-                tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
-                shutdown.cancelled().await;
+            #[cfg(feature = "test-hooks")]
+            if stall.is_some_and(|at| Instant::now() >= at) {
+                stall::hang(&core.name, &shutdown).await;
                 break;
             }
             match self.between_polls(&mut core, i, &shutdown).await {
@@ -358,7 +361,6 @@ struct Core<D: Driver> {
     devices: Vec<DeviceRt<D::Device>>,
     slots: Vec<Slot>,
     durable: saver::Durable,
-    start: Instant,
     flush_at: Instant,
     stats_at: Instant,
     stats_since: Instant,
@@ -394,7 +396,6 @@ impl<D: Driver> Core<D> {
             devices,
             slots,
             durable,
-            start,
             flush_at: start + state_flush,
             stats_at: start + stats_interval,
             stats_since: start,
@@ -448,14 +449,6 @@ impl BusTask {
             }
         }
     }
-}
-
-/// Fault injection for the watchdog test: `PULSEGATE_TEST_STALL_BUS=<bus>:<seconds>` makes that
-/// bus loop stop making progress after so long, as a stuck loop would.
-fn stall_hook(bus: &str) -> Option<Duration> {
-    let v = std::env::var("PULSEGATE_TEST_STALL_BUS").ok()?;
-    let (name, secs) = v.split_once(':')?;
-    (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
 /// Carries out the first pending command whose device can take it (one command, so polls get
