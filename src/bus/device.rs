@@ -133,8 +133,8 @@ pub struct DeviceRt<P> {
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
-    /// Why the device is out of service, when its module is the wrong model.
-    pub wrong_model: Option<String>,
+    /// Why the device is out of service: it is not the configured one (Modbus: a wrong model).
+    pub out_of_service: Option<String>,
     /// This device's Prometheus handles.
     pub metrics: DeviceMetrics,
     /// What the protocol keeps of this device.
@@ -175,7 +175,7 @@ impl<P> DeviceRt<P> {
             latencies: std::collections::VecDeque::new(),
             achieved_interval: None,
             last_good_poll: None,
-            wrong_model: None,
+            out_of_service: None,
             metrics: DeviceMetrics::disabled(),
             config: config.clone(),
             proto,

@@ -292,7 +292,7 @@ impl BusTask {
             }
             Err(e) if e.out_of_service().is_some() => {
                 let why = e.out_of_service().unwrap_or_default().to_string();
-                status::wrong_model(&mut core.devices[i], why, &name, &self.out);
+                status::out_of_service(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
                 self.rearm(core, i);
             }

@@ -77,19 +77,20 @@ pub(super) fn failed<P: DeviceState>(
     verdict.wait
 }
 
-/// The module is not the configured model: out of service with status `wrong_model` (logged and
+/// The device is not the configured one (Modbus: another model): out of service with status
+/// `wrong_model`, the word the topics and metrics have always used (logged and
 /// published once per change); its counters' next deltas cover the time out of service.
-pub(super) fn wrong_model<P>(
+pub(super) fn out_of_service<P>(
     d: &mut DeviceRt<P>,
     why: String,
     bus: &str,
     out: &UnboundedSender<Output>,
 ) {
-    if d.wrong_model.as_deref() == Some(why.as_str()) {
+    if d.out_of_service.as_deref() == Some(why.as_str()) {
         return;
     }
     tracing::error!(bus, device = %d.name, unit = d.config.unit, "module taken out of service: {why}");
-    d.wrong_model = Some(why);
+    d.out_of_service = Some(why);
     d.metrics.wrong_model(true);
     d.availability.out_of_service();
     d.mark_gap();

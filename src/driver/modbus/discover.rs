@@ -61,7 +61,7 @@ impl DeviceRt<ModbusDevice> {
             Verdict::Wrong(why) => return Err(PollError::Protocol(ModbusError::WrongModel(why))),
         }
         self.proto.identify_due = false;
-        if let Some(was) = self.wrong_model.take() {
+        if let Some(was) = self.out_of_service.take() {
             tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
             self.metrics.wrong_model(false);
         }
