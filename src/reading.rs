@@ -41,6 +41,32 @@ pub struct IntervalRecord {
     pub units: Option<Arc<crate::config::units::ChannelUnits>>,
 }
 
+#[cfg(test)]
+impl Reading {
+    /// A reading of an encoder channel for tests: count 1, delta 1, total 1, at `seq`.
+    pub(crate) fn sample(device: &str, channel: &str, seq: u64) -> Reading {
+        Reading {
+            device: device.into(),
+            channel: channel.into(),
+            ts: SystemTime::UNIX_EPOCH,
+            count: 1,
+            freq_hz: None,
+            rpm: None,
+            update: Update {
+                delta: 1,
+                total: 1,
+                seq,
+                rate_hz: None,
+                event: None,
+            },
+            after_seq: None,
+            meter: None,
+            kind: crate::profile::ChannelKind::Encoder,
+            units: None,
+        }
+    }
+}
+
 /// Everything a bus task reports.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output {

@@ -392,23 +392,5 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
 }
 
 fn reading_of(seq: u64) -> Output {
-    Output::Reading(Reading {
-        device: "d".into(),
-        channel: "enc0".into(),
-        ts: std::time::SystemTime::UNIX_EPOCH,
-        count: 1,
-        freq_hz: None,
-        rpm: None,
-        update: crate::counter::Update {
-            delta: 1,
-            total: 1,
-            seq,
-            rate_hz: None,
-            event: None,
-        },
-        after_seq: None,
-        meter: None,
-        kind: crate::profile::ChannelKind::Encoder,
-        units: None,
-    })
+    Output::Reading(Reading::sample("d", "enc0", seq))
 }

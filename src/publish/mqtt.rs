@@ -52,6 +52,10 @@ const WINDOW: usize = 100;
 /// hold one back.
 const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
 
+/// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
+/// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
+const REQUESTS: usize = INFLIGHT as usize + 4096;
+
 /// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
 /// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
@@ -121,11 +125,17 @@ impl Shell {
     }
 
     /// A publish outside the outbox (boot marker, what formats say at connect and at stop).
+    /// Counted as direct only when rumqttc took it: a send event that never comes would be
+    /// taken for the next stored message's, whose acknowledgement would then never count.
     fn publish_direct(&mut self, m: Message) {
-        self.outbox.direct();
-        let _ = self
+        let topic: String = m.topic.chars().take(200).collect();
+        match self
             .client
-            .publish(m.topic, m.qos, m.retain, m.payload, None);
+            .publish(m.topic, m.qos, m.retain, m.payload, None)
+        {
+            Ok(()) => self.outbox.direct(),
+            Err(e) => tracing::error!(%topic, "not published, the client's queue is full: {e}"),
+        }
     }
 
     fn subscribe(&self, filter: &str) {
@@ -163,7 +173,7 @@ impl Shell {
     fn on_lost(&mut self, options: &Options, stage: &mut Stage) -> EventLoop {
         self.outbox.lost();
         stage.disconnected();
-        let (client, fresh) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
+        let (client, fresh) = options.connect(stage.will().as_ref(), REQUESTS);
         self.client = client;
         fresh
     }
@@ -244,7 +254,7 @@ pub async fn run(
         return;
     };
     let mut stage = Stage::new(std::mem::take(&mut task.formats));
-    let (client, eventloop) = options.connect(stage.will().as_ref(), INFLIGHT as usize);
+    let (client, eventloop) = options.connect(stage.will().as_ref(), REQUESTS);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
     let routes = Routes {

@@ -201,25 +201,7 @@ async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs
 }
 
 fn reading(seq: u64) -> Output {
-    Output::Reading(crate::reading::Reading {
-        device: "d".into(),
-        channel: "enc0".into(),
-        ts: std::time::SystemTime::UNIX_EPOCH,
-        count: 1,
-        freq_hz: None,
-        rpm: None,
-        update: crate::counter::Update {
-            delta: 1,
-            total: 1,
-            seq,
-            rate_hz: None,
-            event: None,
-        },
-        after_seq: None,
-        meter: None,
-        kind: crate::profile::ChannelKind::Encoder,
-        units: None,
-    })
+    Output::Reading(crate::reading::Reading::sample("d", "enc0", seq))
 }
 
 /// Readings wait for their batch (an acknowledgement of something else does not send them);
@@ -273,3 +255,28 @@ async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
 
 #[path = "mqtt_paused_tests.rs"]
 mod paused;
+
+/// rumqttc's queue refuses a publish outside the outbox (full): it is not counted as sent by
+/// us, so the next send event still belongs to the stored message it is for.
+#[test]
+fn a_direct_publish_the_client_refuses_does_not_take_a_stored_messages_send_event() {
+    let (mut s, _requests) = shell("direct-refused");
+    let (client, _small) = client_options(&task("direct-refused").config)
+        .unwrap()
+        .connect(None, 1);
+    s.client = client;
+    for i in 0..3 {
+        s.publish_direct(Message::new(format!("pg/t/direct/{i}"), "x", 1, false));
+    }
+    // One was taken (and will have its send event), two were refused.
+    s.queue(message("pg/t/d/enc0"));
+    let (roomy, _roomy_requests) = shell("direct-refused-2");
+    s.client = roomy.client;
+    s.pump(&mut Stage::new(Vec::new()));
+    assert_eq!(s.outbox.in_flight(), 1);
+    s.outbox.sent(1); // the direct one that was taken
+    s.outbox.sent(2); // the stored message
+    s.outbox.acked(2, Instant::now());
+    s.pump(&mut Stage::new(Vec::new()));
+    assert_eq!(s.outbox.in_flight(), 0, "its acknowledgement released it");
+}
