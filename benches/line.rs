@@ -24,6 +24,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use pulsegate::bus::BusTask;
 use pulsegate::config::Config;
+use pulsegate::driver::modbus::Modbus;
 use pulsegate::reading::Output;
 use pulsegate::sim::{Plant, SimConfig};
 
@@ -131,7 +132,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
                 crx,
                 health.heart(&bus.name),
             )
-            .run(shutdown.clone()),
+            .run(Modbus::for_bus(bus), shutdown.clone()),
         ));
     }
     drop(tx);

@@ -11,6 +11,7 @@ use tokio_util::sync::CancellationToken;
 use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
+use crate::driver::modbus::survey::ScanRequest;
 use crate::health::Health;
 use crate::metrics::Metrics;
 use crate::reading::Output;
@@ -21,7 +22,7 @@ struct Running {
     stop: CancellationToken,
     task: JoinHandle<()>,
     commands: UnboundedSender<BusCommand>,
-    scans: tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>,
+    scans: tokio::sync::mpsc::Sender<ScanRequest>,
 }
 
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
@@ -74,7 +75,7 @@ pub async fn run_with_reloads(
         health: mqtt_health,
         boot,
         metrics: mqtt_metrics,
-        formats: crate::publish::format::chosen(&config),
+        formats: crate::publish::formats::chosen(&config),
     };
     let mqtt = tokio::spawn(crate::publish::mqtt::run(
         task,
@@ -120,12 +121,13 @@ pub async fn run_with_reloads(
 /// Holds the state directory for the run (see [`crate::state_lock`]), so `pulsegate state prune
 /// --apply` refuses while the gateway runs. A directory that cannot be locked is logged, and the
 /// gateway runs on: polling matters more than the tool's guard.
-async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state_lock::StateLock> {
+async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state::lock::StateLock> {
     let dir = dir.to_path_buf();
-    let taken = tokio::task::spawn_blocking(move || crate::state_lock::StateLock::take(&dir)).await;
+    let taken =
+        tokio::task::spawn_blocking(move || crate::state::lock::StateLock::take(&dir)).await;
     match taken {
         Ok(Ok(lock)) => Some(lock),
-        Ok(Err(e @ crate::state_lock::LockError::Held { .. })) => {
+        Ok(Err(e @ crate::state::lock::LockError::Held { .. })) => {
             tracing::error!(
                 "{e}: two gateways on one state directory overwrite each other's counter state; give each its own gateway.state_dir"
             );
@@ -187,11 +189,10 @@ fn start_bus(
     let stop = shutdown.child_token();
     let heart = health.heart(&format!("bus/{}", bus.name));
     let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
-        .with_scans(scan_rx)
         .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
-        task: tokio::spawn(task.run(stop.clone())),
+        task: crate::driver::spawn(task, bus, scan_rx, stop.clone()),
         stop,
         commands: cmd_tx,
         scans: scan_tx,
@@ -200,7 +201,7 @@ fn start_bus(
 
 fn scan_senders(
     running: &BTreeMap<String, Running>,
-) -> HashMap<String, tokio::sync::mpsc::Sender<crate::bus::survey::ScanRequest>> {
+) -> HashMap<String, tokio::sync::mpsc::Sender<ScanRequest>> {
     running
         .iter()
         .map(|(n, r)| (n.clone(), r.scans.clone()))

@@ -1,15 +1,7 @@
 //! Clear and preset commands from MQTT. Pure: topic and payload in, a checked request or an error
-//! result out; results as JSON; a memory of recent ids so a repeated command is answered again
-//! without a second write.
+//! result out; results as JSON. (The memory of recent ids is `dedupe.rs`.)
 //!
 //! Nothing here writes to a module: a request reaches a bus only after every check passed.
-
-use std::collections::{HashMap, VecDeque};
-use std::time::Duration;
-
-use tokio::time::Instant;
-
-use crate::outcome::CommandOutcome;
 
 use serde_json::{Map, Value, json};
 
@@ -21,7 +13,7 @@ pub enum Op {
     ClearAll,
     /// Moves the channel's published meter reading to the meter's display; touches neither the
     /// module nor the total.
-    SetReading(crate::publish::decimal::Decimal),
+    SetReading(crate::decimal::Decimal),
 }
 
 impl Op {
@@ -164,12 +156,6 @@ pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
     Ok(())
 }
 
-/// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd` (the rule
-/// lives with the other topic rules in [`crate::publish::topics`]).
-pub fn parse_topic<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
-    crate::publish::topics::parse_command(root, topic)
-}
-
 /// The parts of a payload before the device is known: op, id.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Parsed {
@@ -249,17 +235,14 @@ fn preset_value(map: &Map<String, Value>) -> Result<i64, CommandError> {
 }
 
 /// `value` of a set_reading: decimal text or a JSON number, taken exactly as written.
-fn reading_value(
-    map: &Map<String, Value>,
-) -> Result<crate::publish::decimal::Decimal, CommandError> {
+fn reading_value(map: &Map<String, Value>) -> Result<crate::decimal::Decimal, CommandError> {
     let text = match map.get("value") {
         None | Some(Value::Null) => return Err(CommandError::MissingValue),
         Some(Value::String(s)) => s.clone(),
         Some(Value::Number(n)) => n.to_string(),
         Some(other) => return Err(CommandError::NotDecimal(other.to_string())),
     };
-    crate::publish::decimal::Decimal::parse(&text)
-        .map_err(|e| CommandError::NotDecimal(e.to_string()))
+    crate::decimal::Decimal::parse(&text).map_err(|e| CommandError::NotDecimal(e.to_string()))
 }
 
 /// The result JSON of a command.
@@ -291,100 +274,6 @@ pub fn result_json(
     v
 }
 
-/// How long an answered id is remembered.
-pub const DEDUPE_WINDOW: Duration = Duration::from_secs(600);
-
-/// Most ids remembered at once, and most bytes their keys and results may take: a flood of
-/// distinct ids evicts the oldest instead of growing the gateway.
-pub const DEDUPE_ENTRIES: usize = 4096;
-pub const DEDUPE_BYTES: usize = 2 << 20;
-
-type Key = (String, String);
-
-/// Recently seen command ids (per topic) and their results, bounded in entries and bytes.
-#[derive(Debug, Default)]
-pub struct Dedupe {
-    seen: HashMap<Key, (Instant, Option<CommandOutcome>, usize)>,
-    /// Keys in the order they were first seen (the oldest is evicted first).
-    order: VecDeque<(Key, Instant)>,
-    bytes: usize,
-}
-
-/// What to do with a command whose id may have been seen.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Seen {
-    /// New: go ahead.
-    New,
-    /// Answered before: send this result again, write nothing.
-    Answered(CommandOutcome),
-    /// Still being carried out: its result will come; write nothing.
-    InFlight,
-}
-
-impl Dedupe {
-    /// Records `id` on `topic` at `now` and says whether it is new.
-    pub fn check(&mut self, topic: &str, id: &str, now: Instant) -> Seen {
-        while let Some((_, t)) = self.order.front() {
-            if now.duration_since(*t) < DEDUPE_WINDOW {
-                break;
-            }
-            self.evict_oldest();
-        }
-        let key = (topic.to_string(), id.to_string());
-        match self.seen.get(&key) {
-            Some((_, Some(result), _)) => Seen::Answered(result.clone()),
-            Some((_, None, _)) => Seen::InFlight,
-            None => {
-                let size = topic.len() + id.len() + 64;
-                self.bytes += size;
-                self.order.push_back((key.clone(), now));
-                self.seen.insert(key, (now, None, size));
-                // `order` may hold keys already forgotten: bound it too.
-                while self.seen.len() > DEDUPE_ENTRIES
-                    || self.bytes > DEDUPE_BYTES
-                    || self.order.len() > 2 * DEDUPE_ENTRIES
-                {
-                    self.evict_oldest();
-                }
-                Seen::New
-            }
-        }
-    }
-
-    fn evict_oldest(&mut self) {
-        if let Some((key, at)) = self.order.pop_front()
-            && let Some((t, _, size)) = self.seen.get(&key)
-            && *t == at
-        {
-            self.bytes -= size;
-            self.seen.remove(&key);
-        }
-    }
-
-    /// Stores the result of a command so a repeat is answered with it.
-    pub fn answered(&mut self, topic: &str, id: &str, result: CommandOutcome) {
-        if let Some(entry) = self.seen.get_mut(&(topic.to_string(), id.to_string())) {
-            let extra = result.id.as_ref().map_or(0, String::len) + 128;
-            self.bytes += extra;
-            entry.2 += extra;
-            entry.1 = Some(result);
-        }
-    }
-
-    /// Forgets an id whose command was refused before it did anything, so a retry is judged
-    /// afresh.
-    pub fn forget(&mut self, topic: &str, id: &str) {
-        if let Some((_, _, size)) = self.seen.remove(&(topic.to_string(), id.to_string())) {
-            self.bytes -= size;
-        }
-    }
-
-    /// Ids remembered, and the bytes they take.
-    pub fn size(&self) -> (usize, usize) {
-        (self.seen.len(), self.bytes)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -398,7 +287,7 @@ mod tests {
 
     #[test]
     fn set_reading_takes_decimal_text_or_a_number_exactly_as_written() {
-        use crate::publish::decimal::Decimal;
+        use crate::decimal::Decimal;
         let d = |t| Op::SetReading(Decimal::parse(t).unwrap());
         let text = br#"{"op":"set_reading","value":"12345.678","id":"swap"}"#;
         let p = parse_payload(text, true).unwrap();
@@ -428,21 +317,6 @@ mod tests {
             parse_payload(device_wide, false).unwrap_err().1.code(),
             "unknown_op"
         );
-    }
-
-    #[test]
-    fn command_topics_name_device_and_channel() {
-        assert_eq!(
-            parse_topic("pg/e1", "pg/e1/press/enc0/cmd"),
-            Some(("press", Some("enc0")))
-        );
-        assert_eq!(
-            parse_topic("pg/e1", "pg/e1/press/cmd"),
-            Some(("press", None))
-        );
-        assert_eq!(parse_topic("pg/e1", "pg/e1/press/enc0/cmd/result"), None);
-        assert_eq!(parse_topic("pg/e1", "pg/e1/a/b/c/cmd"), None);
-        assert_eq!(parse_topic("pg/e1", "other/press/cmd"), None);
     }
 
     #[test]
@@ -500,51 +374,6 @@ mod tests {
     fn an_ok_result_carries_the_count_read_back() {
         let v = result_json(Some("a"), Some("preset"), &Ok(Some(3000)));
         assert_eq!(v, json!({"id":"a","op":"preset","ok":true,"count":3000}));
-    }
-
-    fn ok() -> CommandOutcome {
-        CommandOutcome {
-            id: Some("1".into()),
-            op: Some("clear".into()),
-            result: Ok(None),
-        }
-    }
-
-    #[test]
-    fn the_same_id_within_ten_minutes_is_answered_again_without_a_write() {
-        let mut d = Dedupe::default();
-        let t0 = Instant::now();
-        assert_eq!(d.check("t", "1", t0), Seen::New);
-        assert_eq!(d.check("t", "1", t0), Seen::InFlight);
-        d.answered("t", "1", ok());
-        assert_eq!(
-            d.check("t", "1", t0 + Duration::from_secs(599)),
-            Seen::Answered(ok())
-        );
-        assert_eq!(d.check("t", "1", t0 + Duration::from_secs(601)), Seen::New);
-        assert_eq!(d.check("other", "1", t0), Seen::New);
-    }
-
-    #[test]
-    fn a_flood_of_distinct_ids_evicts_the_oldest_instead_of_growing() {
-        let mut d = Dedupe::default();
-        let t0 = Instant::now();
-        let long = "x".repeat(MAX_ID);
-        for i in 0..50_000 {
-            d.check("pg/e1/ghost/cmd", &format!("{long}{i}"), t0);
-        }
-        let (entries, bytes) = d.size();
-        assert!(entries <= DEDUPE_ENTRIES, "{entries} entries");
-        assert!(bytes <= DEDUPE_BYTES, "{bytes} bytes");
-        assert_eq!(
-            d.check("pg/e1/ghost/cmd", &format!("{long}49999"), t0),
-            Seen::InFlight,
-            "the newest are remembered"
-        );
-        assert_eq!(
-            d.check("pg/e1/ghost/cmd", &format!("{long}0"), t0),
-            Seen::New
-        );
     }
 
     #[test]

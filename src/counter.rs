@@ -15,21 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Something other than counting happened on a channel.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Event {
-    /// The count wrapped around its 32-bit range.
-    Rollover,
-    /// The module restarted or someone else cleared it; delta is the count since then.
-    Reset,
-    /// The gateway cleared the channel.
-    Cleared,
-    /// The gateway preset the channel.
-    Preset,
-    /// The gateway or the device was away; the delta covers the whole gap.
-    Gap,
-}
+use crate::event::Event;
 
 /// When a count was read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

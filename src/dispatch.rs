@@ -11,14 +11,16 @@ use tokio::sync::mpsc::{Receiver, UnboundedSender};
 use tokio::sync::oneshot;
 use tokio::time::Instant;
 
-use crate::admission::{Admission, LogBudget};
+use crate::admission::Admission;
 use crate::bus::BusCommand;
-use crate::bus::survey::{self, ScanRequest};
-use crate::command::{self, CommandError, Dedupe, Reply, Request, Seen};
+use crate::command::{self, CommandError, Reply, Request};
 use crate::config::Config;
+use crate::dedupe::{Dedupe, Seen};
+use crate::driver::modbus::survey::{self, ScanRequest};
+use crate::log_budget::LogBudget;
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
-use crate::publish::topics::ResponseRule;
 use crate::reading::Output;
+use crate::topics::ResponseRule;
 
 fn targets_of(
     config: &Config,
@@ -82,7 +84,7 @@ pub type Scans = Arc<std::sync::RwLock<HashMap<String, tokio::sync::mpsc::Sender
 
 /// The command router of a gateway.
 pub struct Router {
-    root: String,
+    topics: crate::topics::Topics,
     /// Where a response topic may point (see [`ResponseRule`]).
     responses: ResponseRule,
     targets: Targets,
@@ -105,7 +107,7 @@ impl Router {
         out: UnboundedSender<Output>,
     ) -> Router {
         Router {
-            root: config.mqtt.topic_root.clone(),
+            topics: crate::topics::Topics::new(&config.mqtt.topic_root),
             responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
@@ -124,7 +126,7 @@ impl Router {
     /// `<root>/bus/<bus>/scan`: a survey of the bus in its idle line time.
     fn scan(&self, bus: &str, msg: &Incoming) {
         let mut reply = Reply {
-            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
+            topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         let refuse = |reply: &Reply, code: &'static str, message: String| {
@@ -173,7 +175,7 @@ impl Router {
             units,
             id,
             reply: reply.clone(),
-            progress: crate::publish::topics::Topics::scan_progress(&msg.topic),
+            progress: crate::topics::Topics::scan_progress(&msg.topic),
         };
         if tx.try_send(req).is_err() {
             refuse(
@@ -210,14 +212,14 @@ impl Router {
             self.warn(&msg.topic, "ignoring a retained command message");
             return;
         }
-        if let Some(bus) = survey::parse_scan_topic(&self.root, &msg.topic) {
+        if let Some(bus) = self.topics.parse_scan(&msg.topic) {
             return self.scan(bus, &msg);
         }
-        let Some((device, channel)) = command::parse_topic(&self.root, &msg.topic) else {
+        let Some((device, channel)) = self.topics.parse_command(&msg.topic) else {
             return;
         };
         let mut reply = Reply {
-            topics: vec![crate::publish::topics::Topics::result(&msg.topic)],
+            topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
         };
         if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {

@@ -311,13 +311,13 @@ async fn set_reading(
 
 /// `pulsegate state list|prune`.
 fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCode> {
-    use pulsegate::saved;
     use pulsegate::state::BusState;
-    let files = saved::files(&config.gateway.state_dir)?;
+    use pulsegate::state::prune;
+    let files = prune::files(&config.gateway.state_dir)?;
     // A prune that writes claims the state directory as the running gateway does: never both.
     let _lock = match action {
         StateAction::Prune { apply: true } => Some(
-            pulsegate::state_lock::StateLock::take(&config.gateway.state_dir)
+            pulsegate::state::lock::StateLock::take(&config.gateway.state_dir)
                 .context("state prune --apply")?,
         ),
         _ => None,
@@ -326,20 +326,20 @@ fn state_command(config: &Config, action: StateAction) -> anyhow::Result<ExitCod
     for (bus, path) in files {
         // Only reads: a file the tool cannot take (a newer format) stays where it is.
         let state = BusState::inspect(&path)?;
-        let entries = saved::entries(config, &bus, &state);
+        let entries = prune::entries(config, &bus, &state);
         unmatched += entries.iter().filter(|e| e.device.is_none()).count();
         match action {
             StateAction::List => {
                 for e in &entries {
-                    println!("{}", saved::line(e));
+                    println!("{}", prune::line(e));
                 }
             }
             StateAction::Prune { apply } => {
                 for e in entries.iter().filter(|e| e.device.is_none()) {
                     let verb = if apply { "removed" } else { "would remove" };
-                    println!("{verb}: {}", saved::line(e));
+                    println!("{verb}: {}", prune::line(e));
                 }
-                let kept = saved::pruned(config, &bus, &state);
+                let kept = prune::pruned(config, &bus, &state);
                 if apply && kept != state {
                     kept.save_from_tool(&path)?;
                 }

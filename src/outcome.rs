@@ -5,7 +5,36 @@
 use serde::Serialize;
 
 use crate::command::{self, CommandError};
-use crate::commission::scan::Found;
+
+/// A unit that answered a scan.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Found {
+    /// The baud rate it answered at (`None` on Modbus TCP).
+    pub baud: Option<u32>,
+    pub unit: u8,
+    /// Its model, when a profile's identification matched.
+    pub model: Option<String>,
+    /// Raw work-mode registers, in the profile's order.
+    pub modes: Vec<u16>,
+    /// Its channels in those work modes.
+    pub channels: Vec<String>,
+    /// Anything worth knowing (unknown model, modes not readable).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// A module the scan found, reported as it answers (the result lists it again).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ScanProgress {
+    pub bus: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<String>,
+    pub found: Found,
+    /// Units asked so far, and still to ask.
+    pub asked: usize,
+    pub pending: usize,
+    pub elapsed_ms: u64,
+}
 
 /// The answer to a command or a scan.
 #[derive(Debug, Clone, PartialEq)]

@@ -4,7 +4,7 @@
 //! the device's turnaround), and bridging a gap of `g` unused registers costs `2g` characters of
 //! answer. Boundaries are chosen by dynamic programming over the sorted values, never inside a
 //! 32-bit value, never across a hole the device refused (exception 02), at most 125 registers,
-//! or fewer when the line is noisy (a limit from `bus::sizing`; a single value is never split).
+//! or fewer when the line is noisy (a limit from `driver::modbus::sizing`; a single value is never split).
 
 use std::ops::Range;
 use std::time::Duration;
@@ -55,11 +55,23 @@ impl Block {
 /// measures it at run time).
 pub const DEFAULT_TURNAROUND: Duration = Duration::from_millis(2);
 
-/// Characters of one read of `registers` registers on the wire: the request (address,
-/// function, start, quantity, CRC = 8) and the answer (address, function, byte count, CRC = 5,
-/// plus 2 per register). The one place for Modbus RTU frame sizes.
+/// Bytes of a read request and of a write's answer on RTU: address, function, two words, CRC.
+pub const REQUEST_BYTES: usize = 8;
+/// Bytes of a read's answer around its registers: address, function, byte count, CRC.
+pub const ANSWER_OVERHEAD_BYTES: usize = 5;
+/// Bytes of an exception answer: address, function | 0x80, code, CRC.
+pub const EXCEPTION_BYTES: usize = 5;
+
+/// Bytes of the answer to a read of `registers` registers.
+pub fn read_answer_bytes(registers: u16) -> usize {
+    ANSWER_OVERHEAD_BYTES + 2 * usize::from(registers)
+}
+
+/// Characters of one read of `registers` registers on the wire: the request and the answer.
+/// With the constants above, the one place for Modbus RTU frame sizes (the planner's prices,
+/// the line's timing and the port's reads of an answer all use them).
 pub fn read_chars(registers: u16) -> f64 {
-    8.0 + 5.0 + 2.0 * f64::from(registers)
+    (REQUEST_BYTES + read_answer_bytes(registers)) as f64
 }
 
 /// The reads of one device's poll, as a value: built when the registers change (a work-mode
@@ -166,6 +178,20 @@ impl Wire {
             request_overhead: 12.0 + 9.0 + 20.0,
         }
     }
+
+    /// How a read is priced on a line of `timing` (RTU) or none (TCP) before any device's
+    /// turnaround is measured: with [`DEFAULT_TURNAROUND`]. The one place for this rule: the
+    /// bus, `pulsegate check` and the commissioning reads all price reads so.
+    pub fn for_line(timing: Option<&LineTiming>) -> Wire {
+        timing.map_or_else(Wire::tcp, |t| Wire::rtu(t, DEFAULT_TURNAROUND))
+    }
+}
+
+/// Bits one character takes on a serial line: start bit, 8 data bits, the parity bit if any,
+/// and the stop bits. The one place for this rule (the config's line timing and the open port's
+/// both ask it).
+pub fn bits_per_char(parity: bool, stop_bits: u8) -> u32 {
+    1 + 8 + u32::from(parity) + u32::from(stop_bits)
 }
 
 /// Character timing of a serial line.
@@ -199,6 +225,25 @@ impl LineTiming {
     pub fn chars(&self, chars: f64) -> Duration {
         self.char_time().mul_f64(chars)
     }
+
+    /// Time on the wire of `chars` whole characters, to the nanosecond (the port's deadlines).
+    pub fn frame_time(&self, chars: usize) -> Duration {
+        Duration::from_nanos(
+            chars as u64 * u64::from(self.bits_per_char) * 1_000_000_000 / u64::from(self.baud),
+        )
+    }
+
+    /// Time on the wire of a read of `registers` registers: request and answer.
+    pub fn read_time(&self, registers: u16) -> Duration {
+        self.chars(read_chars(registers))
+    }
+}
+
+/// How long to wait for the answer to a read of `registers` registers: the device's `answer`
+/// time plus the time request and answer take on the line (`timing`; none on TCP). The one
+/// place for this rule: the bus's polls and the commissioning commands both ask it.
+pub fn read_timeout(answer: Duration, timing: Option<&LineTiming>, registers: u16) -> Duration {
+    answer + timing.map(|t| t.read_time(registers)).unwrap_or_default()
 }
 
 /// Splits the values of one device poll into reads. `holes` are ranges the device refused.

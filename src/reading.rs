@@ -24,7 +24,7 @@ pub struct Reading {
     /// input counter in one mode and an encoder in another).
     pub kind: crate::profile::ChannelKind,
     /// Engineering units of the channel, when it has a `scale`.
-    pub units: Option<Arc<crate::config::channel::ChannelUnits>>,
+    pub units: Option<Arc<crate::config::units::ChannelUnits>>,
     /// The offset `set_reading` gave the channel's meter reading, if any.
     pub meter: Option<crate::metering::meter::MeterOffset>,
 }
@@ -38,7 +38,7 @@ pub struct IntervalRecord {
     pub period: Arc<str>,
     pub record: crate::metering::Record,
     /// Engineering units of the channel, when it has a `scale` (the record's `value`).
-    pub units: Option<Arc<crate::config::channel::ChannelUnits>>,
+    pub units: Option<Arc<crate::config::units::ChannelUnits>>,
 }
 
 #[cfg(test)]
@@ -89,7 +89,7 @@ pub enum Output {
     /// Health of a bus.
     BusStats {
         bus: Arc<str>,
-        stats: Box<crate::bus::stats::BusStats>,
+        stats: Box<crate::bus_health::BusStats>,
     },
     /// The answer to a command or a scan, and the topics it goes to.
     CommandResult {
@@ -100,7 +100,7 @@ pub enum Output {
     /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).
     ScanProgress {
         topic: String,
-        progress: Box<crate::bus::survey::ScanProgress>,
+        progress: Box<crate::outcome::ScanProgress>,
     },
     /// A state save of the bus is waiting: it may record the seq of every reading sent before
     /// this only once those are durable (acknowledged by the broker, or fsynced in the spool),

@@ -22,7 +22,7 @@ pub fn poll_plan(config: &Config) -> String {
             Link::Tcp { host, port } => format!("TCP {host}:{port}"),
         };
         let _ = writeln!(out, "bus {} ({link}):", bus.name);
-        let wire = timing.map_or_else(Wire::tcp, |t| Wire::rtu(&t, TURNAROUND));
+        let wire = Wire::for_line(timing.as_ref());
         let mut load = 0.0;
         for d in &bus.devices {
             let modes: Vec<u16> = vec![0; d.profile.mode_registers().len()];

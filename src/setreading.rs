@@ -7,9 +7,9 @@ use std::time::Duration;
 use bytes::Bytes;
 
 use crate::config::{Config, MqttProtocol};
-use crate::publish::decimal::{Decimal, DecimalError};
+use crate::decimal::{Decimal, DecimalError};
 use crate::publish::session::{Event, EventLoop, Options};
-use crate::publish::topics::Topics;
+use crate::topics::Topics;
 
 /// Why a reading could not be set.
 #[derive(Debug, thiserror::Error)]
@@ -23,7 +23,7 @@ pub enum SetReadingError {
     )]
     NoScale { device: String, channel: String },
     #[error("{0}")]
-    Tls(#[from] crate::publish::tls::TlsError),
+    Tls(#[from] crate::config::tls::TlsError),
     #[error("MQTT broker {broker}: {why}")]
     Broker { broker: String, why: String },
     #[error("no result from the gateway within {0:?}: is it running and connected to the broker?")]

@@ -1,17 +1,14 @@
 //! Device availability: online at the first good answer, offline after `offline_after`
 //! consecutive failures, then probed with backoff. [`Availability`] is the state machine (no
-//! I/O: events in, [`Transition`]s out); the functions below it are the bus task's shell, which
+//! I/O: events in, [`Transition`]s out); `status.rs` is the bus task's shell around it, which
 //! logs each transition once and publishes the status changes.
 
 use std::time::Duration;
 
-use tokio::sync::mpsc::UnboundedSender;
 use tokio::time::Instant;
 
-use super::device::{DeviceRt, PollError};
-use super::driver::DeviceState;
 use super::schedule::Backoff;
-use crate::reading::Output;
+use crate::log_budget::LogBudget;
 
 /// What changed, as a value: the shell logs it and publishes the status ones.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -37,19 +34,11 @@ pub struct Availability {
     /// Something came back since the device was last offline (an answer, garbled or not): it is
     /// on the line and answers in time.
     heard: bool,
+    /// One error line a minute while the device stays online, the rest counted: a noisy line
+    /// answers garbled or not at all several times a minute, and each would otherwise be a
+    /// journal line (and its recovery another). State changes (offline, back online) are
+    /// always logged.
     log: LogBudget,
-}
-
-/// How often a device that stays online may write an error line: a noisy line answers garbled
-/// or not at all several times a minute, and each would otherwise be a journal line (and its
-/// recovery another). State changes (offline, back online) are always logged.
-pub const ERROR_LOG_EVERY: Duration = Duration::from_secs(60);
-
-/// The log budget of one device: one error line per [`ERROR_LOG_EVERY`], the rest counted.
-#[derive(Debug, Clone, Default)]
-struct LogBudget {
-    next: Option<Instant>,
-    suppressed: u32,
     /// The last error was logged, so its recovery is worth a line too.
     logged: bool,
 }
@@ -72,27 +61,22 @@ impl Availability {
             backoff: Backoff::new(min, max),
             offline_after: offline_after.max(1),
             heard: false,
-            log: LogBudget::default(),
+            log: LogBudget::new(1),
+            logged: false,
         }
     }
 
     /// Whether an error line may be written at `now`: `Some(n)` with the number of errors not
     /// logged since the last line, `None` to count this one silently.
     pub fn may_log_error(&mut self, now: Instant) -> Option<u32> {
-        let budget = &mut self.log;
-        if budget.next.is_some_and(|next| now < next) {
-            budget.suppressed = budget.suppressed.saturating_add(1);
-            budget.logged = false;
-            return None;
-        }
-        budget.next = Some(now + ERROR_LOG_EVERY);
-        budget.logged = true;
-        Some(std::mem::take(&mut budget.suppressed))
+        let (allowed, suppressed) = self.log.allow(now);
+        self.logged = allowed;
+        allowed.then(|| u32::try_from(suppressed.unwrap_or(0)).unwrap_or(u32::MAX))
     }
 
     /// Whether a recovery is worth a line: only after an error that was logged.
     pub fn may_log_recovery(&mut self) -> bool {
-        std::mem::take(&mut self.log.logged)
+        std::mem::take(&mut self.logged)
     }
 
     /// `Some(true)` online, `Some(false)` offline, `None` not yet seen (or out of service).
@@ -191,112 +175,6 @@ impl Availability {
         }
         offline
     }
-}
-
-/// The device answered a whole poll.
-pub(super) fn answered<P>(d: &mut DeviceRt<P>, bus: &str, out: &UnboundedSender<Output>) {
-    for t in d.availability.answered() {
-        match t {
-            Transition::Recovered => {
-                if d.availability.may_log_recovery() {
-                    tracing::info!(bus, device = %d.name, "device answering again");
-                }
-            }
-            Transition::Online { back } => {
-                if back {
-                    tracing::info!(bus, device = %d.name, "device back online");
-                }
-                let _ = out.send(Output::DeviceStatus {
-                    device: d.name.clone(),
-                    online: true,
-                });
-            }
-            Transition::Error(_) | Transition::Offline { .. } => {}
-        }
-    }
-}
-
-/// A poll failed. Returns how long to wait before probing the device again when it is (now)
-/// offline; `None` to keep its schedule.
-pub(super) fn failed<P: DeviceState>(
-    d: &mut DeviceRt<P>,
-    e: &PollError<P::Error>,
-    line_fault: bool,
-    bus: &str,
-    out: &UnboundedSender<Output>,
-) -> Option<Duration> {
-    let verdict = d
-        .availability
-        .failed(e.to_string(), e.device_answered(), line_fault);
-    for t in verdict.transitions {
-        match t {
-            Transition::Error(message) => {
-                match d.availability.may_log_error(Instant::now()) {
-                    Some(0) => {
-                        tracing::warn!(bus, device = %d.name, unit = d.config.unit, "{message}")
-                    }
-                    Some(more) => tracing::warn!(
-                        bus, device = %d.name, unit = d.config.unit,
-                        "{message} ({more} more errors since the last line, not logged one by one)"
-                    ),
-                    None => {}
-                }
-                d.proto.poll_failed(e);
-            }
-            Transition::Offline { failures } => {
-                tracing::warn!(bus, device = %d.name, failures, "device offline");
-                d.mark_gap();
-                d.proto.went_offline();
-                let _ = out.send(Output::DeviceStatus {
-                    device: d.name.clone(),
-                    online: false,
-                });
-            }
-            Transition::Recovered | Transition::Online { .. } => {}
-        }
-    }
-    verdict.wait
-}
-
-/// The module is not the configured model: out of service with status `wrong_model` (logged and
-/// published once per change); its counters' next deltas cover the time out of service.
-pub(super) fn wrong_model<P>(
-    d: &mut DeviceRt<P>,
-    why: String,
-    bus: &str,
-    out: &UnboundedSender<Output>,
-) {
-    if d.wrong_model.as_deref() == Some(why.as_str()) {
-        return;
-    }
-    tracing::error!(bus, device = %d.name, unit = d.config.unit, "module taken out of service: {why}");
-    d.wrong_model = Some(why);
-    d.metrics.wrong_model(true);
-    d.availability.out_of_service();
-    d.mark_gap();
-    let _ = out.send(Output::DeviceProblem {
-        device: d.name.clone(),
-        status: "wrong_model",
-    });
-}
-
-/// A quadrature pair's mode words disagree (or agree again): status `mode_mismatch` while they
-/// do, `online` again after.
-pub(super) fn mode_mismatch<P>(d: &mut DeviceRt<P>, out: &UnboundedSender<Output>) {
-    let Some(now) = d.take_mismatch_change() else {
-        return;
-    };
-    let status = match now {
-        Some(_) => Output::DeviceProblem {
-            device: d.name.clone(),
-            status: "mode_mismatch",
-        },
-        None => Output::DeviceStatus {
-            device: d.name.clone(),
-            online: true,
-        },
-    };
-    let _ = out.send(status);
 }
 
 #[cfg(test)]

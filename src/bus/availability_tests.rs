@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::bus::schedule::Slot;
+use crate::log_budget::WINDOW as ERROR_LOG_EVERY;
 
 const S: Duration = Duration::from_secs(1);
 

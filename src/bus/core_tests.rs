@@ -81,14 +81,6 @@ impl Driver for Scripted {
         Heard::default()
     }
 
-    async fn discover(
-        &mut self,
-        _: &mut DeviceRt<Heard>,
-        _: Preempt<'_>,
-    ) -> Result<(), PollError<NoAnswer>> {
-        Ok(())
-    }
-
     async fn poll(
         &mut self,
         _: &mut DeviceRt<Heard>,
@@ -209,7 +201,7 @@ fn start_answering(
         log: log.clone(),
     };
     let stop = CancellationToken::new();
-    let task = tokio::spawn(task.run_with(driver, stop.clone()));
+    let task = tokio::spawn(task.run(driver, stop.clone()));
     Running {
         log,
         out,

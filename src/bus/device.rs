@@ -7,12 +7,12 @@ use std::time::SystemTime;
 
 use tokio::time::Instant;
 
-use crate::config::{Bus, Device, Run};
+use crate::config::{Bus, Device};
 use crate::counter::{Counter, CounterState, Stamp};
 use crate::metrics::DeviceMetrics;
 use crate::profile::{ChannelSpec, Profile};
 use crate::reading::Reading;
-use crate::state::channel_key;
+use crate::state::{channel_key, is_channel_of};
 
 /// Why a poll produced no readings: the protocol's own failure `E` (Modbus:
 /// [`ModbusError`](super::modbus::ModbusError)), or one the core understands.
@@ -26,15 +26,17 @@ pub enum PollError<E> {
     /// A command is waiting: the poll stepped aside after the transaction in flight.
     #[error("poll interrupted by a command")]
     Preempted,
-    /// The module is not the configured model: out of service, no readings.
-    #[error("wrong model: {0}")]
-    WrongModel(String),
 }
 
 /// A protocol's own poll failure, as the bus core sees it.
 pub trait ProtocolError: std::fmt::Display + std::fmt::Debug {
     /// The device said something (a refusal, a garbled answer): it is there.
     fn device_answered(&self) -> bool;
+    /// Why the device that answered is not the one configured (Modbus: another model), if so:
+    /// it is taken out of service (status `wrong_model`) and polled again after a backoff.
+    fn out_of_service(&self) -> Option<&str> {
+        None
+    }
 }
 
 impl<E: ProtocolError> PollError<E> {
@@ -46,6 +48,14 @@ impl<E: ProtocolError> PollError<E> {
         }
     }
 
+    /// Why the device is not the one configured, if that is the failure.
+    pub fn out_of_service(&self) -> Option<&str> {
+        match self {
+            PollError::Protocol(e) => e.out_of_service(),
+            _ => None,
+        }
+    }
+
     /// Not a failure of the device at all.
     pub fn is_preempted(&self) -> bool {
         matches!(self, PollError::Preempted)
@@ -53,20 +63,16 @@ impl<E: ProtocolError> PollError<E> {
 }
 
 /// A channel being polled.
-pub(super) struct ChannelRt {
-    pub(super) spec: ChannelSpec,
-    pub(super) name: Arc<str>,
-    pub(super) counter: Counter,
-    pub(super) ppr: Option<f64>,
-    /// What to do when the counter is found stopped (modules with a command register).
-    pub(super) run: Run,
-    /// Resume the counter when it is found paused.
-    pub(super) resume_paused: bool,
+pub(crate) struct ChannelRt {
+    pub(crate) spec: ChannelSpec,
+    pub(crate) name: Arc<str>,
+    pub(crate) counter: Counter,
+    pub(crate) ppr: Option<f64>,
 }
 
 impl ChannelRt {
     /// This channel's reading of a count that arrived at `at`.
-    pub(super) fn reading(
+    pub(crate) fn reading(
         &self,
         device: &Arc<str>,
         at: SystemTime,
@@ -93,13 +99,13 @@ impl ChannelRt {
 
 /// When an answer arrived: the wall clock for `ts`, both clocks for the counter.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct At {
-    pub(super) wall: SystemTime,
-    pub(super) stamp: Stamp,
+pub(crate) struct At {
+    pub(crate) wall: SystemTime,
+    pub(crate) stamp: Stamp,
 }
 
 impl At {
-    pub(super) fn now() -> At {
+    pub(crate) fn now() -> At {
         let (wall, mono) = crate::reading::now();
         At {
             wall,
@@ -117,9 +123,9 @@ impl At {
 pub struct DeviceRt<P> {
     pub name: Arc<str>,
     pub config: Device,
-    pub(super) profile: Arc<Profile>,
-    pub(super) channels: Vec<ChannelRt>,
-    pub(super) saved: BTreeMap<String, CounterState>,
+    pub(crate) profile: Arc<Profile>,
+    pub(crate) channels: Vec<ChannelRt>,
+    pub(crate) saved: BTreeMap<String, CounterState>,
     /// Online, offline, not yet seen; failures and backoff (a state machine of its own).
     pub availability: super::availability::Availability,
     /// Poll latencies (seconds), most recent last, for p50/p99.
@@ -127,12 +133,8 @@ pub struct DeviceRt<P> {
     /// Time between good polls (seconds, moving average), against the configured interval.
     pub achieved_interval: Option<f64>,
     last_good_poll: Option<Instant>,
-    /// Why the device is out of service, when its module is the wrong model.
-    pub wrong_model: Option<String>,
-    /// Quadrature pairs whose two mode words disagree, described; and its last change, not
-    /// yet published.
-    pub mode_mismatch: Option<String>,
-    mismatch_changed: Option<Option<String>>,
+    /// Why the device is out of service: it is not the configured one (Modbus: a wrong model).
+    pub out_of_service: Option<String>,
     /// This device's Prometheus handles.
     pub metrics: DeviceMetrics,
     /// What the protocol keeps of this device.
@@ -142,7 +144,7 @@ pub struct DeviceRt<P> {
 impl<P> DeviceRt<P> {
     /// A reading of `channel` was not published: its sequence number goes back, so `seq`
     /// counts published readings only.
-    pub(super) fn withdraw_seq(&mut self, channel: &str) {
+    pub(crate) fn withdraw_seq(&mut self, channel: &str) {
         if let Some(c) = self.channels.iter_mut().find(|c| &*c.name == channel) {
             c.counter.state.seq = c.counter.state.seq.saturating_sub(1);
         }
@@ -156,14 +158,13 @@ impl<P> DeviceRt<P> {
         saved: &BTreeMap<String, CounterState>,
         proto: P,
     ) -> DeviceRt<P> {
-        let prefix = format!("{}/{}/", config.unit, config.model);
         DeviceRt {
             name: Arc::from(config.name.as_str()),
             profile: config.profile.clone(),
             channels: Vec::new(),
             saved: saved
                 .iter()
-                .filter(|(k, _)| k.starts_with(&prefix))
+                .filter(|(k, _)| is_channel_of(k, config.unit, &config.model))
                 .map(|(k, v)| (k.clone(), v.clone()))
                 .collect(),
             availability: super::availability::Availability::new(
@@ -174,9 +175,7 @@ impl<P> DeviceRt<P> {
             latencies: std::collections::VecDeque::new(),
             achieved_interval: None,
             last_good_poll: None,
-            wrong_model: None,
-            mode_mismatch: None,
-            mismatch_changed: None,
+            out_of_service: None,
             metrics: DeviceMetrics::disabled(),
             config: config.clone(),
             proto,
@@ -190,7 +189,7 @@ impl<P> DeviceRt<P> {
     }
 
     /// The state file's key of `channel` (the file's format: unit, model, channel).
-    pub(super) fn state_key(&self, channel: &str) -> String {
+    pub(crate) fn state_key(&self, channel: &str) -> String {
         channel_key(self.config.unit, &self.config.model, channel)
     }
 
@@ -217,32 +216,12 @@ impl<P> DeviceRt<P> {
     }
 
     /// A good poll: the achieved poll interval (moving average), for the bus stats.
-    pub(super) fn note_good_poll(&mut self) {
+    pub(crate) fn note_good_poll(&mut self) {
         let now = Instant::now();
         if let Some(last) = self.last_good_poll.replace(now) {
             let gap = (now - last).as_secs_f64();
             self.achieved_interval =
                 Some(self.achieved_interval.map_or(gap, |a| a * 0.8 + gap * 0.2));
         }
-    }
-
-    /// Records the mode-word mismatch found now (logged once per change).
-    pub(super) fn set_mismatch(&mut self, now: Option<String>) {
-        if self.mode_mismatch == now {
-            return;
-        }
-        match &now {
-            Some(why) => {
-                tracing::error!(device = %self.name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
-            }
-            None => tracing::info!(device = %self.name, "mode words agree again"),
-        }
-        self.mode_mismatch = now.clone();
-        self.mismatch_changed = Some(now);
-    }
-
-    /// The mode-word mismatch, when it changed since the last call.
-    pub(super) fn take_mismatch_change(&mut self) -> Option<Option<String>> {
-        self.mismatch_changed.take()
     }
 }

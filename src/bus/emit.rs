@@ -1,6 +1,6 @@
 //! A bus's readings → output, by each channel's publish policy and its device's payload shape.
 //!
-//! The policy itself is pure ([`crate::publish::policy`]); this is where it meets the device:
+//! The policy itself is pure ([`crate::config::policy`]); this is where it meets the device:
 //! a skipped reading hands its sequence number back to the counter, so `seq` counts published
 //! readings only (and the saved state agrees), and its delta rides on the next published one.
 
@@ -9,9 +9,9 @@ use std::sync::Arc;
 
 use super::device::DeviceRt;
 use crate::config::Gateway;
-use crate::config::channel::ChannelUnits;
+use crate::config::policy::{Gate, PayloadMode, Policy, PolicyOverride};
+use crate::config::units::ChannelUnits;
 use crate::metering::{Clock, Period, Read};
-use crate::publish::policy::{Gate, PayloadMode, Policy, PolicyOverride};
 use crate::reading::{IntervalRecord, Output, Reading, unix_ms};
 
 /// One channel's gate, policy, units and interval periods.

@@ -3,8 +3,8 @@
 
 use super::device::DeviceRt;
 use crate::command::CommandError;
+use crate::decimal::Decimal;
 use crate::metering::meter::MeterOffset;
-use crate::publish::decimal::Decimal;
 
 /// Moves `channel`'s published reading to `shown` from now on (the next published reading
 /// carries it; the state save after it keeps it across restarts).

@@ -5,21 +5,14 @@ mod availability;
 pub mod device;
 pub mod driver;
 mod emit;
-mod execute;
-mod identity;
 mod ledger;
-pub mod link;
 mod meter;
-pub mod modbus;
-mod retry;
-mod run;
 mod saver;
 pub mod schedule;
-mod serial;
-pub mod sizing;
+#[cfg(feature = "test-hooks")]
+mod stall;
 pub mod stats;
-pub mod survey;
-mod timer;
+mod status;
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -30,6 +23,7 @@ use tokio::sync::oneshot;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
+use crate::bus_health::WireCounters;
 use crate::command::{CommandError, Request};
 use crate::config::{Bus, Gateway};
 use crate::health::Heart;
@@ -40,7 +34,6 @@ use device::DeviceRt;
 pub use device::PollError;
 use driver::{DeviceState, Driver};
 use schedule::{Slot, earliest};
-use stats::WireCounters;
 
 /// A checked command for a device on this bus, and where its outcome goes.
 pub struct BusCommand {
@@ -58,8 +51,6 @@ pub struct BusTask {
     commands: UnboundedReceiver<BusCommand>,
     heart: Heart,
     metrics: BusMetrics,
-    /// Scan requests from MQTT, asked in idle line time.
-    scans: Option<tokio::sync::mpsc::Receiver<survey::ScanRequest>>,
     emitter: emit::Emitter,
 }
 
@@ -81,7 +72,6 @@ impl BusTask {
             commands,
             heart,
             metrics: BusMetrics::default(),
-            scans: None,
         }
     }
 
@@ -91,30 +81,20 @@ impl BusTask {
         self
     }
 
-    /// Takes scan requests from `scans` (see [`survey`]).
-    pub fn with_scans(mut self, scans: tokio::sync::mpsc::Receiver<survey::ScanRequest>) -> Self {
-        self.scans = Some(scans);
-        self
-    }
-
-    /// Polls until `shutdown`, then finishes the transaction in flight and saves state.
+    /// Polls over `driver` (the bus's protocol, built by the caller; a scripted one in tests)
+    /// until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
-    pub async fn run(mut self, shutdown: CancellationToken) {
-        let driver = driver::Modbus::for_bus(&self.bus).with_scans(self.scans.take());
-        self.run_with(driver, shutdown).await;
-    }
-
-    /// [`BusTask::run`] over a given driver (a protocol, or a scripted one in tests).
-    pub async fn run_with<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
+    pub async fn run<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
         let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
-        let stall = stall_hook(&self.bus.name);
+        #[cfg(feature = "test-hooks")]
+        let stall = stall::after(&self.bus.name).map(|after| Instant::now() + after);
         while let Some(i) = earliest(&core.slots, Instant::now(), core.after_boundary) {
             self.heart.beat();
-            if stall.is_some_and(|at| core.start.elapsed() >= at) {
-                tracing::error!(bus = %core.name, "test hook: this bus loop now stalls");
-                shutdown.cancelled().await;
+            #[cfg(feature = "test-hooks")]
+            if stall.is_some_and(|at| Instant::now() >= at) {
+                stall::hang(&core.name, &shutdown).await;
                 break;
             }
             match self.between_polls(&mut core, i, &shutdown).await {
@@ -303,15 +283,16 @@ impl BusTask {
                 self.heart.set_up(true);
                 let d = &mut core.devices[i];
                 d.note_good_poll();
-                availability::answered(d, &name, &self.out);
-                availability::mode_mismatch(d, &self.out);
+                status::answered(d, &name, &self.out);
+                status::status_change(d, &self.out);
                 let outputs = self.emitter.emit(d, readings);
                 core.durable.publish(outputs, i, &core.devices, &self.out);
                 core.slots[i].advance_if_due(now);
                 self.rearm(core, i);
             }
-            Err(PollError::WrongModel(why)) => {
-                availability::wrong_model(&mut core.devices[i], why, &name, &self.out);
+            Err(e) if e.out_of_service().is_some() => {
+                let why = e.out_of_service().unwrap_or_default().to_string();
+                status::out_of_service(&mut core.devices[i], why, &name, &self.out);
                 core.slots[i].defer_to(now + self.bus.backoff_max);
                 self.rearm(core, i);
             }
@@ -323,7 +304,7 @@ impl BusTask {
                     self.metrics.line_fault();
                 }
                 let d = &mut core.devices[i];
-                match availability::failed(d, &e, line_fault, &name, &self.out) {
+                match status::failed(d, &e, line_fault, &name, &self.out) {
                     Some(wait) => core.slots[i].defer_to(now + wait),
                     None => core.slots[i].advance_if_due(now),
                 }
@@ -380,7 +361,6 @@ struct Core<D: Driver> {
     devices: Vec<DeviceRt<D::Device>>,
     slots: Vec<Slot>,
     durable: saver::Durable,
-    start: Instant,
     flush_at: Instant,
     stats_at: Instant,
     stats_since: Instant,
@@ -416,7 +396,6 @@ impl<D: Driver> Core<D> {
             devices,
             slots,
             durable,
-            start,
             flush_at: start + state_flush,
             stats_at: start + stats_interval,
             stats_since: start,
@@ -470,14 +449,6 @@ impl BusTask {
             }
         }
     }
-}
-
-/// Fault injection for the watchdog test: `PULSEGATE_TEST_STALL_BUS=<bus>:<seconds>` makes that
-/// bus loop stop making progress after so long, as a stuck loop would.
-fn stall_hook(bus: &str) -> Option<Duration> {
-    let v = std::env::var("PULSEGATE_TEST_STALL_BUS").ok()?;
-    let (name, secs) = v.split_once(':')?;
-    (name == bus).then(|| Duration::from_secs_f64(secs.parse().unwrap_or(0.0)))
 }
 
 /// Carries out the first pending command whose device can take it (one command, so polls get

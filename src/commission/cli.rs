@@ -9,9 +9,10 @@ use tokio_util::sync::CancellationToken;
 
 use super::CommissionError;
 use super::line::Target;
-use super::scan::{Found, ScanEvent};
+use super::scan::ScanEvent;
 use super::setup::Wanted;
 use crate::command::Op;
+use crate::outcome::Found;
 use crate::profile::Profiles;
 
 /// How to reach the modules.
@@ -177,7 +178,7 @@ fn target(line: &LineArgs) -> Result<Target, CommissionError> {
 fn answer_time(line: &LineArgs, profiles: &Profiles) -> Duration {
     line.timeout
         .map(Into::into)
-        .unwrap_or_else(|| super::scan::answer_time(profiles))
+        .unwrap_or_else(|| crate::driver::modbus::probe::answer_time(profiles))
 }
 
 /// Cancelled at Ctrl-C.
@@ -259,7 +260,8 @@ async fn scan(
         every_probe,
     } = how;
     let target = target(line)?;
-    let units = super::scan::parse_units(units)?;
+    let units =
+        crate::driver::modbus::probe::parse_units(units).map_err(CommissionError::BadInput)?;
     let bauds = super::scan::scan_bauds(baud, profiles)?;
     target.check_free()?;
     let cancel = ctrl_c();
@@ -515,8 +517,8 @@ async fn setup(
             .timeout
             .map(Into::into)
             .unwrap_or(profile.answer_timeout);
-    let timeout = super::line::timeout_for(answer, &link, 1);
-    let modes = super::scan::read_modes(&mut link, m.at.unit, &profile, timeout)
+    let timeout = link.timeout_for(answer, 1);
+    let modes = crate::driver::modbus::probe::read_modes(&mut link, m.at.unit, &profile, timeout)
         .await
         .map_err(CommissionError::Failed)?;
     let channels = profile
@@ -526,9 +528,10 @@ async fn setup(
     if let Some(c) = changes.iter().find(|c| c.setting.name == "unit") {
         let new = c.field as u8;
         if new != m.at.unit {
-            let id_timeout = super::line::timeout_for(answer, &link, 3);
+            let id_timeout = link.timeout_for(answer, 3);
             if let Ok(Some(_)) =
-                super::identify::identify(&mut link, profiles, new, id_timeout, true).await
+                crate::driver::modbus::probe::identify(&mut link, profiles, new, id_timeout, true)
+                    .await
             {
                 return Err(CommissionError::BadInput(format!(
                     "unit {new} already answers on this line; choose a free unit id"

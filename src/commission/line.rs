@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use super::CommissionError;
 use super::holder::holders;
-use crate::bus::link::{Link, LinkError};
 use crate::config::{Link as LinkConfig, Parity};
+use crate::driver::modbus::link::{Link, LinkError};
 
 /// Where the modules are.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -123,14 +123,4 @@ fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
             "close that program first".into()
         },
     }
-}
-
-/// The answer timeout for a request of `len` registers: the models' answer time plus the time
-/// the request and answer take on the line.
-pub fn timeout_for(answer: Duration, link: &Link, len: u16) -> Duration {
-    let line = link
-        .timing()
-        .map(|t| t.chars(crate::plan::read_chars(len)))
-        .unwrap_or_default();
-    answer + line
 }

@@ -9,8 +9,7 @@
 
 mod cli;
 mod holder;
-pub(crate) mod identify;
-mod line;
+pub(crate) mod line;
 mod raw;
 mod read;
 pub(crate) mod scan;
@@ -19,12 +18,11 @@ mod snippet;
 
 pub use cli::{Commission, run};
 pub use holder::{Holder, holders};
-pub use identify::{Identified, identify_words};
-pub use line::timeout_for as line_timeout;
-pub use scan::{Found, parse_units, scan_bauds};
+
+pub use scan::scan_bauds;
 pub use snippet::config_snippet;
 
-use crate::bus::link::LinkError;
+use crate::driver::modbus::link::LinkError;
 
 /// Why a commissioning command stopped.
 #[derive(Debug, thiserror::Error)]

@@ -2,8 +2,8 @@
 //! profiles do not cover.
 
 use super::CommissionError;
-use super::line::{Target, timeout_for};
-use crate::bus::link::Link;
+use super::line::Target;
+use crate::driver::modbus::link::Link;
 
 /// A register address or value: decimal or 0x-prefixed hex, 0..=65535.
 pub fn parse_u16(text: &str) -> Result<u16, String> {
@@ -31,7 +31,7 @@ pub(super) async fn read(
             "read {start} {count}: Modbus reads 1..=125 registers within 0..=65535"
         )));
     }
-    let timeout = timeout_for(answer, link, count);
+    let timeout = link.timeout_for(answer, count);
     match link.read(unit, start, count, timeout).await {
         Ok(Ok(words)) => Ok(words),
         Ok(Err(exception)) => Err(CommissionError::Refused {
@@ -60,7 +60,7 @@ pub(super) async fn write(
             "write {address}: Modbus writes 1..=123 registers within 0..=65535"
         )));
     }
-    let timeout = timeout_for(answer, link, values.len() as u16);
+    let timeout = link.timeout_for(answer, values.len() as u16);
     let answer = if let [one] = values {
         link.write_register(unit, address, *one, timeout).await
     } else {

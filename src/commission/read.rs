@@ -9,13 +9,13 @@ use std::time::Duration;
 use serde_json::{Value, json};
 
 use super::CommissionError;
-use super::identify::{Identified, identify};
-use super::line::{Target, timeout_for};
+use super::line::Target;
 use crate::bus::device::DeviceRt;
-use crate::bus::link::Link;
-use crate::bus::modbus::{ModbusDevice, ModbusError};
 use crate::command::{Op, Reply, Request};
 use crate::config::{Bus, ChannelConfig, Device, Run};
+use crate::driver::modbus::link::Link;
+use crate::driver::modbus::probe::{Identified, identify};
+use crate::driver::modbus::{ModbusDevice, ModbusError};
 use crate::plan::Wire;
 use crate::profile::{Profile, Profiles};
 
@@ -31,7 +31,7 @@ pub(super) async fn resolve_model(
 ) -> Result<Arc<Profile>, CommissionError> {
     let profile = if model == "auto" {
         check_baud_known(profiles, target, baud)?;
-        let timeout = timeout_for(super::scan::answer_time(profiles), link, 3);
+        let timeout = link.timeout_for(crate::driver::modbus::probe::answer_time(profiles), 3);
         match identify(link, profiles, unit, timeout, true).await {
             Ok(Some(Identified::Model(p))) => p,
             Ok(Some(Identified::Unknown(seen))) => {
@@ -126,10 +126,7 @@ pub(super) fn poller(
         intervals: None,
         enabled: true,
     };
-    let wire = match link.timing() {
-        Some(t) => Wire::rtu(&t, crate::plan::DEFAULT_TURNAROUND),
-        None => Wire::tcp(),
-    };
+    let wire = Wire::for_line(link.timing().as_ref());
     let proto = ModbusDevice::new(&bus, &device, wire, Vec::new());
     DeviceRt::new(&bus, &device, &BTreeMap::new(), proto)
 }
@@ -148,8 +145,8 @@ pub(super) async fn read_once(
         crate::bus::device::PollError::Protocol(ModbusError::Link(l)) => target.error(unit, l),
         other => CommissionError::Failed(format!("unit {unit}: {other}")),
     })?;
-    let timeout = timeout_for(profile.answer_timeout, link, 1);
-    let modes = super::scan::read_modes(link, unit, profile, timeout)
+    let timeout = link.timeout_for(profile.answer_timeout, 1);
+    let modes = crate::driver::modbus::probe::read_modes(link, unit, profile, timeout)
         .await
         .map_err(CommissionError::Failed)?;
     let specs = profile

@@ -4,8 +4,8 @@
 use std::sync::Arc;
 
 use super::CommissionError;
-use super::line::{Target, timeout_for};
-use crate::bus::link::Link;
+use super::line::Target;
+use crate::driver::modbus::link::Link;
 use crate::profile::{Applies, ChannelSpec, Place, Profile, Setting};
 
 /// One requested change: setting name, channel (per-channel settings), value as typed.
@@ -165,7 +165,7 @@ pub(super) async fn current_words(
     changes: &[Change],
     answer: std::time::Duration,
 ) -> Result<Vec<u16>, CommissionError> {
-    let timeout = timeout_for(answer, link, 1);
+    let timeout = link.timeout_for(answer, 1);
     let mut out = Vec::new();
     for c in changes {
         match link.read(unit, c.register, 1, timeout).await {
@@ -192,7 +192,7 @@ pub(super) async fn write_changes(
     words: &[u16],
     answer: std::time::Duration,
 ) -> Result<(), CommissionError> {
-    let timeout = timeout_for(answer, link, 1);
+    let timeout = link.timeout_for(answer, 1);
     for (c, word) in changes.iter().zip(words) {
         let value = c.setting.with_field(*word, c.field);
         match link.write_register(unit, c.register, value, timeout).await {

@@ -4,8 +4,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use super::line::Target;
-use super::scan::Found;
 use crate::config::Parity;
+use crate::outcome::Found;
 
 /// A whole config file (gateway, MQTT, one bus) for the modules in `found`. The bus runs at the
 /// baud rate most of them answered at; a module at another rate gets its own `baud`.

@@ -6,10 +6,10 @@
 use config::ValueKind;
 
 use super::walk::{Errors, Table, join};
+use crate::config::policy::PolicyOverride;
+use crate::config::units::{ChannelUnits, RatePer, device_class_accepts};
+use crate::decimal::Decimal;
 use crate::profile::Profile;
-use crate::publish::decimal::Decimal;
-use crate::publish::policy::PolicyOverride;
-use crate::publish::units::{RatePer, device_class_accepts};
 
 /// What the gateway does with a ZH-YX1600 counter it finds stopped (command register 0, after
 /// power-up or someone else's stop).
@@ -140,21 +140,6 @@ pub(super) fn channel(
         publish,
         intervals,
     }
-}
-
-/// A channel's engineering units. Without `scale`, readings carry raw pulses only.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct ChannelUnits {
-    /// Units per pulse (0.001 for 1000 imp/kWh), exact as written.
-    pub scale: Option<Decimal>,
-    /// Unit of the scaled total (kWh, m³, L, mm…).
-    pub unit: Option<String>,
-    /// Unit of the scaled rate (kW, L/min…).
-    pub rate_unit: Option<String>,
-    /// The time base of the rate: per second, minute or hour.
-    pub rate_per: RatePer,
-    /// Home Assistant's device class of the total (energy, water, gas, volume, distance…).
-    pub device_class: Option<String>,
 }
 
 /// Reads the unit keys of one channel table; every problem goes to `errs`.

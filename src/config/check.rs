@@ -10,8 +10,7 @@ use super::walk::{Errors, Table, join};
 use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
-/// Longest answer timeout (a module that needs longer is not answering).
-pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
+use crate::profile::MAX_TIMEOUT;
 
 /// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
 pub const MAX_SPOOL_MB: u64 = 1 << 20;
@@ -123,7 +122,7 @@ pub fn id_from_host(host: &str) -> Option<String> {
         })
         .collect();
     let id = id.trim_matches('-').to_string();
-    super::is_topic_safe(&id).then_some(id)
+    crate::topics::is_topic_safe(&id).then_some(id)
 }
 
 fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Gateway {
@@ -146,7 +145,7 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
     };
     if let Some(id) = t.opt::<String>("id", errs) {
         g.id_from_hostname = None;
-        if super::is_topic_safe(&id) {
+        if crate::topics::is_topic_safe(&id) {
             g.id = id;
         } else {
             errs.push(
@@ -220,7 +219,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         batch: DEFAULT_BATCH,
     };
     let Some(mut t) = table else { return m };
-    if let Some(list) = super::sparkplug::formats(&mut t, crate::publish::format::NAMES, errs) {
+    if let Some(list) = super::sparkplug::formats(&mut t, super::publish::FORMAT_NAMES, errs) {
         m.format = list;
     }
     if let Some(v) = t.opt::<String>("protocol", errs) {
@@ -319,7 +318,7 @@ fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
     let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
     if let Some(tls) = &tls
         && files_exist
-        && let Err(e) = crate::publish::tls::client_config(tls)
+        && let Err(e) = crate::config::tls::client_config(tls)
     {
         errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
     }
@@ -385,7 +384,7 @@ fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
 fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Option<Bus> {
     let path = format!("buses.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) {
+    if !crate::topics::is_topic_safe(name) {
         errs.push(
             &path,
             t.origin(),
@@ -554,7 +553,7 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !super::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
+    if !crate::topics::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
         errs.push(
             &path,
             t.origin(),

@@ -8,9 +8,12 @@ pub mod channel;
 mod check;
 mod metering;
 mod metrics;
+pub mod policy;
 pub mod publish;
 mod socket;
 pub mod sparkplug;
+pub mod tls;
+pub mod units;
 mod walk;
 
 use std::collections::{BTreeMap, HashMap};
@@ -27,7 +30,7 @@ pub use metrics::Metrics as MetricsEndpoint;
 pub use publish::HomeAssistant;
 pub use sparkplug::Sparkplug;
 
-use crate::publish::policy::{PayloadMode, PolicyOverride};
+use crate::config::policy::{PayloadMode, PolicyOverride};
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
@@ -154,7 +157,7 @@ pub struct Mqtt {
     pub commands: bool,
     /// `mqtt.protocol`: "5" (default) or "3.1.1".
     pub protocol: MqttProtocol,
-    /// `mqtt.format`: how events become payloads, each one of [`crate::publish::format::NAMES`]
+    /// `mqtt.format`: how events become payloads, each one of [`publish::FORMAT_NAMES`]
     /// (a list runs them side by side: `["json", "sparkplug"]`).
     pub format: Vec<String>,
     /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
@@ -235,7 +238,7 @@ pub fn line_timing(link: &Link, guard: Duration) -> Option<crate::plan::LineTimi
             ..
         } => Some(crate::plan::LineTiming {
             baud: *baud,
-            bits_per_char: 1 + 8 + u32::from(*parity != Parity::None) + u32::from(*stop_bits),
+            bits_per_char: crate::plan::bits_per_char(*parity != Parity::None, *stop_bits),
             guard,
         }),
         Link::Tcp { .. } => None,
@@ -382,16 +385,6 @@ impl Config {
     pub fn enabled_devices(&self) -> impl Iterator<Item = (&Bus, &Device)> {
         self.devices().filter(|(b, d)| b.enabled && d.enabled)
     }
-}
-
-/// A name that can stand as one level of an MQTT topic and as a key in the environment:
-/// letters, digits, `-` and `_`, not empty, no wildcards or separators.
-pub fn is_topic_safe(name: &str) -> bool {
-    !name.is_empty()
-        && name.len() <= 64
-        && name
-            .chars()
-            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
 #[cfg(test)]

@@ -2,7 +2,10 @@
 //! `min_interval`, `payload`), and `[homeassistant]`.
 
 use super::walk::{Errors, MAX_DURATION, Table, join};
-use crate::publish::policy::{PayloadMode, PolicyOverride, PublishMode};
+/// The formats `mqtt.format` may name (each built by `publish::formats::build`).
+pub const FORMAT_NAMES: &[&str] = &["json", "sparkplug"];
+
+use crate::config::policy::{PayloadMode, PolicyOverride, PublishMode};
 
 /// Reads `publish`, `heartbeat` and `min_interval` of one table (`"0s"`: none).
 pub(crate) fn policy(t: &mut Table<'_>, errs: &mut Errors) -> PolicyOverride {

@@ -197,9 +197,9 @@ fn the_example_config_is_valid() {
 
 #[test]
 fn topic_safe_names() {
-    assert!(is_topic_safe("press-1_a"));
+    assert!(crate::topics::is_topic_safe("press-1_a"));
     for bad in ["", "a/b", "a+", "#", "a b", "ü"] {
-        assert!(!is_topic_safe(bad), "{bad:?}");
+        assert!(!crate::topics::is_topic_safe(bad), "{bad:?}");
     }
 }
 

@@ -5,8 +5,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use super::*;
-use crate::publish::policy::{PayloadMode, PublishMode};
-use crate::publish::units::RatePer;
+use crate::config::policy::{PayloadMode, PublishMode};
+use crate::config::units::RatePer;
 
 const BASE: &str = r#"
 [gateway]

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 use super::clock::Clock;
 use super::period::Period;
-use crate::counter::Event;
+use crate::event::Event;
 
 /// The interval being counted, as the state file keeps it (so a restart can close it).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]

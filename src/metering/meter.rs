@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::publish::decimal::{Decimal, DecimalError};
+use crate::decimal::{Decimal, DecimalError};
 
 /// The persisted offset of a channel's reading and when it was last set.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]

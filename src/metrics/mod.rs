@@ -19,7 +19,7 @@ use std::time::Duration;
 
 use prometheus::{Encoder, Gauge, Histogram, IntCounter, IntGauge, Registry, TextEncoder};
 
-use crate::bus::link::WireCounters;
+use crate::bus_health::WireCounters;
 use crate::config::Config;
 use crate::reading::Reading;
 use families::{Families, Gone};

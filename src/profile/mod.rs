@@ -13,6 +13,10 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Duration;
 
+/// Longest answer timeout, of a profile or of a bus or device in the config (a module that
+/// needs longer is not answering).
+pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
+
 pub use builtin::builtin_profiles;
 pub use raw::{ChannelKind, ValueType, WordOrder};
 pub use settings::{Allowed, Applies, Place, Setting, SettingError};
@@ -349,7 +353,7 @@ impl Profile {
                 Ok(())
             }
         };
-        if self.answer_timeout.is_zero() || self.answer_timeout > Duration::from_secs(60) {
+        if self.answer_timeout.is_zero() || self.answer_timeout > MAX_TIMEOUT {
             return Err("answer_timeout must be between 1ms and 60s".into());
         }
         if let Some((address, words)) = &self.identify {
@@ -427,7 +431,7 @@ impl Profile {
                 if !seen.insert(ch.name.clone()) {
                     return Err(format!("channel name {} appears twice", ch.name));
                 }
-                if !crate::config::is_topic_safe(&ch.name) {
+                if !crate::topics::is_topic_safe(&ch.name) {
                     return Err(format!("channel name {:?} is not safe in a topic", ch.name));
                 }
                 if ch.count.end() as u32 > 0xFFFF {

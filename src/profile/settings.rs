@@ -219,11 +219,6 @@ impl Setting {
         (word & !self.mask) | ((field << self.mask.trailing_zeros()) & self.mask)
     }
 
-    /// Whether the setting shares its register with other bits (read before writing).
-    pub fn is_partial(&self) -> bool {
-        self.mask != 0xFFFF
-    }
-
     /// The registers of a register setting, one per instance.
     pub fn registers(&self) -> Vec<u16> {
         match self.place {

@@ -15,9 +15,10 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::format::{Format, Reaction};
+use super::ha_entity::{Entity, Module, Site};
 use super::homeassistant::{
-    Entity, Module, Site, channel_entities, channel_spec, device_entities, gateway_entities,
-    module_topics, possible_topics,
+    channel_entities, channel_spec, device_entities, gateway_entities, module_topics,
+    possible_topics,
 };
 use crate::config::Config;
 use crate::outbox::Message;

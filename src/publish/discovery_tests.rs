@@ -7,7 +7,8 @@ use std::time::SystemTime;
 use serde_json::Value;
 
 use super::discovery::Discovery;
-use super::format::{Stage, chosen};
+use super::format::Stage;
+use super::formats::chosen;
 use crate::config::Config;
 use crate::counter::Update;
 use crate::profile::ChannelKind;
@@ -453,7 +454,8 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
     }
     // An encoder's position is no meter: no reading, no intervals; the press has no intervals
     // and no scale: neither.
-    use crate::publish::homeassistant::{Module, Site, channel_entities, channel_spec};
+    use crate::publish::ha_entity::{Module, Site};
+    use crate::publish::homeassistant::{channel_entities, channel_spec};
     let c = config(&text);
     let site = Site::of(&c);
     let objects = |device: &str, channel: &str, kind| -> Vec<String> {

@@ -5,8 +5,9 @@
 //!
 //! Adding one: a new file with a type that implements [`Format`], plus its config key. A payload
 //! format (today's JSON, [`super::json`], is the first) is named by `mqtt.format`: its name goes
-//! in [`NAMES`] and a line in [`build`]. A format that runs beside it (Home Assistant discovery,
-//! [`super::discovery`], under `[homeassistant] discovery`) is a line in [`chosen`].
+//! in `config::publish::FORMAT_NAMES` and a line in [`super::formats::build`]. A format that
+//! runs beside it (Home Assistant discovery, [`super::discovery`], under
+//! `[homeassistant] discovery`) is a line in [`super::formats::chosen`].
 //!
 //! Most formats only turn events into messages. A format also owns its lifecycle on the wire,
 //! as Telegraf's outputs own `Connect`/`Write`/`Close`: what it publishes at every connection
@@ -120,42 +121,6 @@ pub trait Format: Send + Sync {
     }
 }
 
-/// The formats `mqtt.format` may name.
-pub const NAMES: &[&str] = &["json", "sparkplug"];
-
-/// The payload format `name` (checked against [`NAMES`] when the config is read).
-pub fn build(config: &Config, name: &str) -> Box<dyn Format> {
-    match name {
-        "json" => Box::new(super::json::Json::new(config)),
-        "sparkplug" => Box::new(super::sparkplug::Sparkplug::new(config)),
-        other => unreachable_format(other, config),
-    }
-}
-
-/// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
-/// between [`NAMES`] and [`build`], never a crash of the gateway).
-fn unreachable_format(name: &str, config: &Config) -> Box<dyn Format> {
-    tracing::error!("output format {name:?} is not built in; publishing JSON");
-    Box::new(super::json::Json::new(config))
-}
-
-/// Every format the config chooses, in the order their messages go out: discovery first, so an
-/// entity is announced before its first reading.
-pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
-    let mut formats: Vec<Box<dyn Format>> = Vec::new();
-    if config.homeassistant.discovery {
-        formats.push(Box::new(super::discovery::Discovery::new(config)));
-    }
-    // Sparkplug first: its NDEATH must be the will (a connection has one), before JSON's
-    // `offline` status.
-    let mut names: Vec<&String> = config.mqtt.format.iter().collect();
-    names.sort_by_key(|n| n.as_str() != "sparkplug");
-    for name in names {
-        formats.push(build(config, name));
-    }
-    formats
-}
-
 /// One format's messages for one event.
 pub fn render(format: &mut dyn Format, event: &Output) -> Vec<Message> {
     format.messages(event)
@@ -230,7 +195,7 @@ impl Stage {
     }
 
     /// The first will a format sets (formats that must own the will come first in
-    /// [`chosen`]).
+    /// [`super::formats::chosen`]).
     pub fn will(&mut self) -> Option<Will> {
         self.formats.iter_mut().find_map(|f| f.will())
     }

@@ -3,10 +3,12 @@
 use std::time::{Duration, SystemTime};
 
 use super::*;
+use crate::config::publish::FORMAT_NAMES as NAMES;
 use crate::counter::Update;
 use crate::outbox::{MemoryStore, Outbox, Step, Store};
-use crate::publish::topics::Topics;
+use crate::publish::formats::build;
 use crate::reading::Reading;
+use crate::topics::Topics;
 
 fn reading(total: i64) -> Reading {
     Reading {
@@ -68,7 +70,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         ("pg/e1/press1/status", &b"offline"[..])
     );
     assert_eq!((m[0].qos, m[0].retain), (1, true));
-    let stats = crate::bus::stats::BusStats {
+    let stats = crate::bus_health::BusStats {
         utilisation: 0.5,
         transactions: 3,
         transactions_per_s: 0.1,

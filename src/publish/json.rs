@@ -1,16 +1,16 @@
 //! The JSON format: one message per reading (or per device poll), retained status words, bus
 //! health, command results, and the gateway's own status (`online` at every connection, its
-//! will `offline`). Payload shapes are in [`super::payload`]; topics in [`super::topics`].
+//! will `offline`). Payload shapes are in [`super::payload`]; topics in [`crate::topics`].
 //! Readings and statuses are owed; bus health and results are chatter (made again).
 
 use super::format::Format;
 use super::payload;
-use super::topics::Topics;
+use crate::topics::Topics;
 use std::collections::HashSet;
 
 use crate::config::Config;
+use crate::config::policy::PayloadMode;
 use crate::outbox::{Message, Will};
-use crate::publish::policy::PayloadMode;
 use crate::reading::{Output, Reading};
 
 /// Today's payloads.

@@ -10,8 +10,8 @@
 
 use serde_json::{Value, json};
 
-use super::homeassistant::{Entity, Module, Site, State, sensor};
-use crate::config::channel::ChannelUnits;
+use super::ha_entity::{Entity, Module, Site, State, sensor};
+use crate::config::units::ChannelUnits;
 use crate::profile::{ChannelKind, ChannelSpec};
 
 /// The meter-reading and interval sensors of channel `spec` of `m` (none for an encoder, whose

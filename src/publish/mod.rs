@@ -1,23 +1,20 @@
 //! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
 
 pub mod batch;
-pub mod decimal;
 pub mod discovery;
 pub mod format;
+pub mod formats;
+pub mod ha_entity;
 pub mod homeassistant;
 pub mod json;
 pub mod meter_entities;
 pub mod mqtt;
 pub mod payload;
-pub mod policy;
 pub mod poller;
 pub mod session;
 pub mod sparkplug;
 pub mod spool;
 pub mod spool_place;
-pub mod tls;
-pub mod topics;
-pub mod units;
 
 #[cfg(test)]
 mod discovery_tests;

@@ -35,12 +35,12 @@ use super::format::{Format, Stage};
 use super::poller::{Polled, Poller, Routes};
 use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
 use super::spool::Spool;
-use super::topics::Topics;
 use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
 use crate::health::Heart;
 use crate::outbox::{Message, Outbox, Step};
 use crate::reading::{Checkpoint, Output};
+use crate::topics::Topics;
 
 pub use crate::outbox::unsendable;
 
@@ -182,7 +182,7 @@ impl Shell {
 /// The client options of this gateway: a fresh client is built from them after every failure
 /// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
 /// never falls back to plaintext.
-pub fn client_options(config: &Mqtt) -> Result<Options, super::tls::TlsError> {
+pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
     let login = config.username.as_ref().map(|user| {
         let password = config.password.as_ref().map(|p| p.0.clone());
         (user.clone(), password.unwrap_or_default())
@@ -206,16 +206,16 @@ pub fn client_options(config: &Mqtt) -> Result<Options, super::tls::TlsError> {
 /// TLS: `check` refuses that config, and a config built another way must fail closed too.
 pub(crate) fn broker_transport(
     config: &Mqtt,
-) -> Result<(String, Option<Transport>), super::tls::TlsError> {
+) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
     match (&config.socket, &config.tls) {
-        (Some(path), Some(_)) => Err(super::tls::TlsError::OverSocket {
+        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
             socket: path.display().to_string(),
         }),
         (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
         (None, Some(tls)) => Ok((
             config.host.clone(),
             Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-                super::tls::client_config(tls)?,
+                crate::config::tls::client_config(tls)?,
             ))),
         )),
         (None, None) => Ok((config.host.clone(), None)),
@@ -232,7 +232,7 @@ pub struct Task {
     pub health: Arc<crate::health::Health>,
     pub boot: crate::boot::Boot,
     pub metrics: crate::metrics::Metrics,
-    /// The output stage's formats ([`super::format::chosen`]).
+    /// The output stage's formats ([`super::formats::chosen`]).
     pub formats: Vec<Box<dyn Format>>,
 }
 
@@ -677,9 +677,9 @@ struct Watch {
     up: Option<bool>,
     /// Chatter dropped when last logged, and the budget of those lines.
     chatter_dropped: u64,
-    chatter_log: crate::admission::LogBudget,
+    chatter_log: crate::log_budget::LogBudget,
     takeovers: u64,
-    takeover_log: crate::admission::LogBudget,
+    takeover_log: crate::log_budget::LogBudget,
     /// Wait before the next attempt after a failure.
     pause: Duration,
     /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
@@ -691,9 +691,9 @@ impl Watch {
         Watch {
             up: None,
             chatter_dropped: 0,
-            chatter_log: crate::admission::LogBudget::new(1),
+            chatter_log: crate::log_budget::LogBudget::new(1),
             takeovers: 0,
-            takeover_log: crate::admission::LogBudget::new(1),
+            takeover_log: crate::log_budget::LogBudget::new(1),
             pause: Duration::from_secs(1),
             protocol_named: false,
         }

@@ -9,7 +9,8 @@ use tokio::time::{Instant, advance};
 use super::*;
 use crate::command::CommandError;
 use crate::outcome::{CommandOutcome, Outcome};
-use crate::publish::format::{Stage, chosen};
+use crate::publish::format::Stage;
+use crate::publish::formats::chosen;
 
 fn refused(n: usize) -> Output {
     Output::CommandResult {

@@ -119,7 +119,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
     let (router, _) = tokio::sync::mpsc::channel(1);
     let p = Publisher {
         task,
-        stage: Stage::new(vec![super::super::format::build(&config(""), "json")]),
+        stage: Stage::new(vec![super::super::formats::build(&config(""), "json")]),
         reloads: tokio::sync::mpsc::unbounded_channel().1,
         shell,
         link,

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 use serde_json::value::RawValue;
 
-use crate::counter::Event;
+use crate::event::Event;
 use crate::reading::{IntervalRecord, Reading};
 
 /// The JSON of one reading.
@@ -72,7 +72,7 @@ pub fn interval(i: &IntervalRecord) -> String {
     let value = i
         .units
         .as_deref()
-        .and_then(|u| super::units::value(u, r.delta))
+        .and_then(|u| crate::config::units::value(u, r.delta))
         .and_then(|v| RawValue::from_string(v.to_string()).ok());
     let json = IntervalJson {
         start: iso(r.start_ms),
@@ -112,9 +112,9 @@ pub fn device(readings: &[Reading]) -> String {
 fn json_of(r: &Reading) -> ReadingJson {
     let units = r.units.as_deref();
     let value = units
-        .and_then(|u| super::units::value(u, r.update.total))
+        .and_then(|u| crate::config::units::value(u, r.update.total))
         .and_then(|v| RawValue::from_string(v.to_string()).ok());
-    let rate = units.and_then(|u| super::units::rate(u, r.update.rate_hz?));
+    let rate = units.and_then(|u| crate::config::units::rate(u, r.update.rate_hz?));
     let reading = units
         .and_then(|u| u.scale)
         .and_then(|s| crate::metering::meter::reading(&s, r.update.total, r.meter.as_ref()))
@@ -207,8 +207,9 @@ mod tests {
     }
 
     fn metered(total: i64, scale: &str, rate_hz: f64) -> Reading {
-        use crate::config::channel::ChannelUnits;
-        use crate::publish::{decimal::Decimal, units::RatePer};
+        use crate::config::units::ChannelUnits;
+        use crate::config::units::RatePer;
+        use crate::decimal::Decimal;
         Reading {
             device: "meter".into(),
             channel: "a0".into(),

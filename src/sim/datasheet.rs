@@ -50,9 +50,8 @@ pub fn factory_registers(model: &str) -> Vec<(u16, Vec<u16>)> {
 
 /// ZH-YX1600 counter mode words, one per counter (section 8.5).
 pub const ZH_MODE: u16 = 0x0700;
-/// ZH-YX1600 counter command registers, one per counter.
-#[allow(dead_code)] // documents the map; the command registers come from the profile
-pub const ZH_COMMAND: u16 = 0x1100;
+// 0x1100: the ZH-YX1600 counter command registers, one per counter; the simulator takes them
+// from the profile (`profiles/zh-yx1600.toml`), like the gateway.
 pub const ZH_LIVE_UPPER: u16 = 0x1110;
 pub const ZH_LIVE_LOWER: u16 = 0x1130;
 /// ZH-YX1600 frequency windows (u32, units of 10 ms, 0 = 1 s), two registers per counter.

@@ -266,7 +266,7 @@ fn carry(
     to_module: bool,
 ) {
     use serialport::SerialPort;
-    crate::bus::link::fine_timer_slack();
+    crate::driver::modbus::link::fine_timer_slack();
     let _ = from.set_timeout(Duration::from_millis(50));
     let mut buf = [0u8; 512];
     while !stop.load(Ordering::Relaxed) {

@@ -313,12 +313,6 @@ impl SimModule {
         }
     }
 
-    /// Writes a register as the module's own keypad or another master would, bypassing the
-    /// bus (tests: a mode word changed behind the gateway's back).
-    pub fn poke(&mut self, address: u16, value: u16) {
-        self.plain.insert(address, value);
-    }
-
     /// A ZH-YX1600 frequency window in seconds for counter `index` (0 = 1 s; units of 10 ms).
     fn zh_window_s(&self, index: u16) -> f64 {
         let a = ds::ZH_WINDOW + 2 * index;

@@ -230,9 +230,8 @@ async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_
     drop(broker);
 }
 
-fn decimal(v: &Value) -> pulsegate::publish::decimal::Decimal {
-    pulsegate::publish::decimal::Decimal::parse(&v.to_string())
-        .unwrap_or_else(|e| panic!("{v}: {e}"))
+fn decimal(v: &Value) -> pulsegate::decimal::Decimal {
+    pulsegate::decimal::Decimal::parse(&v.to_string()).unwrap_or_else(|e| panic!("{v}: {e}"))
 }
 
 /// The first reading on `topic` that arrived after `after`.
@@ -301,8 +300,8 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
         .collect();
     let at_set = before.last().unwrap()["total"].as_i64().unwrap();
     let after = reading_after(&sub, topic, answered).await;
-    let scale = pulsegate::publish::decimal::Decimal::parse("0.001").unwrap();
-    let display = pulsegate::publish::decimal::Decimal::parse("12345.678").unwrap();
+    let scale = pulsegate::decimal::Decimal::parse("0.001").unwrap();
+    let display = pulsegate::decimal::Decimal::parse("12345.678").unwrap();
     let total = after["total"].as_i64().unwrap();
     assert_eq!(
         decimal(&after["reading"]),
@@ -358,7 +357,7 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     );
     let after_cli = reading_after(&sub, topic, std::time::Instant::now()).await;
     let moved = decimal(&after_cli["reading"]);
-    let twenty = pulsegate::publish::decimal::Decimal::parse("20000").unwrap();
+    let twenty = pulsegate::decimal::Decimal::parse("20000").unwrap();
     let since_set = moved.minus(&twenty).unwrap();
     assert!(
         !since_set.to_string().starts_with('-') && since_set.to_f64() < 1.0,

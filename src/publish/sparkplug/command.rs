@@ -7,6 +7,9 @@ use bytes::Bytes;
 use super::proto::{Metric, Payload, Value};
 use crate::dispatch::Incoming;
 
+/// The NBIRTH metric a host writes to ask for a rebirth.
+pub const REBIRTH: &str = "Node Control/Rebirth";
+
 /// The most metrics one command may carry (a host writes one or a few at a time).
 pub const MAX_METRICS: usize = 64;
 
@@ -39,7 +42,7 @@ pub enum Write {
 impl Write {
     /// The same request as a JSON command on the device's channel command topic, so it goes
     /// through the router's checks and admission like any other.
-    pub fn incoming(&self, topics: &crate::publish::topics::Topics, device: &str) -> Incoming {
+    pub fn incoming(&self, topics: &crate::topics::Topics, device: &str) -> Incoming {
         let (channel, body) = match self {
             Write::Clear { channel } => (channel, serde_json::json!({"op": "clear"})),
             Write::Preset { channel, value } => {
@@ -68,9 +71,9 @@ fn decode(payload: &[u8]) -> Result<Payload, CommandError> {
 /// are not writable and are ignored.
 pub fn node(payload: &[u8]) -> Result<bool, CommandError> {
     let p = decode(payload)?;
-    Ok(p.metrics.iter().any(|m| {
-        m.name.as_deref() == Some(super::node::REBIRTH) && m.value == Some(Value::Boolean(true))
-    }))
+    Ok(p.metrics
+        .iter()
+        .any(|m| m.name.as_deref() == Some(REBIRTH) && m.value == Some(Value::Boolean(true))))
 }
 
 /// DCMD: the writes it asks for; `name_of` reads an alias the device's birth declared.

@@ -11,7 +11,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use super::proto::{Metric, Value, datatype};
-use crate::config::channel::ChannelUnits;
+use crate::config::units::ChannelUnits;
 use crate::profile::ChannelKind;
 use crate::reading::{Reading, unix_ms};
 
@@ -117,7 +117,7 @@ pub fn values(r: &Reading, shape: &ChannelShape) -> Vec<(String, u32, Option<Val
 }
 
 fn scaled(units: &ChannelUnits, total: i64) -> Option<Value> {
-    crate::publish::units::value(units, total).map(|d| Value::Double(d.to_f64()))
+    crate::config::units::value(units, total).map(|d| Value::Double(d.to_f64()))
 }
 
 /// The DDATA metrics of one reading: name and alias (the send turns them into alias only),

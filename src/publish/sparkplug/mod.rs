@@ -69,7 +69,7 @@ fn setup(config: &Config) -> Setup {
     };
     Setup {
         topics: topic::Topics::new(&group, &node),
-        commands: crate::publish::topics::Topics::new(&config.mqtt.topic_root),
+        commands: crate::topics::Topics::new(&config.mqtt.topic_root),
         primary_host: host,
         qos: config.mqtt.qos,
         devices: shapes(config),

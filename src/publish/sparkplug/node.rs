@@ -20,8 +20,6 @@ use crate::outbox::Message;
 use crate::publish::format::Reaction;
 use crate::reading::{Output, Reading};
 
-/// The NBIRTH metric a host writes to ask for a rebirth.
-pub const REBIRTH: &str = "Node Control/Rebirth";
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.
 pub const BD_SEQ: &str = "bdSeq";
 
@@ -50,7 +48,7 @@ struct DeviceNode {
 pub struct Setup {
     pub topics: Topics,
     /// Where DCMD writes go: the JSON command topics the command router takes.
-    pub commands: crate::publish::topics::Topics,
+    pub commands: crate::topics::Topics,
     pub primary_host: Option<String>,
     /// QoS of births and data (the will is QoS 1).
     pub qos: u8,
@@ -74,7 +72,7 @@ pub struct Node {
     /// The session's bdSeq.
     bd_seq: u8,
     /// Refused commands logged per minute.
-    log_budget: crate::admission::LogBudget,
+    log_budget: crate::log_budget::LogBudget,
     /// The last message numbered: its topic, stored and sent bytes.
     last_out: Option<(String, Bytes, Bytes)>,
 }
@@ -103,7 +101,7 @@ impl Node {
             born: false,
             seq: 0,
             bd_seq: 0,
-            log_budget: crate::admission::LogBudget::new(20),
+            log_budget: crate::log_budget::LogBudget::new(20),
             last_out: None,
         }
     }
@@ -215,7 +213,7 @@ impl Node {
                     Some(Value::Long(self.bd_seq.into())),
                 ),
                 Metric::new(
-                    REBIRTH,
+                    super::command::REBIRTH,
                     None,
                     datatype::BOOLEAN,
                     Some(Value::Boolean(false)),

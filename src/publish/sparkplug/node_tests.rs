@@ -1,9 +1,10 @@
 use std::time::{Duration, SystemTime};
 
 use super::*;
-use crate::counter::{Event, Update};
+use crate::counter::Update;
+use crate::event::Event;
 use crate::profile::ChannelKind;
-use crate::publish::sparkplug::command::dcmd;
+use crate::publish::sparkplug::command::{REBIRTH, dcmd};
 
 fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
     ChannelShape {
@@ -19,7 +20,7 @@ fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
 fn setup(host: Option<&str>) -> Setup {
     Setup {
         topics: Topics::new("plant", "e1"),
-        commands: crate::publish::topics::Topics::new("pg/e1"),
+        commands: crate::topics::Topics::new("pg/e1"),
         primary_host: host.map(str::to_string),
         qos: 1,
         devices: vec![

@@ -105,7 +105,6 @@ pub enum PropertyKind {
 /// Sparkplug `DataType` codes the gateway uses.
 pub mod datatype {
     pub const INT64: u32 = 4;
-    pub const UINT8: u32 = 5;
     pub const UINT64: u32 = 8;
     pub const DOUBLE: u32 = 10;
     pub const BOOLEAN: u32 = 11;

@@ -71,7 +71,7 @@ fn a_retained_dcmd_is_stale_and_ignored_a_fresh_one_is_a_command() {
 #[test]
 fn with_both_formats_the_will_is_the_ndeath() {
     let c = config("");
-    let mut stage = crate::publish::format::Stage::new(crate::publish::format::chosen(&c));
+    let mut stage = crate::publish::format::Stage::new(crate::publish::formats::chosen(&c));
     let will = stage.will().unwrap();
     assert_eq!(will.topic, "spBv1.0/plant/NDEATH/e1");
     assert!(!will.retain);

@@ -3,8 +3,7 @@
 //! `spBv1.0/<group>/<NBIRTH|NDEATH|NDATA|NCMD>/<node>`,
 //! `spBv1.0/<group>/<DBIRTH|DDEATH|DDATA|DCMD>/<node>/<device>`, `spBv1.0/STATE/<host>`.
 
-/// The namespace of Sparkplug B.
-pub const NAMESPACE: &str = "spBv1.0";
+use crate::topics::SPARKPLUG_NAMESPACE as NAMESPACE;
 
 /// A message type of the node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

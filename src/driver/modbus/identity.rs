@@ -7,9 +7,6 @@ use std::sync::Arc;
 
 use tokio_modbus::ExceptionCode;
 
-use super::device::DeviceRt;
-use super::link::Link;
-use super::modbus::{ModbusDevice, PollError};
 use crate::profile::{Profile, Profiles};
 
 /// The identification of one known model.
@@ -101,56 +98,6 @@ pub fn judge(
 fn hex(words: &[u16]) -> String {
     let w: Vec<String> = words.iter().map(|w| format!("{w:#06x}")).collect();
     format!("[{}]", w.join(", "))
-}
-
-impl DeviceRt<ModbusDevice> {
-    /// Reads the identification registers and judges them. Link failures (no answer) are
-    /// returned as such: they say nothing about the model.
-    pub(super) async fn identify(&mut self, link: &mut Link) -> Result<Verdict, PollError> {
-        let Some(expected) = self.profile.identify.clone() else {
-            return Ok(Verdict::Confirmed);
-        };
-        let own = self
-            .read_identity(link, expected.0, expected.1.len())
-            .await?;
-        if matches!(&own, Ok(w) if *w == expected.1) {
-            return Ok(Verdict::Confirmed);
-        }
-        let known = self.proto.known.clone();
-        let mut others = Vec::new();
-        for id in known
-            .iter()
-            .filter(|i| i.words != expected.1 || i.address != expected.0)
-        {
-            let answer = if id.address == expected.0 && id.words.len() == expected.1.len() {
-                own.clone()
-            } else {
-                self.read_identity(link, id.address, id.words.len()).await?
-            };
-            if answer.as_ref().is_ok_and(|w| *w == id.words) {
-                others.push(id);
-            }
-        }
-        Ok(judge(&self.config.model, &expected, &own, &others))
-    }
-
-    async fn read_identity(
-        &mut self,
-        link: &mut Link,
-        address: u16,
-        len: usize,
-    ) -> Result<Result<Vec<u16>, ExceptionCode>, PollError> {
-        let len = len as u16;
-        let timeout = self.timeout_for(link, len);
-        let mut tries = 0;
-        loop {
-            match link.read(self.proto.unit, address, len, timeout).await {
-                // Lost to noise: asked again as a poll's read is (see `asks_again`).
-                Err(e) if self.asks_again(&e, tries) => tries += 1,
-                other => return Ok(other?),
-            }
-        }
-    }
 }
 
 #[cfg(test)]

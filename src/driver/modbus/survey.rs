@@ -7,15 +7,15 @@
 
 use std::time::Duration;
 
-use serde::Serialize;
 use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::link::Link;
+use super::probe::{describe, parse_units};
 use crate::command::Reply;
-use crate::commission::scan::{Found, describe, parse_units};
+use crate::outcome::{Found, ScanProgress};
 use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
@@ -31,24 +31,6 @@ pub struct ScanRequest {
     pub reply: Reply,
     /// Where each module found is reported as it answers (`<request topic>/progress`).
     pub progress: String,
-}
-
-/// A module the scan found, reported as it answers (the result lists it again).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ScanProgress {
-    pub bus: String,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub id: Option<String>,
-    pub found: Found,
-    /// Units asked so far, and still to ask.
-    pub asked: usize,
-    pub pending: usize,
-    pub elapsed_ms: u64,
-}
-
-/// `<root>/bus/<bus>/scan` → the bus name.
-pub fn parse_scan_topic<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
-    crate::publish::topics::parse_scan(root, topic)
 }
 
 /// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.
@@ -201,8 +183,8 @@ pub async fn idle_step(
         return false;
     };
     let profiles = Profiles::builtin();
-    let answer = crate::commission::scan::answer_time(&profiles);
-    let timeout = crate::commission::line_timeout(answer, link, 3);
+    let answer = super::probe::answer_time(&profiles);
+    let timeout = link.timeout_for(answer, 3);
     let cost = timeout
         + link
             .timing()
@@ -215,11 +197,7 @@ pub async fn idle_step(
         && !shutdown.is_cancelled()
     {
         used = true;
-        let found = match crate::commission::identify::identify(
-            link, &profiles, unit, timeout, false,
-        )
-        .await
-        {
+        let found = match super::probe::identify(link, &profiles, unit, timeout, false).await {
             Ok(Some(identified)) => {
                 let baud = link.timing().map(|t| t.baud);
                 let mut f = describe(link, baud, unit, identified, timeout, Some(next_due)).await;
@@ -257,20 +235,6 @@ fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_scan_topic_names_one_bus_under_the_root() {
-        assert_eq!(
-            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan"),
-            Some("line1")
-        );
-        assert_eq!(
-            parse_scan_topic("pg/gw", "pg/gw/bus/line1/scan/result"),
-            None
-        );
-        assert_eq!(parse_scan_topic("pg/gw", "pg/gw/bus//scan"), None);
-        assert_eq!(parse_scan_topic("pg/gw", "pg/other/bus/line1/scan"), None);
-    }
 
     #[test]
     fn a_payload_gives_units_and_id_and_nothing_else() {

@@ -1,8 +1,22 @@
 //! Engineering units of a reading: the scaled total (`value`) and the scaled rate (`rate`), and
 //! which Home Assistant device classes fit which units. Pure.
 
-use super::decimal::Decimal;
-use crate::config::channel::ChannelUnits;
+use crate::decimal::Decimal;
+
+/// A channel's engineering units. Without `scale`, readings carry raw pulses only.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ChannelUnits {
+    /// Units per pulse (0.001 for 1000 imp/kWh), exact as written.
+    pub scale: Option<Decimal>,
+    /// Unit of the scaled total (kWh, m³, L, mm…).
+    pub unit: Option<String>,
+    /// Unit of the scaled rate (kW, L/min…).
+    pub rate_unit: Option<String>,
+    /// The time base of the rate: per second, minute or hour.
+    pub rate_per: RatePer,
+    /// Home Assistant's device class of the total (energy, water, gas, volume, distance…).
+    pub device_class: Option<String>,
+}
 
 /// The time base of a rate: pulses per second × scale × this many seconds.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

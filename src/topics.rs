@@ -1,6 +1,19 @@
 //! Topic names under the gateway's root, both ways: what the gateway publishes, what it
 //! subscribes to, and how an arriving topic is read. The one place for these rules. Pure.
 
+/// The namespace of Sparkplug B.
+pub const SPARKPLUG_NAMESPACE: &str = "spBv1.0";
+
+/// A name that can stand as one level of an MQTT topic and as a key in the environment:
+/// letters, digits, `-` and `_`, not empty, no wildcards or separators.
+pub fn is_topic_safe(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= 64
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
 /// Topics of one gateway.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Topics {
@@ -12,10 +25,6 @@ impl Topics {
         Topics {
             root: root.to_string(),
         }
-    }
-
-    pub fn root(&self) -> &str {
-        &self.root
     }
 
     /// `<root>/status`: retained online/offline of the gateway (its last will).
@@ -83,7 +92,8 @@ impl Topics {
         ]
     }
 
-    /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
+    /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`. The
+    /// one reader of command topics (the router asks it).
     pub fn parse_command<'a>(&self, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
         parse_command(&self.root, topic)
     }
@@ -145,7 +155,7 @@ impl ResponseRule {
         if under(&self.discovery_prefix) {
             return Err("it is under the Home Assistant discovery prefix");
         }
-        if under(super::sparkplug::topic::NAMESPACE) {
+        if under(SPARKPLUG_NAMESPACE) {
             return Err("it is in the Sparkplug B namespace (births, data and deaths of nodes)");
         }
         if matches!(topic.rsplit('/').next(), Some("cmd" | "scan")) {
@@ -156,7 +166,7 @@ impl ResponseRule {
 }
 
 /// Splits a command topic `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`.
-pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
+fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {
     let rest = topic.strip_prefix(root)?.strip_prefix('/')?;
     let rest = rest.strip_suffix("/cmd")?;
     match rest.split('/').collect::<Vec<_>>()[..] {
@@ -169,7 +179,7 @@ pub fn parse_command<'a>(root: &str, topic: &'a str) -> Option<(&'a str, Option<
 }
 
 /// The bus of a scan request topic `<root>/bus/<bus>/scan`.
-pub fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
+fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
     let rest = topic.strip_prefix(root)?.strip_prefix("/bus/")?;
     let bus = rest.strip_suffix("/scan")?;
     (!bus.is_empty() && !bus.contains('/')).then_some(bus)
@@ -178,6 +188,29 @@ pub fn parse_scan<'a>(root: &str, topic: &'a str) -> Option<&'a str> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn command_topics_name_device_and_channel() {
+        assert_eq!(
+            parse_command("pg/e1", "pg/e1/press/enc0/cmd"),
+            Some(("press", Some("enc0")))
+        );
+        assert_eq!(
+            parse_command("pg/e1", "pg/e1/press/cmd"),
+            Some(("press", None))
+        );
+        assert_eq!(parse_command("pg/e1", "pg/e1/press/enc0/cmd/result"), None);
+        assert_eq!(parse_command("pg/e1", "pg/e1/a/b/c/cmd"), None);
+        assert_eq!(parse_command("pg/e1", "other/press/cmd"), None);
+    }
+
+    #[test]
+    fn the_scan_topic_names_one_bus_under_the_root() {
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus/line1/scan"), Some("line1"));
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus/line1/scan/result"), None);
+        assert_eq!(parse_scan("pg/gw", "pg/gw/bus//scan"), None);
+        assert_eq!(parse_scan("pg/gw", "pg/other/bus/line1/scan"), None);
+    }
 
     #[test]
     fn topics_sit_under_the_root() {

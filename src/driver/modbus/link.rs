@@ -25,7 +25,7 @@ use tokio_modbus::{ExceptionCode, Request, Response, Slave};
 use super::serial::{RtuPort, expected_len};
 
 use crate::config::{Link as LinkConfig, Parity};
-use crate::plan::LineTiming;
+use crate::plan::{LineTiming, REQUEST_BYTES, read_answer_bytes};
 
 /// Why a transaction got no usable answer. The device answering with an exception is not one of
 /// these: that is `Ok(Err(ExceptionCode))`, as in tokio-modbus.
@@ -72,7 +72,7 @@ impl LinkError {
 /// A transaction's outcome: the link failed, or the device answered (possibly an exception).
 pub type Answer<T> = Result<Result<T, ExceptionCode>, LinkError>;
 
-pub use super::stats::WireCounters;
+use crate::bus_health::WireCounters;
 
 /// One bus's wire.
 pub struct Link {
@@ -120,6 +120,12 @@ impl Link {
             timer: None,
             answer_time: None,
         }
+    }
+
+    /// How long to wait for the answer to a read of `len` registers from a device that takes
+    /// `answer` to answer, at the line's own rate ([`crate::plan::read_timeout`]).
+    pub fn timeout_for(&self, answer: Duration, len: u16) -> Duration {
+        crate::plan::read_timeout(answer, self.timing().as_ref(), len)
     }
 
     /// Character timing of the line while talking to `unit` (its own rate where it has one).
@@ -452,9 +458,9 @@ impl Link {
 fn answer_len_for(frame: &[u8]) -> Option<usize> {
     match frame {
         [_, 0x03 | 0x04, _, _, hi, lo, ..] => {
-            Some(5 + 2 * usize::from(u16::from_be_bytes([*hi, *lo])))
+            Some(read_answer_bytes(u16::from_be_bytes([*hi, *lo])))
         }
-        [_, 0x06 | 0x10, ..] => Some(8),
+        [_, 0x06 | 0x10, ..] => Some(REQUEST_BYTES),
         _ => None,
     }
 }

@@ -31,9 +31,9 @@ use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tokio::time::Instant;
 
 use super::timer::FineTimer;
-
-/// The shortest Modbus RTU answer: an exception (unit, function | 0x80, code, CRC).
-pub const SHORTEST_ANSWER: usize = 5;
+use crate::plan::{
+    ANSWER_OVERHEAD_BYTES, EXCEPTION_BYTES, LineTiming, REQUEST_BYTES, bits_per_char,
+};
 
 /// How long the line may stay quiet past an answer's end before the answer counts as cut short:
 /// enough for an adapter that holds bytes for its latency timer (16 ms for an FTDI chip left at
@@ -60,9 +60,8 @@ pub struct RtuPort {
     /// The answer is short of its length and the line went quiet at its end: the timer ends
     /// the grace after which it is cut short.
     cut: bool,
-    /// Bits a character takes on the wire (start, 8 data, parity, stop) and the rate.
-    bits_per_char: u32,
-    baud: u32,
+    /// The rate and bits per character the port is set to (the guard is the link's).
+    timing: LineTiming,
 }
 
 impl RtuPort {
@@ -72,7 +71,7 @@ impl RtuPort {
         // Another process on the same adapter would garble every frame.
         let _ = port.set_exclusive(true);
         set_nonblocking(port.as_raw_fd())?;
-        let parity = u32::from(port.parity()? != serialport::Parity::None);
+        let parity = port.parity()? != serialport::Parity::None;
         let stop = if port.stop_bits()? == serialport::StopBits::Two {
             2
         } else {
@@ -84,8 +83,11 @@ impl RtuPort {
             timer: FineTimer::new()?,
             quiet: false,
             cut: false,
-            bits_per_char: 1 + 8 + parity + stop,
-            baud,
+            timing: LineTiming {
+                baud,
+                bits_per_char: bits_per_char(parity, stop),
+                guard: Duration::ZERO,
+            },
         };
         rtu.watch()?;
         Ok(rtu)
@@ -105,7 +107,7 @@ impl RtuPort {
             Watch::Quiet(port) => port.set_baud_rate(baud)?,
             Watch::Switching => unreachable!("port switching between watched and quiet"),
         }
-        self.baud = baud;
+        self.timing.baud = baud;
         Ok(())
     }
 
@@ -119,20 +121,17 @@ impl RtuPort {
         self.tty().bytes_to_read().map_or(0, |n| n as usize)
     }
 
-    /// Time on the wire of `chars` characters.
     /// The line's timing at the rate the port is set to now (a unit may have its own).
-    pub fn timing(&self, guard: Duration) -> crate::plan::LineTiming {
-        crate::plan::LineTiming {
-            baud: self.baud,
-            bits_per_char: self.bits_per_char,
+    pub fn timing(&self, guard: Duration) -> LineTiming {
+        LineTiming {
             guard,
+            ..self.timing
         }
     }
 
+    /// Time on the wire of `chars` characters.
     pub fn line_time(&self, chars: usize) -> Duration {
-        Duration::from_nanos(
-            chars as u64 * u64::from(self.bits_per_char) * 1_000_000_000 / u64::from(self.baud),
-        )
+        self.timing.frame_time(chars)
     }
 
     /// A new answer is awaited: watched, and nothing of the last one's grace is left.
@@ -203,9 +202,9 @@ fn set_nonblocking(fd: i32) -> io::Result<()> {
 pub fn expected_len(head: &[u8]) -> Option<usize> {
     let (&function, &count) = (head.get(1)?, head.get(2)?);
     match function {
-        f if f & 0x80 != 0 => Some(SHORTEST_ANSWER),
-        0x03 | 0x04 => Some(5 + usize::from(count)),
-        0x06 | 0x10 => Some(8),
+        f if f & 0x80 != 0 => Some(EXCEPTION_BYTES),
+        0x03 | 0x04 => Some(ANSWER_OVERHEAD_BYTES + usize::from(count)),
+        0x06 | 0x10 => Some(REQUEST_BYTES),
         _ => None,
     }
 }

@@ -6,13 +6,13 @@ use std::collections::BTreeSet;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::DeviceRt;
-use super::driver::Executed;
+use super::device::{ModbusDevice, Snapshot};
 use super::link::Link;
-use super::modbus::{ModbusDevice, Snapshot};
+use crate::bus::device::DeviceRt;
+use crate::bus::driver::Executed;
 use crate::command::{CommandError, Op, Request};
-use crate::counter::Event;
 use crate::decode::{decode, encode_int};
+use crate::event::Event;
 use crate::profile::Register;
 use crate::reading::Reading;
 

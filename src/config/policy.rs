@@ -139,7 +139,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::counter::Event;
+    use crate::event::Event;
 
     fn update(delta: i64, total: i64) -> Update {
         Update {

@@ -50,8 +50,7 @@ pub fn files(dir: &Path) -> Result<Vec<(String, PathBuf)>, StateError> {
 
 /// The configured device (on `bus`) that state `key` belongs to.
 pub fn owner(config: &Config, bus: &str, key: &str) -> Option<String> {
-    let mut parts = key.splitn(3, '/');
-    let (unit, model, channel) = (parts.next()?, parts.next()?, parts.next()?);
+    let (unit, model, channel) = crate::state::split_channel_key(key)?;
     let b = config.buses.iter().find(|b| b.name == bus)?;
     b.devices
         .iter()

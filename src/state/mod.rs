@@ -6,6 +6,9 @@
 //! overwritten: it is moved aside (`bus-<name>.json.bad-<unix time>`) and the bus refuses to
 //! start from zero on its own guess. The operator restores it or deletes the moved-aside file.
 
+pub mod lock;
+pub mod prune;
+
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::ops::Range;
@@ -92,6 +95,17 @@ pub fn channel_key(unit: u8, model: &str, channel: &str) -> String {
 /// The key of a device's holes.
 pub fn device_key(unit: u8, model: &str) -> String {
     format!("{unit}/{model}")
+}
+
+/// The unit, model and channel a channel key names (the reverse of [`channel_key`]).
+pub fn split_channel_key(key: &str) -> Option<(&str, &str, &str)> {
+    let mut parts = key.splitn(3, '/');
+    Some((parts.next()?, parts.next()?, parts.next()?))
+}
+
+/// Whether channel key `key` is a channel of the device `unit`/`model`.
+pub fn is_channel_of(key: &str, unit: u8, model: &str) -> bool {
+    split_channel_key(key).is_some_and(|(u, m, _)| u == unit.to_string() && m == model)
 }
 
 /// Where bus `bus` keeps its state.

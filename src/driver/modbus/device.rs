@@ -2,7 +2,6 @@
 //! work modes and the channels they give, slow registers, then counts and frequencies read in
 //! planned blocks (holes learnt from exception 02 are read around).
 
-use std::collections::BTreeMap;
 use std::ops::Range;
 use std::sync::Arc;
 use std::time::Duration;
@@ -10,19 +9,18 @@ use std::time::Duration;
 use tokio::time::Instant;
 use tokio_modbus::ExceptionCode;
 
-use super::device::{At, ChannelRt, DeviceRt, ProtocolError};
-use super::driver::DeviceState;
-use super::identity::{Identity, Verdict};
+use super::identity::Identity;
 use super::link::{Link, LinkError};
 use super::retry::{Lost, NOISE_RETRIES, Next, Tries};
-use super::run::RunState;
+use super::run_state::RunState;
 use super::sizing::{Change, Prices, Sizing};
-use super::stats::RequestSize;
-use crate::config::{Bus, ChannelConfig, Device, Run};
-use crate::counter::{Counter, CounterSpec, Direction};
+use crate::bus::device::{At, DeviceRt, ProtocolError};
+use crate::bus::driver::DeviceState;
+use crate::bus_health::RequestSize;
+use crate::config::{Bus, Device, Run};
 use crate::decode::decode;
 use crate::plan::{Block, PollPlan, Wire, plan_reads_within};
-use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
+use crate::profile::Register;
 use crate::reading::Reading;
 use crate::state::device_key;
 
@@ -37,19 +35,29 @@ pub enum ModbusError {
         len: u16,
         exception: ExceptionCode,
     },
+    /// The module is not the configured model: out of service, no readings.
+    #[error("wrong model: {0}")]
+    WrongModel(String),
 }
 
 impl ProtocolError for ModbusError {
     fn device_answered(&self) -> bool {
         match self {
             ModbusError::Link(l) => l.device_answered(),
-            ModbusError::Refused { .. } => true,
+            ModbusError::Refused { .. } | ModbusError::WrongModel(_) => true,
+        }
+    }
+
+    fn out_of_service(&self) -> Option<&str> {
+        match self {
+            ModbusError::WrongModel(why) => Some(why),
+            _ => None,
         }
     }
 }
 
 /// A poll error of the Modbus driver.
-pub type PollError = super::device::PollError<ModbusError>;
+pub type PollError = crate::bus::device::PollError<ModbusError>;
 
 impl From<LinkError> for PollError {
     fn from(e: LinkError) -> PollError {
@@ -82,9 +90,13 @@ pub(super) struct ModbusChannel {
     /// The counting window of a frequency register that holds pulses per window, in seconds;
     /// `None` while unknown (then no frequency is published).
     pub(super) window_s: Option<f64>,
-    window_bad: bool,
+    pub(super) window_bad: bool,
     /// The power-on state was checked (and set where configured) in this run.
     pub(super) power_on_done: bool,
+    /// What to do when the counter is found stopped (modules with a command register).
+    pub(super) run: Run,
+    /// Resume the counter when it is found paused.
+    pub(super) resume_paused: bool,
 }
 
 /// What a Modbus driver keeps of one device: its unit, the register plan and what shapes it
@@ -92,32 +104,36 @@ pub(super) struct ModbusChannel {
 pub struct ModbusDevice {
     pub unit: u8,
     /// Where the holes are saved in the state file.
-    holes_key: String,
+    pub(super) holes_key: String,
     /// Answer timeout before line time is added.
-    answer_timeout: Duration,
-    wire: Wire,
-    modes: Option<Vec<u16>>,
-    fast: Vec<Register>,
+    pub(super) answer_timeout: Duration,
+    pub(super) wire: Wire,
+    pub(super) modes: Option<Vec<u16>>,
+    pub(super) fast: Vec<Register>,
     /// Per channel, in the order of the device's channels.
     pub(super) channels: Vec<ModbusChannel>,
     /// Register ranges the device refused (exception 02): never bridged again.
     pub holes: Vec<Range<u16>>,
-    last_slow: Option<Instant>,
-    slow_every: Duration,
+    pub(super) last_slow: Option<Instant>,
+    pub(super) slow_every: Duration,
     /// The plan of the last read asked for (the count poll asks for the same every time).
-    plan_memo: Option<PollPlan>,
+    pub(super) plan_memo: Option<PollPlan>,
     /// The longest read allowed now: shorter after answers lost to noise.
-    sizing: Sizing,
+    pub(super) sizing: Sizing,
     /// How the count poll is cut into requests now, for the bus stats.
-    poll_shape: Option<RequestSize>,
+    pub(super) poll_shape: Option<RequestSize>,
     /// Measured turnaround (seconds, moving average), RTU only.
-    turnaround: Option<f64>,
+    pub(super) turnaround: Option<f64>,
     /// The module's identity is to be checked before the next poll (at discovery, after a
     /// reset).
     pub(super) identify_due: bool,
     /// Identification of every known model, to name what a wrong module is.
     pub(super) known: Arc<[Identity]>,
-    unidentified_warned: bool,
+    pub(super) unidentified_warned: bool,
+    /// Quadrature pairs whose two mode words disagree, described; and its last change, not
+    /// yet published.
+    pub(super) mode_mismatch: Option<String>,
+    pub(super) mismatch_changed: Option<Option<String>>,
 }
 
 impl ModbusDevice {
@@ -140,6 +156,8 @@ impl ModbusDevice {
             identify_due: true,
             known: Arc::from(Vec::new()),
             unidentified_warned: false,
+            mode_mismatch: None,
+            mismatch_changed: None,
         }
     }
 
@@ -165,6 +183,21 @@ impl ModbusDevice {
         self.identify_due = true;
         self.last_slow = None;
     }
+
+    /// Records the mode-word mismatch of device `name` found now (logged once per change).
+    pub(super) fn set_mismatch(&mut self, name: &str, now: Option<String>) {
+        if self.mode_mismatch == now {
+            return;
+        }
+        match &now {
+            Some(why) => {
+                tracing::error!(device = %name, "{why}: the module does not count that quadrature pair; its channel is not published until both words agree (after a module restart)")
+            }
+            None => tracing::info!(device = %name, "mode words agree again"),
+        }
+        self.mode_mismatch = now.clone();
+        self.mismatch_changed = Some(now);
+    }
 }
 
 impl DeviceState for ModbusDevice {
@@ -177,6 +210,11 @@ impl DeviceState for ModbusDevice {
         if matches!(e, PollError::Protocol(ModbusError::Refused { .. })) && self.discovered() {
             self.module_restarted();
         }
+    }
+
+    fn status_change(&mut self) -> Option<Option<&'static str>> {
+        let now = self.mismatch_changed.take()?;
+        Some(now.map(|_| "mode_mismatch"))
     }
 
     fn went_offline(&mut self) {
@@ -263,14 +301,14 @@ impl DeviceRt<ModbusDevice> {
                 _ => None,
             };
             if let Some((w, _)) = mb.command.and_then(|r| snapshot.get(&r)) {
-                match super::run::run_state(&ch.spec, w[0]) {
+                match super::run_state::run_state(&ch.spec, w[0]) {
                     // The module cleared it; the gateway starts it after this read.
-                    RunState::Stopped if ch.run != Run::Leave => {
+                    RunState::Stopped if mb.run != Run::Leave => {
                         stopped.push((i, count, at, freq_hz, rpm));
                         continue;
                     }
                     RunState::Running(d) => ch.counter.spec.direction = d,
-                    RunState::Paused if ch.resume_paused => paused.push(i),
+                    RunState::Paused if mb.resume_paused => paused.push(i),
                     _ => {}
                 }
             }
@@ -279,7 +317,7 @@ impl DeviceRt<ModbusDevice> {
                 tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
                 continue;
             };
-            if update.event == Some(crate::counter::Event::Reset) {
+            if update.event == Some(crate::event::Event::Reset) {
                 restarted = true;
             }
             let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);
@@ -299,222 +337,6 @@ impl DeviceRt<ModbusDevice> {
             self.proto.module_restarted();
         }
         Ok(readings)
-    }
-
-    /// Discovery when due (identity, then the work modes and slow registers that give the
-    /// channels), and the slow registers' refresh.
-    pub async fn discover(
-        &mut self,
-        link: &mut Link,
-        preempt: &(dyn Fn() -> bool + Sync),
-    ) -> Result<(), PollError> {
-        if self.proto.identify_due {
-            self.check_identity(link).await?;
-        }
-        let slow_due = self
-            .proto
-            .last_slow
-            .is_none_or(|t| t.elapsed() >= self.proto.slow_every);
-        if self.proto.modes.is_none() {
-            // Without the work modes there are no channels: discovery must succeed.
-            self.read_slow(link, preempt).await?;
-        } else if slow_due {
-            // Once discovered, a failed refresh of the slow registers keeps the values known
-            // and tries again a slow interval later; the counts matter more.
-            match self.read_slow(link, preempt).await {
-                Err(PollError::Preempted) => return Err(PollError::Preempted),
-                Err(e) => {
-                    tracing::debug!(device = %self.name, "slow registers not refreshed: {e}");
-                    self.proto.last_slow = Some(Instant::now());
-                }
-                Ok(()) => {}
-            }
-        }
-        Ok(())
-    }
-
-    /// Checks the module's identity (due at discovery and after a reset).
-    async fn check_identity(&mut self, link: &mut Link) -> Result<(), PollError> {
-        match self.identify(link).await? {
-            Verdict::Confirmed => {}
-            Verdict::Unidentified => {
-                if !std::mem::replace(&mut self.proto.unidentified_warned, true) {
-                    tracing::warn!(device = %self.name, model = %self.config.model, "the module refuses its identification registers; accepted as configured");
-                }
-            }
-            Verdict::Wrong(why) => return Err(PollError::WrongModel(why)),
-        }
-        self.proto.identify_due = false;
-        if let Some(was) = self.wrong_model.take() {
-            tracing::info!(device = %self.name, "the module is now the configured model (was: {was})");
-            self.metrics.wrong_model(false);
-        }
-        Ok(())
-    }
-
-    /// Reads work modes (and with them the channel set) and pulses per revolution.
-    async fn read_slow(
-        &mut self,
-        link: &mut Link,
-        preempt: &(dyn Fn() -> bool + Sync),
-    ) -> Result<(), PollError> {
-        let mode_regs = self.profile.mode_registers();
-        let word = |address| Register {
-            address,
-            ty: ValueType::U16,
-        };
-        // The mode words, then the partner words that must agree with them.
-        let regs: Vec<Register> = mode_regs
-            .iter()
-            .map(|m| word(m.address))
-            .chain(mode_regs.iter().filter_map(|m| m.partner.map(word)))
-            .collect();
-        let snap = self.read_registers(link, &regs, preempt).await?;
-        // Masked: bits outside the mask (a counter's power-on state) are no work mode.
-        let masks = mode_regs.iter().map(|m| m.mask).chain(
-            mode_regs
-                .iter()
-                .filter(|m| m.partner.is_some())
-                .map(|m| m.mask),
-        );
-        let modes: Vec<u16> = regs
-            .iter()
-            .zip(masks)
-            .filter_map(|(r, mask)| snap.get(r).map(|(w, _)| w[0] & mask))
-            .collect();
-        let mut specs = self
-            .profile
-            .channels(&modes)
-            .map_err(|e| PollError::Profile(e.to_string()))?;
-        let value = |a| snap.get(&word(a)).map(|(w, _)| w[0]);
-        // (mode word, description) of each pair whose two words disagree.
-        let mismatched: Vec<(u16, String)> = mode_regs
-            .iter()
-            .filter_map(|m| {
-                let (own, partner) = (value(m.address)?, value(m.partner?)?);
-                ((own ^ partner) & m.mask != 0).then(|| {
-                    let why = format!(
-                        "mode words {:#06x} = {own:#06x} and {:#06x} = {partner:#06x} disagree on bits {:#06x}",
-                        m.address,
-                        m.partner.expect("checked"),
-                        m.mask
-                    );
-                    (m.address, why)
-                })
-            })
-            .collect();
-        // The module does not count such a pair: publish no channel that never moves.
-        specs.retain(|c| mismatched.iter().all(|(a, _)| *a != c.mode_register));
-        let described: Vec<&str> = mismatched.iter().map(|(_, w)| w.as_str()).collect();
-        self.set_mismatch((!described.is_empty()).then(|| described.join("; ")));
-        if self.proto.modes.as_ref() != Some(&modes) {
-            if self.proto.modes.is_some() {
-                tracing::warn!(device = %self.name, ?modes, "work mode changed; channels rebuilt");
-            }
-            self.build_channels(specs);
-            self.proto.modes = Some(modes);
-        }
-        let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
-        if !ppr_regs.is_empty() {
-            let snap = self.read_registers(link, &ppr_regs, preempt).await?;
-            let order = self.profile.word_order;
-            for ch in &mut self.channels {
-                let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
-                let read = ch
-                    .spec
-                    .ppr
-                    .and_then(|r| snap.get(&r))
-                    .map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
-                ch.ppr = configured.or(read.filter(|p| *p > 0.0));
-            }
-        }
-        self.read_windows(link, preempt).await?;
-        self.set_power_on(link).await;
-        self.replan_with_turnaround(link);
-        self.proto.last_slow = Some(Instant::now());
-        Ok(())
-    }
-
-    /// Reads the counting windows of frequency registers that count pulses per window.
-    async fn read_windows(
-        &mut self,
-        link: &mut Link,
-        preempt: &(dyn Fn() -> bool + Sync),
-    ) -> Result<(), PollError> {
-        let regs: Vec<Register> = self
-            .channels
-            .iter()
-            .filter_map(|c| c.spec.freq_window.map(|w| w.register))
-            .collect();
-        if regs.is_empty() {
-            return Ok(());
-        }
-        let snap = self.read_registers(link, &regs, preempt).await?;
-        let order = self.profile.word_order;
-        for (ch, mb) in self.channels.iter().zip(&mut self.proto.channels) {
-            let Some(w) = ch.spec.freq_window else {
-                continue;
-            };
-            let Some((words, _)) = snap.get(&w.register) else {
-                continue;
-            };
-            let raw = decode(words, w.register.ty, order).as_i64() as u64;
-            let seconds = w.seconds(raw);
-            if seconds.is_none() && !std::mem::replace(&mut mb.window_bad, true) {
-                tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
-            }
-            mb.window_bad = seconds.is_none();
-            mb.window_s = seconds;
-        }
-        Ok(())
-    }
-
-    /// Builds the channels of the current work mode. A channel keeps its counter across the
-    /// rebuild; a channel the new mode does not have (or a disabled one) keeps its state for
-    /// when it comes back, resumed with a gap.
-    fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
-        let mut old: BTreeMap<String, Counter> = self
-            .channels
-            .drain(..)
-            .map(|c| (c.name.to_string(), c.counter))
-            .collect();
-        self.proto.channels.clear();
-        for spec in specs {
-            let overrides = self
-                .config
-                .channels
-                .get(&spec.name)
-                .cloned()
-                .unwrap_or_default();
-            if !overrides.enabled {
-                continue;
-            }
-            let counter_spec = counter_spec(&spec, &overrides);
-            let key = self.state_key(&spec.name);
-            let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
-                (Some(c), _) => c.with_spec(counter_spec),
-                (None, Some(saved)) => Counter::resume(counter_spec, saved),
-                (None, None) => Counter::new(counter_spec),
-            };
-            self.proto.channels.push(ModbusChannel {
-                command: super::run::command_register(&spec),
-                ..ModbusChannel::default()
-            });
-            self.channels.push(ChannelRt {
-                name: Arc::from(spec.name.as_str()),
-                ppr: overrides.ppr,
-                run: overrides.run,
-                resume_paused: overrides.resume_paused,
-                spec,
-                counter,
-            });
-        }
-        for (name, gone) in old {
-            let key = self.state_key(&name);
-            tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
-            self.saved.insert(key, gone.state);
-        }
-        self.proto.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
     }
 
     /// Reads `regs` in planned blocks, all of them or none. A bridged block refused with
@@ -693,11 +515,8 @@ impl DeviceRt<ModbusDevice> {
 
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
-        let line = link
-            .timing_for(self.proto.unit)
-            .map(|t| t.chars(crate::plan::read_chars(len)))
-            .unwrap_or_default();
-        self.proto.answer_timeout + line
+        let timing = link.timing_for(self.proto.unit);
+        crate::plan::read_timeout(self.proto.answer_timeout, timing.as_ref(), len)
     }
 
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
@@ -709,7 +528,7 @@ impl DeviceRt<ModbusDevice> {
         }
         self.latencies.push_back(d.as_secs_f64());
         if let Some(t) = link.timing_for(self.proto.unit) {
-            let line = t.chars(crate::plan::read_chars(len));
+            let line = t.read_time(len);
             let turnaround = d.saturating_sub(line).as_secs_f64();
             self.proto.turnaround = Some(match self.proto.turnaround {
                 Some(old) => old * 0.9 + turnaround * 0.1,
@@ -720,28 +539,9 @@ impl DeviceRt<ModbusDevice> {
 
     /// Re-prices the planner with the measured turnaround, so bridging follows what a separate
     /// request really costs this device.
-    fn replan_with_turnaround(&mut self, link: &Link) {
+    pub(super) fn replan_with_turnaround(&mut self, link: &Link) {
         if let (Some(t), Some(ta)) = (link.timing_for(self.proto.unit), self.proto.turnaround) {
             self.proto.wire = Wire::rtu(&t, Duration::from_secs_f64(ta));
         }
-    }
-}
-
-/// How a channel's count moves: encoders both ways; inputs counting on their own only up, or
-/// in the direction the gateway runs them (ZH-YX1600 counters are signed and can count down).
-fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
-    let signed = matches!(spec.count.ty, ValueType::I32 | ValueType::I16);
-    let direction = match (spec.kind, signed, config.run) {
-        (ChannelKind::Encoder, ..) => Direction::Both,
-        (ChannelKind::Counter, false, _) => Direction::Up,
-        (ChannelKind::Counter, true, _) if spec.clear.restart.is_empty() => Direction::Both,
-        (ChannelKind::Counter, true, Run::Up) => Direction::Up,
-        (ChannelKind::Counter, true, Run::Down) => Direction::Down,
-        (ChannelKind::Counter, true, Run::Leave) => Direction::Both,
-    };
-    CounterSpec {
-        modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
-        direction,
-        max_rate_hz: config.max_rate_hz.unwrap_or(spec.max_rate_hz),
     }
 }

@@ -1,0 +1,29 @@
+//! Protocol drivers: one folder per protocol, each an implementation of
+//! [`crate::bus::driver::Driver`] under the protocol-neutral bus task. [`spawn`] is the one
+//! place that picks a bus's driver from its config (`config::Link`).
+
+pub mod modbus;
+
+use tokio::sync::mpsc::Receiver;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+use crate::bus::BusTask;
+use crate::config::{Bus, Link};
+use modbus::survey::ScanRequest;
+
+/// Runs `task` over the driver of `bus`'s link until `shutdown`. A new protocol is a folder
+/// beside `modbus/`, a `config::Link` variant and one arm here.
+pub fn spawn(
+    task: BusTask,
+    bus: &Bus,
+    scans: Receiver<ScanRequest>,
+    shutdown: CancellationToken,
+) -> JoinHandle<()> {
+    match bus.link {
+        Link::Rtu { .. } | Link::Tcp { .. } => {
+            let driver = modbus::Modbus::for_bus(bus).with_scans(Some(scans));
+            tokio::spawn(task.run(driver, shutdown))
+        }
+    }
+}

@@ -1,0 +1,650 @@
+//! The floors of `src/`, written down and checked (the way `tests/function_length.rs` keeps
+//! functions short): which top-level module may `use` which, and no import circle between
+//! files. A `crate::…` (or `super::…`) path against [`FLOORS`] fails, and so does any circle of
+//! files that import each other. Comments and `#[cfg(test)]` items are not read. The same
+//! table, with the direction of the floors, is in docs/architecture.md.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// What each part of `src/` may use, lowest floors first. A part is a top-level module, except
+/// that `driver::modbus` (the Modbus driver) is a part of its own: only the parts listed here
+/// may know Modbus. A part may always use itself. A new module needs a row (and a floor).
+const FLOORS: &[(&str, &[&str])] = &[
+    // Vocabulary: pure values and rules used everywhere.
+    ("topics", &[]),
+    ("event", &[]),
+    ("decimal", &[]),
+    ("health", &[]),
+    ("log_budget", &[]),
+    ("bus_health", &[]),
+    ("metering", &["decimal", "event"]),
+    ("counter", &["event", "metering"]),
+    ("profile", &["topics"]),
+    ("plan", &["profile"]),
+    ("decode", &["profile"]),
+    // The checked configuration.
+    (
+        "config",
+        &[
+            "counter", "decimal", "metering", "plan", "profile", "topics",
+        ],
+    ),
+    ("report", &["config", "plan", "profile"]),
+    ("state", &["config", "counter"]),
+    ("boot", &["config", "state"]),
+    ("systemd", &["health"]),
+    // Commands and what becomes of them; the events a bus sends.
+    ("command", &["decimal", "topics"]),
+    ("outcome", &["command"]),
+    ("admission", &["command"]),
+    ("dedupe", &["outcome"]),
+    (
+        "reading",
+        &[
+            "bus_health",
+            "config",
+            "counter",
+            "metering",
+            "outcome",
+            "profile",
+        ],
+    ),
+    (
+        "metrics",
+        &[
+            "bus_health",
+            "config",
+            "health",
+            "outcome",
+            "profile",
+            "reading",
+        ],
+    ),
+    // The protocol-neutral bus core, then the protocols under it.
+    (
+        "bus",
+        &[
+            "bus_health",
+            "command",
+            "config",
+            "counter",
+            "decimal",
+            "health",
+            "log_budget",
+            "metering",
+            "metrics",
+            "profile",
+            "reading",
+            "state",
+        ],
+    ),
+    (
+        "driver::modbus",
+        &[
+            "bus",
+            "bus_health",
+            "command",
+            "config",
+            "counter",
+            "decode",
+            "event",
+            "outcome",
+            "plan",
+            "profile",
+            "reading",
+            "state",
+            "topics",
+        ],
+    ),
+    ("driver", &["bus", "config", "driver::modbus"]),
+    // Commands in, messages out.
+    (
+        "dispatch",
+        &[
+            "admission",
+            "bus",
+            "command",
+            "config",
+            "dedupe",
+            "driver::modbus",
+            "log_budget",
+            "outcome",
+            "reading",
+            "topics",
+        ],
+    ),
+    ("outbox", &[]),
+    (
+        "publish",
+        &[
+            "boot",
+            "config",
+            "counter",
+            "dispatch",
+            "event",
+            "health",
+            "log_budget",
+            "metering",
+            "metrics",
+            "outbox",
+            "profile",
+            "reading",
+            "state",
+            "topics",
+        ],
+    ),
+    // Tools and wiring on top.
+    (
+        "commission",
+        &[
+            "bus",
+            "command",
+            "config",
+            "driver::modbus",
+            "outcome",
+            "plan",
+            "profile",
+            "publish",
+        ],
+    ),
+    ("sim", &["decode", "driver::modbus", "profile"]),
+    ("setreading", &["config", "decimal", "publish", "topics"]),
+    (
+        "app",
+        &[
+            "boot",
+            "bus",
+            "config",
+            "dispatch",
+            "driver",
+            "driver::modbus",
+            "health",
+            "metrics",
+            "publish",
+            "reading",
+            "state",
+            "systemd",
+        ],
+    ),
+    ("demo", &["app", "config", "report", "sim"]),
+];
+
+/// One file of `src/`: its module path (`["bus", "device"]`) and what it imports.
+struct Source {
+    module: Vec<String>,
+    file: PathBuf,
+    text: String,
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).expect("readable src") {
+        let path = entry.expect("entry").path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|x| x == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// `src/bus/mod.rs` → `["bus"]`; `src/lib.rs` and `src/main.rs` → `[]`.
+fn module_of(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file
+        .strip_prefix(src)
+        .expect("under src")
+        .with_extension("");
+    let mut parts: Vec<String> = rel
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect();
+    if matches!(
+        parts.last().map(String::as_str),
+        Some("mod" | "lib" | "main")
+    ) {
+        parts.pop();
+    }
+    parts
+}
+
+/// The text without comments (line, doc and block comments; string contents are kept, they
+/// hold no paths worth reading).
+fn strip_comments(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let b = text.as_bytes();
+    let (mut i, mut in_str) = (0, false);
+    while i < b.len() {
+        if in_str {
+            if b[i] == b'\\' {
+                out.push_str(&text[i..(i + 2).min(b.len())]);
+                i += 2;
+                continue;
+            }
+            in_str = b[i] != b'"';
+        } else if b[i..].starts_with(b"//") {
+            while i < b.len() && b[i] != b'\n' {
+                i += 1;
+            }
+            continue;
+        } else if b[i..].starts_with(b"/*") {
+            let end = text[i..].find("*/").map_or(b.len(), |e| i + e + 2);
+            i = end;
+            continue;
+        } else if b[i] == b'"' && (i == 0 || b[i - 1] != b'\'') {
+            in_str = true;
+        }
+        let ch = text[i..].chars().next().expect("in bounds");
+        out.push(ch);
+        i += ch.len_utf8();
+    }
+    out
+}
+
+/// The text without `#[cfg(test)]` items (rustfmt layout: the item ends at the first line
+/// that closes a brace at its indentation, or at its `;`), and the names of test modules kept
+/// in files of their own (`#[cfg(test)] mod tests;`, maybe with `#[path = "…"]`).
+fn strip_test_items(text: &str) -> (String, Vec<String>) {
+    let lines: Vec<&str> = text.lines().collect();
+    let (mut out, mut test_files) = (Vec::new(), Vec::new());
+    let mut i = 0;
+    while i < lines.len() {
+        if lines[i].trim() != "#[cfg(test)]" {
+            out.push(lines[i]);
+            i += 1;
+            continue;
+        }
+        let indent = &lines[i][..lines[i].len() - lines[i].trim_start().len()];
+        let mut path = None;
+        i += 1;
+        while i < lines.len() && lines[i].trim_start().starts_with("#[") {
+            let attr = lines[i].trim();
+            if let Some(p) = attr.strip_prefix("#[path = \"") {
+                path = p.strip_suffix("\"]").map(str::to_string);
+            }
+            i += 1;
+        }
+        let Some(item) = lines.get(i) else { break };
+        if item.trim_end().ends_with(';') {
+            if let Some(name) = item.trim().strip_prefix("mod ") {
+                let name = name.trim_end_matches(';');
+                test_files.push(path.unwrap_or_else(|| format!("{name}.rs")));
+            }
+            i += 1;
+            continue;
+        }
+        let close = format!("{indent}}}");
+        while i < lines.len() && !lines[i].starts_with(&close) {
+            i += 1;
+        }
+        i += 1;
+    }
+    (out.join("\n"), test_files)
+}
+
+/// Every path a file names: `use` trees expanded (`crate::{a::b, c}` → `crate::a::b`,
+/// `crate::c`), and paths written inline (`crate::x::y(…)`).
+fn paths(text: &str) -> Vec<Vec<String>> {
+    let mut found = Vec::new();
+    let mut offset = 0;
+    for line in text.split_inclusive('\n') {
+        let trimmed = line.trim_start();
+        let body = ["use ", "pub use ", "pub(crate) use ", "pub(super) use "]
+            .iter()
+            .find_map(|p| trimmed.strip_prefix(p));
+        if let Some(body) = body {
+            let start = offset + (line.len() - body.len());
+            if let Some(end) = text[start..].find(';') {
+                let tree = text[start..start + end]
+                    .split_whitespace()
+                    .collect::<Vec<_>>();
+                expand(&tree.join(" "), &[], &mut found);
+            }
+        }
+        offset += line.len();
+    }
+    for start in ["crate::", "super::", "self::"] {
+        for (at, _) in text.match_indices(start) {
+            let before = text[..at].chars().last();
+            if before.is_some_and(|c| c.is_alphanumeric() || c == '_') {
+                continue;
+            }
+            found.push(inline_path(&text[at..]));
+        }
+    }
+    found
+}
+
+/// The path at the start of `text`: identifiers joined by `::`.
+fn inline_path(text: &str) -> Vec<String> {
+    let mut path = Vec::new();
+    let mut rest = text;
+    loop {
+        let len = rest
+            .find(|c: char| !(c.is_alphanumeric() || c == '_'))
+            .unwrap_or(rest.len());
+        if len == 0 {
+            break;
+        }
+        path.push(rest[..len].to_string());
+        match rest[len..].strip_prefix("::") {
+            Some(next) => rest = next,
+            None => break,
+        }
+    }
+    path
+}
+
+/// Expands one `use` tree under `prefix`.
+fn expand(tree: &str, prefix: &[String], out: &mut Vec<Vec<String>>) {
+    let tree = tree.trim();
+    let split = |t: &str| -> Vec<String> {
+        t.split("::")
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(String::from)
+            .collect()
+    };
+    let Some(open) = tree.find('{') else {
+        let mut path = prefix.to_vec();
+        path.extend(split(tree.split(" as ").next().unwrap_or(tree)));
+        out.push(path);
+        return;
+    };
+    let mut path = prefix.to_vec();
+    path.extend(split(&tree[..open]));
+    let inner = &tree[open + 1..tree.rfind('}').unwrap_or(tree.len())];
+    let (mut depth, mut from) = (0, 0);
+    for (i, c) in inner.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                expand(&inner[from..i], &path, out);
+                from = i + 1;
+            }
+            _ => {}
+        }
+    }
+    if !inner[from..].trim().is_empty() {
+        expand(&inner[from..], &path, out);
+    }
+}
+
+/// The module of `src/` a path names (the longest prefix that is a file), seen from `from`.
+fn resolve(
+    path: &[String],
+    from: &[String],
+    modules: &BTreeSet<Vec<String>>,
+) -> Option<Vec<String>> {
+    let (mut base, mut segs): (Vec<String>, &[String]) = match path.first()?.as_str() {
+        "crate" => (Vec::new(), &path[1..]),
+        "self" => (from.to_vec(), &path[1..]),
+        "super" => (from.to_vec(), path),
+        _ => return None,
+    };
+    while segs.first().is_some_and(|s| s == "super") {
+        base.pop();
+        segs = &segs[1..];
+    }
+    base.extend(segs.iter().cloned());
+    (1..=base.len())
+        .rev()
+        .map(|n| base[..n].to_vec())
+        .find(|m| modules.contains(m))
+}
+
+/// The part of the table a module belongs to.
+fn part(module: &[String]) -> String {
+    match module {
+        [d, m, ..] if d == "driver" && m == "modbus" => "driver::modbus".into(),
+        [] => "lib".into(),
+        [top, ..] => top.clone(),
+    }
+}
+
+/// The files of the modules `text` declares (`mod x;`, maybe with `#[path = "…"]`).
+fn declared(text: &str) -> Vec<String> {
+    let mut path = None;
+    let mut out = Vec::new();
+    for line in text.lines().map(str::trim) {
+        if let Some(p) = line.strip_prefix("#[path = \"") {
+            path = p.strip_suffix("\"]").map(str::to_string);
+        } else if let Some(name) = line.strip_prefix("mod ").and_then(|l| l.strip_suffix(';')) {
+            out.push(path.take().unwrap_or_else(|| format!("{name}.rs")));
+        } else if !line.starts_with("#[") {
+            path = None;
+        }
+    }
+    out
+}
+
+/// Where the files of modules declared in `file` are: beside it, or in its folder.
+fn homes(file: &Path) -> [PathBuf; 2] {
+    let parent = file.parent().expect("in a folder").to_path_buf();
+    let own = if matches!(
+        file.file_name().and_then(|n| n.to_str()),
+        Some("mod.rs" | "lib.rs" | "main.rs")
+    ) {
+        parent.clone()
+    } else {
+        file.with_extension("")
+    };
+    [parent, own]
+}
+
+/// Every non-test file of `src/` with its text (comments and test items removed). A test
+/// module's file, and every file it declares in turn, is not read.
+fn sources() -> Vec<Source> {
+    let src = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/src"));
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    files.sort();
+    let mut tests = BTreeSet::new();
+    let mut out = Vec::new();
+    for file in files {
+        let raw = std::fs::read_to_string(&file).expect("readable file");
+        let (text, test_files) = strip_test_items(&strip_comments(&raw));
+        for t in test_files {
+            tests.extend(homes(&file).map(|h| h.join(&t)));
+        }
+        out.push((
+            Source {
+                module: module_of(src, &file),
+                file,
+                text,
+            },
+            raw,
+        ));
+    }
+    loop {
+        let more: Vec<PathBuf> = out
+            .iter()
+            .filter(|(s, _)| tests.contains(&s.file))
+            .flat_map(|(s, raw)| {
+                let homes = homes(&s.file);
+                declared(raw)
+                    .into_iter()
+                    .flat_map(move |d| homes.clone().map(|h| h.join(&d)))
+            })
+            .filter(|f| !tests.contains(f))
+            .collect();
+        if more.is_empty() {
+            break;
+        }
+        tests.extend(more);
+    }
+    out.into_iter()
+        .map(|(s, _)| s)
+        .filter(|s| !tests.contains(&s.file))
+        .collect()
+}
+
+/// File → the files it imports (other than itself).
+fn imports(sources: &[Source]) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
+    let modules: BTreeSet<Vec<String>> = sources.iter().map(|s| s.module.clone()).collect();
+    sources
+        .iter()
+        .map(|s| {
+            let to = paths(&s.text)
+                .iter()
+                .filter_map(|p| resolve(p, &s.module, &modules))
+                .filter(|m| *m != s.module && !m.is_empty())
+                .collect();
+            (s.module.clone(), to)
+        })
+        .collect()
+}
+
+/// Circles of files that import each other (strongly connected components of two or more).
+fn circles(edges: &BTreeMap<Vec<String>, BTreeSet<Vec<String>>>) -> Vec<Vec<String>> {
+    let nodes: Vec<&Vec<String>> = edges.keys().collect();
+    let reach = |from: &Vec<String>| {
+        let mut seen = BTreeSet::new();
+        let mut todo = vec![from.clone()];
+        while let Some(n) = todo.pop() {
+            for m in edges.get(&n).into_iter().flatten() {
+                if seen.insert(m.clone()) {
+                    todo.push(m.clone());
+                }
+            }
+        }
+        seen
+    };
+    let reached: BTreeMap<&Vec<String>, BTreeSet<Vec<String>>> =
+        nodes.iter().map(|n| (*n, reach(n))).collect();
+    let mut done = BTreeSet::new();
+    let mut out = Vec::new();
+    for n in &nodes {
+        if done.contains(*n) || !reached[n].contains(*n) {
+            continue;
+        }
+        let circle: Vec<String> = nodes
+            .iter()
+            .filter(|m| reached[n].contains(**m) && reached[**m].contains(*n))
+            .map(|m| {
+                done.insert((*m).clone());
+                m.join("/")
+            })
+            .collect();
+        out.push(circle);
+    }
+    out
+}
+
+/// Uses that run against [`FLOORS`], as `file: part → part (path)`.
+fn against_the_floors(sources: &[Source]) -> Vec<String> {
+    let table: BTreeMap<&str, &[&str]> = FLOORS.iter().copied().collect();
+    let edges = imports(sources);
+    let mut bad = Vec::new();
+    for s in sources {
+        let from = part(&s.module);
+        if from == "lib" {
+            continue;
+        }
+        let Some(allowed) = table.get(from.as_str()) else {
+            bad.push(format!(
+                "{}: module {from} has no row in FLOORS (give it a floor)",
+                s.file.display()
+            ));
+            continue;
+        };
+        for to in &edges[&s.module] {
+            let to = part(to);
+            if to != from && !allowed.contains(&to.as_str()) {
+                bad.push(format!(
+                    "{}: {from} may not use {to} (FLOORS allows {allowed:?})",
+                    s.file.display()
+                ));
+            }
+        }
+    }
+    bad.sort();
+    bad.dedup();
+    bad
+}
+
+#[test]
+fn every_use_in_src_follows_the_floors() {
+    let bad = against_the_floors(&sources());
+    assert!(
+        bad.is_empty(),
+        "uses against the floors:\n{}",
+        bad.join("\n")
+    );
+}
+
+#[test]
+fn no_files_of_src_import_each_other_in_a_circle() {
+    let found = circles(&imports(&sources()));
+    let text: Vec<String> = found.iter().map(|c| c.join(" ↔ ")).collect();
+    assert!(found.is_empty(), "import circles:\n{}", text.join("\n"));
+}
+
+#[test]
+fn the_floors_themselves_have_a_direction() {
+    let table: BTreeMap<Vec<String>, BTreeSet<Vec<String>>> = FLOORS
+        .iter()
+        .map(|(from, to)| {
+            (
+                vec![from.to_string()],
+                to.iter().map(|t| vec![t.to_string()]).collect(),
+            )
+        })
+        .collect();
+    assert!(circles(&table).is_empty(), "{:?}", circles(&table));
+    for (from, to) in FLOORS {
+        for t in *to {
+            assert!(
+                FLOORS.iter().any(|(p, _)| p == t),
+                "{from} may use {t}, which has no row"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_reader_sees_use_trees_inline_paths_and_skips_comments_and_tests() {
+    let text = "use crate::{a::{b, c as d}, e};\n// use crate::hidden;\nfn f() { crate::g::h(); super::i::j; }\n#[cfg(test)]\nmod tests {\n    use crate::test_only;\n}\n";
+    let (kept, _) = strip_test_items(&strip_comments(text));
+    let seen: BTreeSet<String> = paths(&kept).iter().map(|p| p.join("::")).collect();
+    for want in [
+        "crate::a::b",
+        "crate::a::c",
+        "crate::e",
+        "crate::g::h",
+        "super::i::j",
+    ] {
+        assert!(seen.contains(want), "{want} in {seen:?}");
+    }
+    assert!(
+        !seen
+            .iter()
+            .any(|p| p.contains("hidden") || p.contains("test_only"))
+    );
+    let from = vec!["bus".to_string(), "device".to_string()];
+    let modules: BTreeSet<Vec<String>> = [vec!["bus".to_string()], vec!["i".to_string()]]
+        .into_iter()
+        .collect();
+    let path: Vec<String> = ["super", "super", "i", "j"].map(String::from).into();
+    assert_eq!(resolve(&path, &from, &modules), Some(vec!["i".to_string()]));
+}
+
+#[test]
+fn a_use_against_the_floors_and_a_circle_are_both_found() {
+    let src = |module: &[&str], text: &str| Source {
+        module: module.iter().map(|s| s.to_string()).collect(),
+        file: PathBuf::from(module.join("/")),
+        text: text.into(),
+    };
+    let sources = [
+        src(&["counter"], "use crate::app::run;"),
+        src(&["app"], ""),
+        src(&["bus", "a"], "use super::b::X;"),
+        src(&["bus", "b"], "use super::a::Y;"),
+    ];
+    let bad = against_the_floors(&sources);
+    assert_eq!(bad.len(), 1, "{bad:?}");
+    assert!(bad[0].contains("counter may not use app"), "{bad:?}");
+    let found = circles(&imports(&sources));
+    assert_eq!(found, [vec!["bus/a".to_string(), "bus/b".to_string()]]);
+}
