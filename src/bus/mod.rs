@@ -221,7 +221,7 @@ impl BusTask {
         }
         let now = Instant::now();
         if now >= core.flush_at {
-            let state = snapshot(&core.devices, &core.durable.orphans, false);
+            let state = saver::snapshot(&core.devices, &core.durable.orphans, false);
             core.durable.saver.start(state, &self.out);
             core.flush_at = now + self.state_flush;
         }
@@ -500,21 +500,6 @@ async fn run_one_command<D: driver::Driver>(
     }
     *pending = waiting;
     ran
-}
-
-/// The bus's state now: every device's, plus the saved state no configured device claims
-/// (kept, never attached to another meter); `clean` only for the save after the last reading
-/// at shutdown.
-fn snapshot<P: DeviceState>(devices: &[DeviceRt<P>], orphans: &BusState, clean: bool) -> BusState {
-    let mut s = BusState {
-        clean,
-        ..orphans.clone()
-    };
-    for d in devices {
-        s.channels.extend(d.counter_states());
-        d.proto.save(&mut s);
-    }
-    s
 }
 
 /// Saved state that no configured (and enabled) device can have: kept as it is, so a device

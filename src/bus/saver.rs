@@ -15,6 +15,8 @@ use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
+use super::device::DeviceRt;
+use super::driver::DeviceState;
 use super::ledger::{Ledger, seqs};
 use crate::reading::Checkpoint;
 use crate::state::{BusState, StateError};
@@ -259,26 +261,26 @@ impl Durable {
 
     /// Collects a finished save, releases what it covers, and starts the next save if readings
     /// are still held.
-    pub async fn collect<P: super::DeviceState>(
+    pub async fn collect<P: DeviceState>(
         &mut self,
-        devices: &[super::DeviceRt<P>],
+        devices: &[DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         self.saver.collect(&mut self.ledger).await;
         self.release(out);
         if self.holding() {
-            let state = super::snapshot(devices, &self.orphans, false);
+            let state = snapshot(devices, &self.orphans, false);
             self.saver.start(state, out);
         }
     }
 
     /// Sends `outputs` (the readings of `devices[from]`), or holds them until a save covers
     /// their seq.
-    pub fn publish<P: super::DeviceState>(
+    pub fn publish<P: DeviceState>(
         &mut self,
         outputs: Vec<Output>,
         from: usize,
-        devices: &[super::DeviceRt<P>],
+        devices: &[DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         let d = &devices[from];
@@ -298,7 +300,7 @@ impl Durable {
         }
         self.release(out);
         if self.holding() {
-            let state = super::snapshot(devices, &self.orphans, false);
+            let state = snapshot(devices, &self.orphans, false);
             self.saver.start(state, out);
         }
     }
@@ -320,15 +322,15 @@ impl Durable {
     }
 
     /// The last save, at shutdown (seq may go on from here), then whatever was held.
-    pub async fn finish<P: super::DeviceState>(
+    pub async fn finish<P: DeviceState>(
         &mut self,
-        devices: &[super::DeviceRt<P>],
+        devices: &[DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) -> bool {
         let saved = self
             .saver
             .save_now(
-                super::snapshot(devices, &self.orphans, true),
+                snapshot(devices, &self.orphans, true),
                 &mut self.ledger,
                 out,
             )
@@ -336,4 +338,23 @@ impl Durable {
         self.release(out);
         saved
     }
+}
+
+/// The bus's state now: every device's, plus the saved state no configured device claims
+/// (kept, never attached to another meter); `clean` only for the save after the last reading
+/// at shutdown.
+pub(super) fn snapshot<P: DeviceState>(
+    devices: &[DeviceRt<P>],
+    orphans: &BusState,
+    clean: bool,
+) -> BusState {
+    let mut s = BusState {
+        clean,
+        ..orphans.clone()
+    };
+    for d in devices {
+        s.channels.extend(d.counter_states());
+        d.proto.save(&mut s);
+    }
+    s
 }

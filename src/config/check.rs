@@ -6,8 +6,8 @@ use std::time::Duration;
 
 use config::Value;
 
+use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use super::walk::{Errors, Table, join};
-use super::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
 use crate::profile::Profiles;
 
 use crate::profile::MAX_TIMEOUT;
@@ -195,8 +195,8 @@ fn refuse_unusable_host(g: &Gateway, errs: &mut Errors) {
 }
 
 /// A password read from a file: the line ending is not part of it.
-fn secret(text: String) -> super::Secret {
-    super::Secret(text.trim_end_matches(['\n', '\r']).to_string())
+fn secret(text: String) -> super::model::Secret {
+    super::model::Secret(text.trim_end_matches(['\n', '\r']).to_string())
 }
 
 fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
@@ -214,7 +214,7 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
         topic_root: format!("pulsegate/{gateway_id}"),
         spool_bytes: 64 << 20,
         commands: true,
-        protocol: super::MqttProtocol::V5,
+        protocol: super::model::MqttProtocol::V5,
         format: vec!["json".into()],
         batch: DEFAULT_BATCH,
     };
@@ -224,8 +224,8 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
     }
     if let Some(v) = t.opt::<String>("protocol", errs) {
         match v.as_str() {
-            "5" => m.protocol = super::MqttProtocol::V5,
-            "3.1.1" => m.protocol = super::MqttProtocol::V311,
+            "5" => m.protocol = super::model::MqttProtocol::V5,
+            "3.1.1" => m.protocol = super::model::MqttProtocol::V311,
             _ => errs.push(
                 &join(&t.path, "protocol"),
                 t.origin(),
@@ -255,8 +255,8 @@ fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
 }
 
 /// `mqtt.password`, `mqtt.password_file`, or systemd's credential.
-fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Secret> {
-    let mut password = t.opt::<String>("password", errs).map(super::Secret);
+fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::model::Secret> {
+    let mut password = t.opt::<String>("password", errs).map(super::model::Secret);
     if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
         match std::fs::read_to_string(&file) {
             Ok(p) => password = Some(secret(p)),
@@ -279,7 +279,7 @@ fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Secret> 
 }
 
 /// `[mqtt.tls]`, built as `run` builds it.
-fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
+fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::model::Tls> {
     let mut tt = t.table("tls", errs)?;
     let tt_path = tt.path.clone();
     let ca_file = tt.req::<PathBuf>("ca_file", errs);
@@ -308,7 +308,7 @@ fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::Tls> {
         }
     }
     tt.finish(errs);
-    let tls = ca_file.map(|ca_file| super::Tls {
+    let tls = ca_file.map(|ca_file| super::model::Tls {
         ca_file,
         cert_file,
         key_file,
@@ -519,7 +519,7 @@ fn bus_devices(
     path: &str,
     profiles: &Profiles,
     errs: &mut Errors,
-) -> Vec<super::Device> {
+) -> Vec<super::model::Device> {
     let mut devices = Vec::new();
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
     let entries = t.entries("devices", errs);

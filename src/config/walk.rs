@@ -7,7 +7,7 @@ use std::time::Duration;
 use config::{Map, Value, ValueKind};
 use serde::de::DeserializeOwned;
 
-use super::ConfigError;
+use super::error::ConfigError;
 
 /// The longest duration any key takes (a week): far beyond any sensible poll or flush interval,
 /// and far from overflowing a deadline.

@@ -1,0 +1,276 @@
+//! The checked, typed configuration: what the gateway works with (the raw TOML is checked
+//! into it in `check.rs`, loaded in `mod.rs`). Types only, so every file of `config/` can use
+//! them without going through the loader.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use crate::profile::Profile;
+
+pub use super::error::{ConfigError, ConfigErrors};
+
+use super::channel::ChannelConfig;
+use super::metrics::Metrics as MetricsEndpoint;
+use super::publish::HomeAssistant;
+use super::sparkplug::Sparkplug;
+
+use super::policy::{PayloadMode, PolicyOverride};
+
+/// Default configuration file.
+pub const DEFAULT_PATH: &str = "/etc/pulsegate/pulsegate.toml";
+
+/// A checked configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// The file it was read from.
+    pub source: PathBuf,
+    pub gateway: Gateway,
+    pub mqtt: Mqtt,
+    /// `[metrics]`: the Prometheus endpoint, when configured.
+    pub metrics: Option<MetricsEndpoint>,
+    /// Buses sorted by name.
+    pub buses: Vec<Bus>,
+    /// `[homeassistant]`: MQTT discovery.
+    pub homeassistant: HomeAssistant,
+    /// `[sparkplug]`: present exactly when `mqtt.format` names `"sparkplug"`.
+    pub sparkplug: Option<Sparkplug>,
+}
+
+/// `[gateway]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Gateway {
+    pub id: String,
+    /// The hostname the id was derived from, when `gateway.id` is not set (logged at start so
+    /// the derived id is never a surprise).
+    pub id_from_hostname: Option<String>,
+    pub state_dir: PathBuf,
+    /// How often counter state is written to disk (it is also written at shutdown).
+    pub state_flush: Duration,
+    /// How often bus statistics are logged and published.
+    pub stats_interval: Duration,
+    /// Where user profiles (`*.toml`) are looked up.
+    pub profile_dir: PathBuf,
+    /// Publish policy of every channel unless a device or channel says otherwise.
+    pub publish: PolicyOverride,
+    /// One message per channel or per device, unless a device says otherwise.
+    pub payload: PayloadMode,
+    /// `timezone`: the local clock interval boundaries follow (default UTC).
+    pub clock: crate::metering::Clock,
+    /// `intervals` of every channel unless a device or channel says otherwise.
+    pub intervals: Option<Vec<crate::metering::Period>>,
+}
+
+/// A secret (the MQTT password): never printed, never logged.
+#[derive(Clone, PartialEq, Eq)]
+pub struct Secret(pub String);
+
+impl fmt::Debug for Secret {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("Secret(***)")
+    }
+}
+
+/// `[mqtt.tls]`: TLS to the broker (rustls).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Tls {
+    /// CA certificate(s) the broker's certificate must chain to (PEM).
+    pub ca_file: PathBuf,
+    /// Client certificate and key (PEM), for brokers that ask for one.
+    pub cert_file: Option<PathBuf>,
+    pub key_file: Option<PathBuf>,
+}
+
+/// `[mqtt]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mqtt {
+    /// Not used when `socket` is set.
+    pub host: String,
+    pub port: u16,
+    /// `mqtt.socket`: a local broker's Unix domain socket, used instead of `host`/`port`
+    /// (no TCP port: the socket file's permissions decide who may connect).
+    pub socket: Option<PathBuf>,
+    pub client_id: String,
+    pub username: Option<String>,
+    /// From `password`, `password_file`, `PULSEGATE__MQTT__PASSWORD`, or the systemd credential
+    /// `mqtt-password` (`LoadCredential=`).
+    pub password: Option<Secret>,
+    pub tls: Option<Tls>,
+    pub keep_alive: Duration,
+    pub qos: u8,
+    pub retain: bool,
+    pub topic_root: String,
+    /// Bound of the store-and-forward spool (memory and disk), in bytes.
+    pub spool_bytes: u64,
+    /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
+    /// MQTT whatever the devices say).
+    pub commands: bool,
+    /// `mqtt.protocol`: "5" (default) or "3.1.1".
+    pub protocol: MqttProtocol,
+    /// `mqtt.format`: how events become payloads, each one of [`publish::FORMAT_NAMES`]
+    /// (a list runs them side by side: `["json", "sparkplug"]`).
+    pub format: Vec<String>,
+    /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
+    /// [`crate::publish::batch`]); zero sends each poll's at once.
+    pub batch: Duration,
+}
+
+impl Mqtt {
+    /// The broker as logs and status name it: the socket path, or `host:port`.
+    pub fn broker(&self) -> String {
+        match &self.socket {
+            Some(path) => path.display().to_string(),
+            None => format!("{}:{}", self.host, self.port),
+        }
+    }
+}
+
+/// The MQTT protocol version spoken to the broker.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum MqttProtocol {
+    #[default]
+    V5,
+    /// For brokers that refuse v5 (Azure IoT Hub, older Mosquitto, some embedded brokers): no
+    /// response topic or correlation data; everything else works the same.
+    V311,
+}
+
+/// `[buses.<name>]`
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bus {
+    pub name: String,
+    pub link: Link,
+    /// Answer timeout for the bus's devices (each may override; default: its profile's).
+    pub timeout: Option<Duration>,
+    /// Extra quiet time added to the Modbus silent interval between frames.
+    pub guard: Duration,
+    /// Consecutive failures after which a device is offline.
+    pub offline_after: u32,
+    /// Backoff between probes of an offline device: first and longest.
+    pub backoff_min: Duration,
+    pub backoff_max: Duration,
+    /// How often slow registers (mode, pulses per revolution) are re-read.
+    pub slow_poll: Duration,
+    /// `false`: the bus is not opened; its devices' saved state is kept.
+    pub enabled: bool,
+    pub devices: Vec<Device>,
+}
+
+/// How a bus reaches its devices.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Link {
+    /// Modbus RTU on a serial port.
+    Rtu {
+        port: PathBuf,
+        baud: u32,
+        parity: Parity,
+        stop_bits: u8,
+    },
+    /// Modbus TCP.
+    Tcp { host: String, port: u16 },
+}
+
+impl Bus {
+    /// Character timing of the bus's serial line; `None` for Modbus TCP.
+    pub fn line_timing(&self) -> Option<crate::plan::LineTiming> {
+        line_timing(&self.link, self.guard)
+    }
+}
+
+/// Character timing of a serial link with `guard` after the silent interval: start bit, 8 data
+/// bits, parity if any, stop bits. `None` for Modbus TCP.
+pub fn line_timing(link: &Link, guard: Duration) -> Option<crate::plan::LineTiming> {
+    match link {
+        Link::Rtu {
+            baud,
+            parity,
+            stop_bits,
+            ..
+        } => Some(crate::plan::LineTiming {
+            baud: *baud,
+            bits_per_char: crate::plan::bits_per_char(*parity != Parity::None, *stop_bits),
+            guard,
+        }),
+        Link::Tcp { .. } => None,
+    }
+}
+
+/// Serial parity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Parity {
+    None,
+    Even,
+    Odd,
+}
+
+/// `[buses.<bus>.devices.<name>]`
+#[derive(Debug, Clone)]
+pub struct Device {
+    pub name: String,
+    pub unit: u8,
+    pub model: String,
+    pub profile: Arc<Profile>,
+    pub poll: Duration,
+    pub timeout: Option<Duration>,
+    /// Whether clear/preset commands are accepted for this device.
+    pub commands: bool,
+    /// The device's own baud rate where it differs from its bus's (RTU): the port is switched
+    /// to it for this device's transactions.
+    pub baud: Option<u32>,
+    /// Per-channel settings keyed by channel name.
+    pub channels: BTreeMap<String, ChannelConfig>,
+    /// `false`: not polled or published; its saved state is kept.
+    pub enabled: bool,
+    /// Publish policy keys of this device (over the gateway's).
+    pub publish: PolicyOverride,
+    /// `payload` of this device, when it overrides the gateway's.
+    pub payload: Option<PayloadMode>,
+    /// `intervals` of this device, when it overrides the gateway's.
+    pub intervals: Option<Vec<crate::metering::Period>>,
+}
+
+impl PartialEq for Device {
+    fn eq(&self, other: &Self) -> bool {
+        self.name == other.name
+            && self.unit == other.unit
+            && self.model == other.model
+            && self.poll == other.poll
+            && self.timeout == other.timeout
+            && self.commands == other.commands
+            && self.baud == other.baud
+            && self.channels == other.channels
+            && self.enabled == other.enabled
+            // A profile file edited since: the bus restarts with the new profile.
+            && self.profile.fingerprint == other.profile.fingerprint
+            && self.publish == other.publish
+            && self.payload == other.payload
+            && self.intervals == other.intervals
+    }
+}
+
+impl Device {
+    /// The interval periods of `channel`: its own `intervals`, else the device's, else the
+    /// gateway's.
+    pub fn intervals_of<'a>(
+        &'a self,
+        gateway: Option<&'a [crate::metering::Period]>,
+        channel: &str,
+    ) -> &'a [crate::metering::Period] {
+        self.channels
+            .get(channel)
+            .and_then(|c| c.intervals.as_deref())
+            .or(self.intervals.as_deref())
+            .or(gateway)
+            .unwrap_or_default()
+    }
+
+    /// Answer timeout of this device on `bus`.
+    pub fn answer_timeout(&self, bus: &Bus) -> Duration {
+        self.timeout
+            .or(bus.timeout)
+            .unwrap_or(self.profile.answer_timeout)
+    }
+}
