@@ -479,20 +479,40 @@ fn sources() -> Vec<Source> {
         .collect()
 }
 
-/// File → the files it imports (other than itself).
+/// File → the files it imports (other than itself), its own child modules named bare
+/// (`use child::X;`, `child::f()`) included: a parent and a child that use each other are a
+/// circle of files too.
 fn imports(sources: &[Source]) -> BTreeMap<Vec<String>, BTreeSet<Vec<String>>> {
     let modules: BTreeSet<Vec<String>> = sources.iter().map(|s| s.module.clone()).collect();
     sources
         .iter()
         .map(|s| {
-            let to = paths(&s.text)
+            let mut to: BTreeSet<Vec<String>> = paths(&s.text)
                 .iter()
                 .filter_map(|p| resolve(p, &s.module, &modules))
                 .filter(|m| *m != s.module && !m.is_empty())
                 .collect();
+            let children = modules
+                .iter()
+                .filter(|m| m.len() == s.module.len() + 1 && m.starts_with(&s.module));
+            to.extend(
+                children
+                    .filter(|c| names_bare(&s.text, &c[c.len() - 1]))
+                    .cloned(),
+            );
             (s.module.clone(), to)
         })
         .collect()
+}
+
+/// Whether `text` names the module `name` at the start of a path (`name::…`, not `x::name::`).
+fn names_bare(text: &str, name: &str) -> bool {
+    text.match_indices(&format!("{name}::")).any(|(at, _)| {
+        !text[..at]
+            .chars()
+            .last()
+            .is_some_and(|c| c.is_alphanumeric() || c == '_' || c == ':')
+    })
 }
 
 /// Circles of files that import each other (strongly connected components of two or more).
@@ -627,6 +647,25 @@ fn the_reader_sees_use_trees_inline_paths_and_skips_comments_and_tests() {
         .collect();
     let path: Vec<String> = ["super", "super", "i", "j"].map(String::from).into();
     assert_eq!(resolve(&path, &from, &modules), Some(vec!["i".to_string()]));
+}
+
+#[test]
+fn a_parent_and_a_child_that_use_each_other_are_a_circle() {
+    let src = |module: &[&str], text: &str| Source {
+        module: module.iter().map(|m| m.to_string()).collect(),
+        file: PathBuf::from("x.rs"),
+        text: text.into(),
+    };
+    let sources = [
+        src(&["outbox"], "mod chatter;\nuse chatter::Chatter;"),
+        src(&["outbox", "chatter"], "use super::Message;"),
+    ];
+    assert_eq!(circles(&imports(&sources)).len(), 1);
+    let apart = [
+        src(&["outbox"], "mod chatter;\nuse chatter::Chatter;"),
+        src(&["outbox", "chatter"], "use std::fmt;"),
+    ];
+    assert!(circles(&imports(&apart)).is_empty());
 }
 
 #[test]

@@ -7,7 +7,7 @@ use std::time::Duration;
 
 use tokio_util::sync::CancellationToken;
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::line::Target;
 use super::scan::ScanEvent;
 use super::setup::Wanted;

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::holder::holders;
 use crate::config::{Link as LinkConfig, Parity};
 use crate::driver::modbus::link::{Link, LinkError};
@@ -106,7 +106,7 @@ impl Target {
     }
 }
 
-fn port_held(port: &std::path::Path, by: &[super::Holder]) -> CommissionError {
+fn port_held(port: &std::path::Path, by: &[super::holder::Holder]) -> CommissionError {
     let gateway = by.iter().any(|h| h.is_gateway());
     CommissionError::PortHeld {
         port: port.display().to_string(),

@@ -1,7 +1,7 @@
 //! `pulsegate raw`: read or write holding registers of any unit, model unknown, for what the
 //! profiles do not cover.
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::line::Target;
 use crate::driver::modbus::link::Link;
 

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::line::Target;
 use crate::bus::device::DeviceRt;
 use crate::command::{Op, Reply, Request};

@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use tokio_util::sync::CancellationToken;
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::line::Target;
 use crate::driver::modbus::link::LinkError;
 use crate::driver::modbus::probe::{describe, identify};

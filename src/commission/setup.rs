@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use super::CommissionError;
+use super::error::CommissionError;
 use super::line::Target;
 use crate::driver::modbus::link::Link;
 use crate::profile::{Applies, ChannelSpec, Place, Profile, Setting};

@@ -6,7 +6,7 @@
 
 use std::collections::VecDeque;
 
-use super::Message;
+use super::message::Message;
 
 /// Most chatter messages waiting at once: a burst of ten thousand refused commands is still
 /// answered in full while the broker keeps up; a flood beyond it costs only its oldest answers.

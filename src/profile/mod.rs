@@ -17,7 +17,6 @@ use std::time::Duration;
 /// needs longer is not answering).
 pub const MAX_TIMEOUT: Duration = Duration::from_secs(60);
 
-pub use builtin::builtin_profiles;
 pub use raw::{ChannelKind, ValueType, WordOrder};
 pub use settings::{Allowed, Applies, Place, Setting, SettingError};
 
@@ -559,6 +558,17 @@ impl Profiles {
     pub fn names(&self) -> Vec<&str> {
         self.by_name.keys().map(String::as_str).collect()
     }
+}
+
+/// The built-in profiles; they are checked by the test suite, so a failure here is a build bug.
+pub fn builtin_profiles() -> Vec<Profile> {
+    builtin::BUILTIN
+        .iter()
+        .map(|(name, text)| {
+            Profile::from_toml(text, &format!("(built-in) {name}"))
+                .unwrap_or_else(|e| panic!("built-in profile is broken: {e}"))
+        })
+        .collect()
 }
 
 #[cfg(test)]

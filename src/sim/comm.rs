@@ -13,7 +13,7 @@
 
 use std::collections::BTreeMap;
 
-use super::{Plant, SimError, SimModule};
+use super::model::SimModule;
 
 /// Where one model keeps its address and baud rate, per its datasheet.
 #[derive(Debug, PartialEq, Eq)]
@@ -98,7 +98,7 @@ impl CommRegisters {
         self.codes.iter().find(|(_, b)| *b == baud).map(|(c, _)| *c)
     }
 
-    fn baud_of(&self, code: u16) -> Option<u32> {
+    pub(super) fn baud_of(&self, code: u16) -> Option<u32> {
         self.codes.iter().find(|(c, _)| *c == code).map(|(_, b)| *b)
     }
 }
@@ -133,7 +133,7 @@ pub fn after_write(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8
 }
 
 /// Moves the module at `unit` to the address in its register, when that is a free unit id.
-fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8> {
+pub(super) fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8> {
     let m = modules.get(&unit)?;
     let regs = registers(&m.profile.model)?;
     let stored = u8::try_from(m.stored(regs.unit)?).ok()?;
@@ -143,30 +143,6 @@ fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Optio
     let m = modules.remove(&unit)?;
     modules.insert(stored, m);
     Some(stored)
-}
-
-impl Plant {
-    /// Power loss and return of one module: counts it does not keep go, and it comes back with
-    /// the address and baud rate in its registers (and a ZH-YX1600's counters in the run state
-    /// of their pAuto bits: `SimModule::power_cycle`). Returns the unit it answers at afterwards.
-    pub fn power_cycle(&self, bus: &str, unit: u8) -> Result<u8, SimError> {
-        let now = self.now();
-        let b = self
-            .bus(bus)
-            .ok_or_else(|| SimError::Config(format!("no bus {bus}")))?;
-        let mut modules = b.modules.lock().unwrap_or_else(|e| e.into_inner());
-        let m = modules.get_mut(&unit).ok_or_else(|| SimError::Bus {
-            bus: bus.into(),
-            message: format!("no module at unit {unit}"),
-        })?;
-        m.power_cycle(now);
-        if let Some(regs) = registers(&m.profile.model) {
-            if let Some(baud) = m.stored(regs.baud).and_then(|c| regs.baud_of(c)) {
-                m.baud = Some(baud);
-            }
-        }
-        Ok(move_to_stored_unit(&mut modules, unit).unwrap_or(unit))
-    }
 }
 
 #[cfg(test)]

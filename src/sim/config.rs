@@ -67,7 +67,7 @@ pub struct SimChannelConfig {
 
 impl SimConfig {
     /// Parses a simulator config.
-    pub fn from_toml(text: &str) -> Result<SimConfig, super::SimError> {
-        toml::from_str(text).map_err(|e| super::SimError::Config(e.to_string()))
+    pub fn from_toml(text: &str) -> Result<SimConfig, super::error::SimError> {
+        toml::from_str(text).map_err(|e| super::error::SimError::Config(e.to_string()))
     }
 }

@@ -7,6 +7,7 @@
 mod comm;
 mod config;
 mod datasheet;
+mod error;
 pub mod gateway;
 pub mod line;
 pub mod model;
@@ -21,10 +22,10 @@ use std::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 pub use config::{SimBusConfig, SimConfig, SimDeviceConfig};
+pub use error::SimError;
 pub use model::SimModule;
 
-/// The modules of one simulated bus, by unit id.
-pub type Modules = Arc<Mutex<BTreeMap<u8, SimModule>>>;
+pub use server::Modules;
 
 /// Where a simulated bus can be reached.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -63,15 +64,6 @@ pub struct Plant {
     pub buses: Vec<PlantBus>,
     start: Instant,
     cancel: CancellationToken,
-}
-
-/// The plant could not be started.
-#[derive(Debug, thiserror::Error)]
-pub enum SimError {
-    #[error("simulator config: {0}")]
-    Config(String),
-    #[error("bus {bus}: {message}")]
-    Bus { bus: String, message: String },
 }
 
 /// One simulated module of a device's config, in its datasheet factory state plus what the
@@ -286,5 +278,29 @@ fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<(
 impl Drop for Plant {
     fn drop(&mut self) {
         self.cancel.cancel();
+    }
+}
+
+impl Plant {
+    /// Power loss and return of one module: counts it does not keep go, and it comes back with
+    /// the address and baud rate in its registers (and a ZH-YX1600's counters in the run state
+    /// of their pAuto bits: `SimModule::power_cycle`). Returns the unit it answers at afterwards.
+    pub fn power_cycle(&self, bus: &str, unit: u8) -> Result<u8, SimError> {
+        let now = self.now();
+        let b = self
+            .bus(bus)
+            .ok_or_else(|| SimError::Config(format!("no bus {bus}")))?;
+        let mut modules = b.modules.lock().unwrap_or_else(|e| e.into_inner());
+        let m = modules.get_mut(&unit).ok_or_else(|| SimError::Bus {
+            bus: bus.into(),
+            message: format!("no module at unit {unit}"),
+        })?;
+        m.power_cycle(now);
+        if let Some(regs) = comm::registers(&m.profile.model) {
+            if let Some(baud) = m.stored(regs.baud).and_then(|c| regs.baud_of(c)) {
+                m.baud = Some(baud);
+            }
+        }
+        Ok(comm::move_to_stored_unit(&mut modules, unit).unwrap_or(unit))
     }
 }

@@ -12,7 +12,10 @@ use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 use tokio_serial::SerialStream;
 use tokio_util::sync::CancellationToken;
 
-use super::Modules;
+use super::model::SimModule;
+
+/// The modules of one simulated bus, by unit id.
+pub type Modules = std::sync::Arc<std::sync::Mutex<std::collections::BTreeMap<u8, SimModule>>>;
 
 /// Answers requests for the modules of one bus; absent or silent units stay silent.
 #[derive(Clone)]
