@@ -1,26 +1,32 @@
-//! The anchor: the gateway's whole-process CPU per Modbus transaction against mbpoll's (a bare
-//! libmodbus client in C that publishes nothing), polling the same simulated plant in the same
-//! run, everything pinned to one CPU.
+//! The anchors: the gateway's whole-process CPU per Modbus transaction against two bare
+//! libmodbus clients in C that publish nothing, polling the same simulated plant in the same
+//! run, everything pinned to one CPU. Each row pairs the gateway with the anchor that ran in
+//! the same mode:
+//! - pair A: the tight loop (`tight_loop.c`: libmodbus reads back to back in one process, no
+//!   sleep) against the gateway polling as fast as answered;
+//! - pair B: mbpoll's polling mode (`-l 10`: 10 ms of sleep after every unit) against the
+//!   gateway paced to the rate mbpoll achieved.
 //!
 //! - One CPU (`BENCH_CPU`, default the last one) carries the simulator (this process, pinned with
-//!   `taskset -a -p`), Mosquitto, the gateway and mbpoll (both started under `taskset -c`).
-//! - Transactions are counted by the simulated modules (FC03 answers), the same counter for both
-//!   clients.
+//!   `taskset -a -p`), Mosquitto, the gateway and the anchor (both started under `taskset -c`).
+//! - Transactions are counted by the simulated modules (FC03 answers), the same counter for every
+//!   client; each row prints the transactions per second of both sides.
 //! - CPU is the client's whole process, read from `/proc/PID/task/*/schedstat` (nanoseconds of
 //!   CPU per thread) at the start and end of a fixed window; `/proc/PID/stat` (utime + stime, in
 //!   10 ms ticks) is read too and printed beside it as a cross-check. No in-process timer.
-//! - RTU: twin lines of each kind; mbpoll polls one and the gateway the other in the same
+//! - RTU: twin lines of each kind; the anchor polls one and the gateway the other in the same
 //!   window (the lines pace both; host noise weighs on both), rounds swap the twins. TCP: the
-//!   gateway polls as fast as answered and would starve mbpoll, so rounds alternate the clients.
-//!   `BENCH_ROUNDS` (default 3); the spread over rounds is printed.
+//!   gateway polls as fast as answered and would starve the anchor, so rounds alternate the
+//!   clients. `BENCH_ROUNDS` (default 3); the spread over rounds is printed.
 //!
 //! - The floor rows run `examples/rtu_floor.rs` (tokio-serial + tokio-modbus, with and without
-//!   rumqttc publishing) in the gateway's place: what the card packages alone cost.
+//!   rumqttc publishing, back to back) in the gateway's place: what the card packages alone cost.
 //!
-//! mbpoll is the Debian package `mbpoll` (`apt-get install mbpoll`). Without it this part says so
-//! and reports the figures as missed.
+//! mbpoll is the Debian package `mbpoll`, the tight loop needs `libmodbus-dev` and a C compiler
+//! (`apt-get install mbpoll libmodbus-dev`). Without one of them this part says so and reports
+//! the rows of that anchor as missed.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
@@ -119,9 +125,14 @@ fn reads(plant: &Plant, bus: &str) -> u64 {
 struct Sample {
     cpu: Cpu,
     tx: u64,
+    /// The window's length, seconds.
+    secs: f64,
 }
 
 impl Sample {
+    fn tx_per_s(&self) -> f64 {
+        self.tx as f64 / self.secs
+    }
     fn us_per_tx(&self) -> f64 {
         self.cpu.sched_ns as f64 / 1000.0 / self.tx.max(1) as f64
     }
@@ -186,7 +197,7 @@ fn gateway_config(
     broker: u16,
     per_device: bool,
     poll: &str,
-) -> std::path::PathBuf {
+) -> PathBuf {
     let state = dir.join(format!("state-{name}"));
     let payload = if per_device { "device" } else { "channel" };
     let mut t = format!(
@@ -278,114 +289,300 @@ fn have_mbpoll() -> bool {
         .is_ok()
 }
 
-/// The rounds of one comparison: (gateway, mbpoll) samples.
+/// How long the tight loop runs if nothing stops it (the bench stops it after its window).
+const TIGHT_LOOP_SECS: u32 = 600;
+
+/// Compiles `tight_loop.c` against libmodbus into the target dir; `None` (said, with how to
+/// install what is missing) if it cannot.
+fn tight_loop_binary() -> Option<PathBuf> {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let out = target_dir().join("bench-tools");
+    let path = out.join("tight_loop");
+    let flags = Command::new("pkg-config")
+        .args(["--cflags", "--libs", "libmodbus"])
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+        .unwrap_or_else(|| "-I/usr/include/modbus -lmodbus".into());
+    let built = std::fs::create_dir_all(&out).is_ok()
+        && Command::new("cc")
+            .args(["-O2", "-Wall", "-o"])
+            .arg(&path)
+            .arg(manifest.join("benches/line/tight_loop.c"))
+            .args(flags.split_whitespace())
+            .status()
+            .is_ok_and(|s| s.success());
+    if !built {
+        println!(
+            "\nthe tight loop (benches/line/tight_loop.c) could not be built: it needs a C compiler \
+             and libmodbus. Install the Debian package: `sudo apt-get install libmodbus-dev`, then \
+             run `cargo bench --bench line mbpoll` again. Its rows are reported as missed."
+        );
+        return None;
+    }
+    Some(path)
+}
+
+/// The tight loop reading the count block of every unit in turn, back to back.
+fn tight_loop(binary: &Path, endpoint: &Endpoint, units: u8, cpu: usize) -> Child {
+    let mut c = Command::new("taskset");
+    c.args(["-c", &cpu.to_string()]).arg(binary);
+    match endpoint {
+        Endpoint::Tcp(a) => c.args(["tcp".into(), a.ip().to_string(), a.port().to_string()]),
+        Endpoint::Serial(p) => c.arg("rtu").arg(p).arg(RTU_BAUD.to_string()),
+    };
+    c.args([
+        units.to_string(),
+        COUNT_REGISTER.to_string(),
+        TIGHT_LOOP_SECS.to_string(),
+    ]);
+    c.stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap()
+}
+
+/// The client a row's gateway is measured against, named by the mode it runs in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Anchor {
+    /// mbpoll's polling mode (`-l 10`): 10 ms of sleep after every unit.
+    Polling,
+    /// `tight_loop.c`: libmodbus reads back to back in one process, no sleep.
+    TightLoop,
+}
+
+impl Anchor {
+    fn mode(self) -> &'static str {
+        match self {
+            Anchor::Polling => "mbpoll polling mode (-l 10)",
+            Anchor::TightLoop => "tight loop (libmodbus, back to back)",
+        }
+    }
+}
+
+/// The anchors this machine has.
+struct Anchors {
+    mbpoll: bool,
+    tight_loop: Option<PathBuf>,
+}
+
+impl Anchors {
+    fn find() -> Anchors {
+        let mbpoll = have_mbpoll();
+        if !mbpoll {
+            println!(
+                "\nmbpoll is missing: the polling-mode rows need it. Install the Debian package: \
+                 `sudo apt-get install mbpoll` (https://github.com/epsilonrt/mbpoll), then run \
+                 `cargo bench --bench line mbpoll` again. Its rows are reported as missed."
+            );
+        }
+        Anchors {
+            mbpoll,
+            tight_loop: tight_loop_binary(),
+        }
+    }
+
+    fn has(&self, anchor: Anchor) -> bool {
+        match anchor {
+            Anchor::Polling => self.mbpoll,
+            Anchor::TightLoop => self.tight_loop.is_some(),
+        }
+    }
+
+    fn start(&self, anchor: Anchor, endpoint: &Endpoint, units: u8, cpu: usize) -> Child {
+        match (anchor, &self.tight_loop) {
+            (Anchor::TightLoop, Some(binary)) => tight_loop(binary, endpoint, units, cpu),
+            (Anchor::TightLoop, None) => panic!("the tight loop was not built"),
+            (Anchor::Polling, _) => mbpoll(endpoint, units, cpu),
+        }
+    }
+}
+
+/// The rounds of one comparison: (gateway or floor client, anchor) samples.
 type Rounds = Vec<(Sample, Sample)>;
 
-fn summary(what: &str, rounds: &Rounds, figures: &mut Vec<Figure>, target: Option<f64>) {
-    let client = if what.starts_with("floor") {
-        "floor"
-    } else {
-        "pulsegate"
-    };
-    let mut ratios: Vec<f64> = rounds
+/// One row of the report: what the gateway (or floor client) polls and how, and its anchor.
+struct Scenario {
+    what: &'static str,
+    /// The mode the gateway (or the floor client) ran in.
+    client: &'static str,
+    anchor: Anchor,
+    /// Held to the target (no more CPU a transaction than the anchor); else context.
+    target: bool,
+}
+
+const FULL: &str = "pulsegate as fast as answered";
+const PACED: &str = "pulsegate paced to mbpoll's rate";
+const FLOOR: &str = "floor client as fast as answered";
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn summary(row: &Scenario, rounds: &Rounds, figures: &mut Vec<Figure>) {
+    let (client, anchor) = (row.client, row.anchor.mode());
+    let ratios: Vec<f64> = rounds
         .iter()
         .map(|(g, m)| g.us_per_tx() / m.us_per_tx())
         .collect();
     for (i, (g, m)) in rounds.iter().enumerate() {
         println!(
-            "  {what}, round {}: {client} {:.1} us/tx ({} tx; /proc/PID/stat {:.1}; {:.1} switches/tx), mbpoll {:.1} us/tx ({} tx; stat {:.1}; {:.1} switches/tx), ratio {:.3}",
+            "  {}, round {}: {client} {:.1} us/tx at {:.1} tx/s ({} tx; /proc/PID/stat {:.1}; {:.1} switches/tx), {anchor} {:.1} us/tx at {:.1} tx/s ({} tx; stat {:.1}; {:.1} switches/tx), ratio {:.3}",
+            row.what,
             i + 1,
             g.us_per_tx(),
+            g.tx_per_s(),
             g.tx,
             g.stat_us_per_tx(),
             g.switches_per_tx(),
             m.us_per_tx(),
+            m.tx_per_s(),
             m.tx,
             m.stat_us_per_tx(),
             m.switches_per_tx(),
             ratios[i]
         );
     }
-    ratios.sort_by(f64::total_cmp);
-    let median = ratios[ratios.len() / 2];
-    let median_of = |f: &dyn Fn(&(Sample, Sample)) -> f64| {
-        let mut v: Vec<f64> = rounds.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let g = median_of(&|r| r.0.us_per_tx());
-    let m = median_of(&|r| r.1.us_per_tx());
+    let of = |f: &dyn Fn(&(Sample, Sample)) -> f64| median(rounds.iter().map(f).collect());
+    let (lo, hi) = ratios
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), r| (l.min(*r), h.max(*r)));
     figures.push(Figure {
-        what: format!("{what}: CPU/tx {client} / mbpoll"),
+        what: format!("{}: {client} / {anchor}, CPU/tx", row.what),
         value: format!(
-            "{g:.0} / {m:.0} us ({:.2}-{:.2})",
-            ratios[0],
-            ratios[ratios.len() - 1]
+            "{:.0} / {:.0} us at {:.0} / {:.0} tx/s ({lo:.2}-{hi:.2})",
+            of(&|r| r.0.us_per_tx()),
+            of(&|r| r.1.us_per_tx()),
+            of(&|r| r.0.tx_per_s()),
+            of(&|r| r.1.tx_per_s()),
         ),
-        target: match target {
-            Some(t) => format!("<= {t:.1} (median of {})", ratios.len()),
-            None => format!("(context, median of {})", ratios.len()),
+        target: match row.target {
+            true => format!("<= 1.0 (median of {})", ratios.len()),
+            false => format!("(context, median of {})", ratios.len()),
         },
-        ratio: median,
-        pass: target.is_none_or(|t| median <= t),
+        ratio: median(ratios.clone()),
+        pass: !row.target || median(ratios) <= 1.0,
     });
 }
 
-/// The comparisons, in report order.
-const SCENARIOS: [&str; 10] = [
-    "Modbus TCP, 16 YL67, as fast as answered, per-channel JSON QoS 1",
-    "Modbus TCP, 16 YL67, as fast as answered, per-device JSON QoS 1",
-    "Modbus TCP, 16 YL67, at mbpoll's rate, per-channel JSON QoS 1",
-    "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
-    "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
-    "Modbus RTU 9600, 4 YL67, bytes trickling, per-device JSON QoS 1",
-    "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1, broker on a Unix socket",
-    "floor: tokio-serial + tokio-modbus alone, RTU 9600, frames at once, no MQTT",
-    "floor: tokio-serial + tokio-modbus + rumqttc, RTU 9600, frames at once, 4 messages a poll QoS 1",
-    "context: pulsegate with mqtt.batch = \"0s\" (each poll at once), RTU 9600, bytes trickling, per-channel JSON QoS 1",
+/// The comparisons, in report order (the indices below name them).
+const SCENARIOS: [Scenario; 11] = [
+    Scenario {
+        what: "pair A, Modbus TCP, 16 YL67, per-channel JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: true,
+    },
+    Scenario {
+        what: "pair A, Modbus TCP, 16 YL67, per-device JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: true,
+    },
+    Scenario {
+        what: "pair B, Modbus TCP, 16 YL67, per-channel JSON QoS 1",
+        client: PACED,
+        anchor: Anchor::Polling,
+        target: true,
+    },
+    Scenario {
+        what: "pair A, Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: true,
+    },
+    Scenario {
+        what: "pair B, Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1",
+        client: PACED,
+        anchor: Anchor::Polling,
+        target: true,
+    },
+    Scenario {
+        what: "Modbus RTU 9600, 4 YL67, bytes trickling, per-channel JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: true,
+    },
+    Scenario {
+        what: "Modbus RTU 9600, 4 YL67, bytes trickling, per-device JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: true,
+    },
+    Scenario {
+        what: "Modbus RTU 9600, 4 YL67, frames at once, per-channel JSON QoS 1, broker on a Unix socket",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: false,
+    },
+    Scenario {
+        what: "floor: tokio-serial + tokio-modbus alone, RTU 9600, frames at once, no MQTT",
+        client: FLOOR,
+        anchor: Anchor::TightLoop,
+        target: false,
+    },
+    Scenario {
+        what: "floor: tokio-serial + tokio-modbus + rumqttc, RTU 9600, frames at once, 4 messages a poll QoS 1",
+        client: FLOOR,
+        anchor: Anchor::TightLoop,
+        target: false,
+    },
+    Scenario {
+        what: "context: pulsegate with mqtt.batch = \"0s\" (each poll at once), RTU 9600, bytes trickling, per-channel JSON QoS 1",
+        client: FULL,
+        anchor: Anchor::TightLoop,
+        target: false,
+    },
 ];
 
-/// The context row that measures the gateway without its batch.
-const UNBATCHED: usize = 9;
-
-/// The scenarios from here on are printed for context (no target): floors, and the gateway
-/// without its batch.
-const FLOORS_FROM: usize = 7;
+const TCP_FULL: usize = 0;
+const TCP_PACED: usize = 2;
+const RTU_FULL: usize = 3;
+const RTU_PACED: usize = 4;
+const TRICKLE: usize = 5;
+const TRICKLE_DEVICE: usize = 6;
+const UNIX_SOCKET: usize = 7;
+const FLOORS: usize = 8;
+const UNBATCHED: usize = 10;
 
 /// Transactions in one poll of a YL67 in quadrature mode: the count block and the frequency
 /// block (8 registers each).
 const YL67_READS_A_POLL: f64 = 2.0;
 
-fn missing(figures: &mut Vec<Figure>) {
-    println!(
-        "\nmbpoll is missing: the side-by-side figures need it. Install the Debian package: \
-         `sudo apt-get install mbpoll` (https://github.com/epsilonrt/mbpoll), then run \
-         `cargo bench --bench line mbpoll` again."
-    );
-    for what in SCENARIOS {
-        figures.push(Figure {
-            what: format!("{what}: CPU/tx pulsegate / mbpoll"),
-            value: "mbpoll missing".into(),
-            target: "<= 1.0".into(),
-            ratio: f64::NAN,
-            pass: false,
-        });
+/// The gateway's poll interval that makes `rate` transactions a second over `units` YL67.
+fn poll_for(rate: f64, units: u8) -> String {
+    let ms = f64::from(units) * YL67_READS_A_POLL / rate.max(1.0) * 1000.0;
+    format!("{}ms", ms as u64)
+}
+
+fn missed(row: &Scenario) -> Figure {
+    Figure {
+        what: format!(
+            "{}: {} / {}, CPU/tx",
+            row.what,
+            row.client,
+            row.anchor.mode()
+        ),
+        value: format!("{} missing", row.anchor.mode()),
+        target: "<= 1.0".into(),
+        ratio: f64::NAN,
+        pass: false,
     }
 }
 
 /// The side-by-side comparison (bench part `mbpoll`).
 pub async fn run(figures: &mut Vec<Figure>) {
-    if !have_mbpoll() {
-        missing(figures);
-        return;
-    }
+    let anchors = Anchors::find();
     let cpu = bench_cpu();
     let before = allowed_cpus();
     let rounds: usize = env_or("BENCH_ROUNDS", 3);
     let tcp_window = Duration::from_secs(env_or("BENCH_TCP_SECS", 10));
     let rtu_window = Duration::from_secs(env_or("BENCH_RTU_SECS", 15));
     println!(
-        "\nside by side with mbpoll on CPU {cpu}: {rounds} rounds, windows {}s (TCP) / {}s (RTU)",
+        "\nside by side with the anchors on CPU {cpu}: {rounds} rounds, windows {}s (TCP) / {}s (RTU)",
         tcp_window.as_secs(),
         rtu_window.as_secs()
     );
@@ -395,98 +592,143 @@ pub async fn run(figures: &mut Vec<Figure>) {
     let dir = temp_dir("mbpoll");
     let mosquitto = Mosquitto::start();
     pin(mosquitto.0.id(), &cpu.to_string());
-    let sim = plant_config(&dir);
-    let plant = Plant::start(&sim).await.unwrap();
-    let endpoint = |bus: &str| plant.bus(bus).unwrap().endpoint.clone();
-    let tcp = endpoint("hall");
-    let broker = mosquitto.1;
-    let configs = [
-        gateway_config(&dir, "tcp-ch", &tcp, TCP_UNITS, broker, false, "1ms"),
-        gateway_config(&dir, "tcp-dev", &tcp, TCP_UNITS, broker, true, "1ms"),
-    ];
+    let plant = Plant::start(&plant_config(&dir)).await.unwrap();
+    let socket = mosquitto.socket();
+    let tcp = TcpRound {
+        plant: &plant,
+        dir: &dir,
+        endpoint: plant.bus("hall").unwrap().endpoint.clone(),
+        broker: mosquitto.1,
+        anchors: &anchors,
+        cpu,
+        window: tcp_window,
+    };
+    let rtu = RtuTwins {
+        plant: &plant,
+        dir: &dir,
+        kind: "line",
+        broker: mosquitto.1,
+        socket: None,
+        unbatched: false,
+        poll: "1ms",
+        anchor: Anchor::TightLoop,
+        anchors: &anchors,
+        cpu,
+    };
     let mut results: Vec<Rounds> = vec![Vec::new(); SCENARIOS.len()];
     // BENCH_SIDE=rtu (or tcp) measures one side only, when working on it.
     let side = std::env::var("BENCH_SIDE").unwrap_or_default();
     let floor = if side == "tcp" { None } else { floor_binary() };
+    let paced = match side != "tcp" && anchors.mbpoll {
+        true => rtu_paced_poll(&rtu).await,
+        false => String::new(),
+    };
     for round in 0..rounds {
         if side != "rtu" {
-            tcp_rounds(
-                &plant,
-                &dir,
-                &configs,
-                &tcp,
-                broker,
-                cpu,
-                tcp_window,
-                &mut results,
-            )
-            .await;
+            tcp.round(&mut results).await;
         }
-        if side == "tcp" {
-            continue;
+        if side != "tcp" {
+            let ways = (paced.as_str(), socket.as_path(), floor.as_deref());
+            rtu_round(rtu, ways, round, rtu_window, &mut results).await;
         }
-        let socket = mosquitto.socket();
-        let rtu = [
-            ("line", false, None),
-            ("trickle", false, None),
-            ("trickle", true, None),
-            ("line", false, Some(socket.as_path())),
-        ];
-        for (i, (kind, per_device, socket)) in rtu.into_iter().enumerate() {
-            let twins = RtuTwins {
-                plant: &plant,
-                dir: &dir,
-                kind,
-                broker,
-                socket,
-                unbatched: false,
-                cpu,
-            };
-            results[3 + i].push(twins.measure(per_device, round, rtu_window).await);
-        }
-        if let Some(floor) = &floor {
-            let twins = RtuTwins {
-                plant: &plant,
-                dir: &dir,
-                kind: "line",
-                broker,
-                socket: None,
-                unbatched: false,
-                cpu,
-            };
-            for (i, mqtt) in [None, Some(broker)].into_iter().enumerate() {
-                let start = |p: &Endpoint| floor_client(floor, p, mqtt, cpu);
-                let pair = twins.measure_client(start, round, rtu_window).await;
-                results[FLOORS_FROM + i].push(pair);
-            }
-        }
-        let twins = RtuTwins {
-            plant: &plant,
-            dir: &dir,
-            kind: "trickle",
-            broker,
-            socket: None,
-            unbatched: true,
-            cpu,
-        };
-        results[UNBATCHED].push(twins.measure(false, round, rtu_window).await);
     }
-    for (i, (what, rounds)) in SCENARIOS.iter().zip(&results).enumerate() {
-        if rounds.is_empty() {
-            continue;
+    for (row, rounds) in SCENARIOS.iter().zip(&results) {
+        match rounds.is_empty() {
+            false => summary(row, rounds, figures),
+            true if !anchors.has(row.anchor) => figures.push(missed(row)),
+            true => {}
         }
-        summary(what, rounds, figures, (i < FLOORS_FROM).then_some(1.0));
     }
     drop(plant);
     drop(mosquitto);
     pin(std::process::id(), &before);
 }
 
+/// The poll interval that paces the RTU gateway to mbpoll's rate: mbpoll alone on a
+/// frames-at-once line for a few seconds, before the rounds.
+async fn rtu_paced_poll(twins: &RtuTwins<'_>) -> String {
+    let endpoint = twins
+        .plant
+        .bus("line-a")
+        .expect("twin line")
+        .endpoint
+        .clone();
+    settle(&endpoint).await;
+    let child = mbpoll(&endpoint, RTU_UNITS, twins.cpu);
+    let warmup = Duration::from_secs(2);
+    let m = measure(child, twins.plant, "line-a", warmup, Duration::from_secs(6)).await;
+    let poll = poll_for(m.tx_per_s(), RTU_UNITS);
+    println!(
+        "  mbpoll polling mode on RTU 9600 frames at once: {:.1} tx/s; the paced gateway polls every {poll}",
+        m.tx_per_s()
+    );
+    poll
+}
+
+/// One round of the RTU comparisons: twins of each kind, then the floors.
+async fn rtu_round(
+    base: RtuTwins<'_>,
+    (paced, socket, floor): (&str, &Path, Option<&Path>),
+    round: usize,
+    window: Duration,
+    results: &mut [Rounds],
+) {
+    let line = base;
+    let trickle = RtuTwins {
+        kind: "trickle",
+        ..base
+    };
+    let rows = [
+        (RTU_FULL, line, false),
+        (
+            RTU_PACED,
+            RtuTwins {
+                poll: paced,
+                anchor: Anchor::Polling,
+                ..line
+            },
+            false,
+        ),
+        (TRICKLE, trickle, false),
+        (TRICKLE_DEVICE, trickle, true),
+        (
+            UNIX_SOCKET,
+            RtuTwins {
+                socket: Some(socket),
+                ..line
+            },
+            false,
+        ),
+        (
+            UNBATCHED,
+            RtuTwins {
+                unbatched: true,
+                ..trickle
+            },
+            false,
+        ),
+    ];
+    for (row, twins, per_device) in rows {
+        if base.anchors.has(twins.anchor) {
+            results[row].push(twins.measure(per_device, round, window).await);
+        }
+    }
+    let Some(floor) = floor.filter(|_| base.anchors.has(line.anchor)) else {
+        return;
+    };
+    for (i, mqtt) in [None, Some(base.broker)].into_iter().enumerate() {
+        let start = |p: &Endpoint| floor_client(floor, p, mqtt, base.cpu);
+        let pair = line.measure_client(start, round, window).await;
+        results[FLOORS + i].push(pair);
+    }
+}
+
 /// Twin RTU lines of one kind (`line-a`/`line-b`: frames at once, `trickle-a`/`trickle-b`:
-/// bytes at character pace): mbpoll polls one and the gateway the other, started together and
+/// bytes at character pace): the anchor polls one and the gateway the other, started together and
 /// measured over the same window. The lines pace both clients (neither can take the CPU from
 /// the other), and whatever else the machine does in that window weighs on both: alternating
 /// windows gave ratios that moved ±50% between rounds. Rounds swap the twins.
+#[derive(Clone, Copy)]
 struct RtuTwins<'a> {
     plant: &'a Plant,
     dir: &'a Path,
@@ -496,6 +738,10 @@ struct RtuTwins<'a> {
     socket: Option<&'a Path>,
     /// The gateway sends each poll's readings at once (`mqtt.batch = "0s"`).
     unbatched: bool,
+    /// The gateway's poll interval (`1ms`: as fast as answered).
+    poll: &'a str,
+    anchor: Anchor,
+    anchors: &'a Anchors,
     cpu: usize,
 }
 
@@ -503,11 +749,12 @@ impl RtuTwins<'_> {
     async fn measure(&self, per_device: bool, round: usize, window: Duration) -> (Sample, Sample) {
         let start = |endpoint: &Endpoint| {
             let name = format!(
-                "{}-{round}-{}{}{}",
+                "{}-{round}-{}{}{}-{}",
                 self.kind,
                 if per_device { "dev" } else { "ch" },
                 if self.socket.is_some() { "-unix" } else { "" },
-                if self.unbatched { "-unbatched" } else { "" }
+                if self.unbatched { "-unbatched" } else { "" },
+                self.poll
             );
             let config = gateway_config(
                 self.dir,
@@ -516,7 +763,7 @@ impl RtuTwins<'_> {
                 RTU_UNITS,
                 self.broker,
                 per_device,
-                "1ms",
+                self.poll,
             );
             if let Some(socket) = self.socket {
                 set_mqtt(&config, &format!("socket = {socket:?}"));
@@ -529,7 +776,7 @@ impl RtuTwins<'_> {
         self.measure_client(start, round, window).await
     }
 
-    /// `start`s a client on one twin and mbpoll on the other; both measured in one window.
+    /// `start`s a client on one twin and the anchor on the other; both measured in one window.
     async fn measure_client(
         &self,
         start: impl FnOnce(&Endpoint) -> Child,
@@ -544,13 +791,38 @@ impl RtuTwins<'_> {
         let gw_bus = format!("{}-{mine}", self.kind);
         let mb_bus = format!("{}-{theirs}", self.kind);
         let endpoint = |bus: &str| self.plant.bus(bus).expect("twin line").endpoint.clone();
+        settle(&endpoint(&gw_bus)).await;
+        settle(&endpoint(&mb_bus)).await;
         let mut g = Running::start(start(&endpoint(&gw_bus)));
-        let mut m = Running::start(mbpoll(&endpoint(&mb_bus), RTU_UNITS, self.cpu));
+        let anchor = self
+            .anchors
+            .start(self.anchor, &endpoint(&mb_bus), RTU_UNITS, self.cpu);
+        let mut m = Running::start(anchor);
         tokio::time::sleep(Duration::from_secs(3)).await;
         g.begin(self.plant, &gw_bus);
         m.begin(self.plant, &mb_bus);
         tokio::time::sleep(window).await;
         (g.end(self.plant, &gw_bus), m.end(self.plant, &mb_bus))
+    }
+}
+
+/// Empties what a stopped client left on an RTU line. An answer on its way when the client was
+/// stopped would be read by the next one as the answer to its first request, and each answer
+/// after it one request early: its pauses then hide behind the line (mbpoll's polling mode
+/// measured 31 tx/s, the line's limit, instead of its own ~24).
+async fn settle(endpoint: &Endpoint) {
+    let Endpoint::Serial(path) = endpoint else {
+        return;
+    };
+    // Longer than the longest answer's line time (21 characters at 9600 baud) and turnaround.
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    match serialport::new(path.to_string_lossy(), RTU_BAUD).open() {
+        Ok(port) => {
+            if let Err(e) = port.clear(serialport::ClearBuffer::Input) {
+                println!("  could not empty {path:?} before a window: {e}");
+            }
+        }
+        Err(e) => println!("  could not open {path:?} to empty it before a window: {e}"),
     }
 }
 
@@ -566,8 +838,14 @@ fn set_mqtt(config: &Path, line: &str) {
     std::fs::write(config, text).expect("gateway config");
 }
 
+/// Where cargo builds: `CARGO_TARGET_DIR`, else `target/` of the manifest.
+fn target_dir() -> PathBuf {
+    let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::env::var("CARGO_TARGET_DIR").map_or_else(|_| manifest.join("target"), PathBuf::from)
+}
+
 /// Builds `examples/rtu_floor.rs` (release) and returns its path; `None` (said) if it cannot.
-fn floor_binary() -> Option<std::path::PathBuf> {
+fn floor_binary() -> Option<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
     let built = Command::new(cargo)
@@ -575,9 +853,7 @@ fn floor_binary() -> Option<std::path::PathBuf> {
         .current_dir(manifest)
         .status()
         .is_ok_and(|s| s.success());
-    let target = std::env::var("CARGO_TARGET_DIR")
-        .map_or_else(|_| manifest.join("target"), std::path::PathBuf::from);
-    let path = target.join("release/examples/rtu_floor");
+    let path = target_dir().join("release/examples/rtu_floor");
     if !built || !path.exists() {
         println!(
             "\nthe floor client (examples/rtu_floor.rs) could not be built: its rows are left out"
@@ -603,27 +879,29 @@ fn floor_client(binary: &Path, endpoint: &Endpoint, mqtt: Option<u16>, cpu: usiz
         .unwrap()
 }
 
-/// A client being measured: CPU and transactions at the window's start.
+/// A client being measured: CPU, transactions and time at the window's start.
 struct Running {
     child: Child,
-    start: (Cpu, u64),
+    start: (Cpu, u64, std::time::Instant),
 }
 
 impl Running {
     fn start(child: Child) -> Running {
         Running {
             child,
-            start: (Cpu::default(), 0),
+            start: (Cpu::default(), 0, std::time::Instant::now()),
         }
     }
 
     fn begin(&mut self, plant: &Plant, bus: &str) {
-        self.start = (cpu_of(self.child.id()), reads(plant, bus));
+        let at = std::time::Instant::now();
+        self.start = (cpu_of(self.child.id()), reads(plant, bus), at);
     }
 
     /// The window's figures; stops the client (SIGTERM).
     fn end(mut self, plant: &Plant, bus: &str) -> Sample {
         let (c1, r1) = (cpu_of(self.child.id()), reads(plant, bus));
+        let secs = self.start.2.elapsed().as_secs_f64();
         let _ = Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status();
@@ -636,49 +914,67 @@ impl Running {
                 switches: c1.switches.saturating_sub(c0.switches),
             },
             tx: r1 - self.start.1,
+            secs,
         }
     }
 }
 
-/// One round of the TCP comparisons (results 0..3).
-#[allow(clippy::too_many_arguments)]
-async fn tcp_rounds(
-    plant: &Plant,
-    dir: &Path,
-    configs: &[std::path::PathBuf],
-    tcp: &Endpoint,
+/// The TCP side of one run: rounds alternate the clients on the one TCP bus.
+struct TcpRound<'a> {
+    plant: &'a Plant,
+    dir: &'a Path,
+    endpoint: Endpoint,
     broker: u16,
+    anchors: &'a Anchors,
     cpu: usize,
-    tcp_window: Duration,
-    results: &mut [Rounds],
-) {
-    let warmup = Duration::from_secs(3);
-    let short = Duration::from_secs(1);
-    let m = measure(
-        mbpoll(tcp, TCP_UNITS, cpu),
-        plant,
-        "hall",
-        short,
-        tcp_window,
-    )
-    .await;
-    for (i, config) in configs[..2].iter().enumerate() {
-        let g = measure(gateway(config, cpu), plant, "hall", warmup, tcp_window).await;
-        results[i].push((g, m));
+    window: Duration,
+}
+
+impl TcpRound<'_> {
+    /// Measures `child` on the TCP bus over one window.
+    async fn measure(&self, child: Child, warmup: Duration) -> Sample {
+        measure(child, self.plant, "hall", warmup, self.window).await
     }
-    // The gateway polling at the rate mbpoll managed: every transaction pays its own
-    // wake-ups, as mbpoll's do.
-    let rate = m.tx as f64 / tcp_window.as_secs_f64();
-    let poll_ms = (f64::from(TCP_UNITS) * YL67_READS_A_POLL / rate.max(1.0) * 1000.0) as u64;
-    let paced = gateway_config(
-        dir,
-        "tcp-paced",
-        tcp,
-        TCP_UNITS,
-        broker,
-        false,
-        &format!("{poll_ms}ms"),
-    );
-    let g = measure(gateway(&paced, cpu), plant, "hall", warmup, tcp_window).await;
-    results[2].push((g, m));
+
+    fn gateway(&self, name: &str, per_device: bool, poll: &str) -> Child {
+        let units = TCP_UNITS;
+        let config = gateway_config(
+            self.dir,
+            name,
+            &self.endpoint,
+            units,
+            self.broker,
+            per_device,
+            poll,
+        );
+        gateway(&config, self.cpu)
+    }
+
+    /// One round: pair A (tight loop, then the gateway as fast as answered, per channel and
+    /// per device), pair B (mbpoll polling, then the gateway paced to the rate mbpoll made).
+    async fn round(&self, results: &mut [Rounds]) {
+        let warmup = Duration::from_secs(3);
+        let short = Duration::from_secs(1);
+        let (cpu, units) = (self.cpu, TCP_UNITS);
+        if self.anchors.has(Anchor::TightLoop) {
+            let anchor = self
+                .anchors
+                .start(Anchor::TightLoop, &self.endpoint, units, cpu);
+            let m = self.measure(anchor, short).await;
+            for (i, per_device) in [false, true].into_iter().enumerate() {
+                let name = if per_device { "tcp-dev" } else { "tcp-ch" };
+                let g = self.measure(self.gateway(name, per_device, "1ms"), warmup);
+                results[TCP_FULL + i].push((g.await, m));
+            }
+        }
+        if self.anchors.has(Anchor::Polling) {
+            let m = self
+                .measure(mbpoll(&self.endpoint, units, cpu), short)
+                .await;
+            // Every transaction pays its own wake-ups, as mbpoll's do.
+            let poll = poll_for(m.tx_per_s(), units);
+            let g = self.measure(self.gateway("tcp-paced", false, &poll), warmup);
+            results[TCP_PACED].push((g.await, m));
+        }
+    }
 }
