@@ -170,10 +170,11 @@ mod tests {
         let _b = h.heart("bus/b");
         a.beat();
         assert!(h.stale(Duration::from_secs(60)).is_empty());
-        std::thread::sleep(Duration::from_millis(30));
+        std::thread::sleep(Duration::from_millis(300));
         a.beat();
+        // Wide margins: a loaded machine may pause this thread between the beat and the look.
         assert_eq!(
-            h.stale(Duration::from_millis(20)),
+            h.stale(Duration::from_millis(200)),
             vec!["bus/b".to_string()]
         );
     }
