@@ -15,6 +15,19 @@ async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
     a_broker_away_loses_no_reading(Protocol::V5, Duration::from_secs(60)).await;
 }
 
+/// Metering's whole story in ten-second records: a broker outage with a power cycle in it, a
+/// gateway stop over a boundary and a crash mid-interval (body in `metering`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metering_records_through_a_stop_an_outage_and_a_power_cycle() {
+    crate::metering::ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_outage_and_a_power_cycle().await;
+}
+
+/// Sparkplug B store and forward over a 30 s broker outage (body in `sparkplug`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sparkplug_historical_readings_after_a_30s_outage() {
+    crate::sparkplug::after_a_30s_broker_outage_the_historical_readings_follow_the_rebirth_in_order().await;
+}
+
 /// 2% of the bytes corrupted, both ways, at 9600 baud for 60 s (`PULSEGATE_NOISE_SECS`): CRC
 /// errors and undecodable frames are garbled answers, not line faults, and no device goes
 /// offline.

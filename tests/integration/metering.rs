@@ -96,8 +96,8 @@ fn records(sub: &Subscriber, topic: &str) -> Vec<Value> {
     readings(sub, topic)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_outage_and_a_power_cycle()
+/// Run from `burn_in` (a minute of wall clock: it starts with the other long runs).
+pub(crate) async fn ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_outage_and_a_power_cycle()
  {
     let dir = temp_dir("intervals");
     let port = free_port();
