@@ -390,12 +390,13 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
     let plant = plant(ONE_ENCODER).await;
     let dir = temp_dir("hostile-ghost");
     let sub = Subscriber::start(broker.port, "pulsegate/test/d/enc0").await;
+    let metrics = free_port();
     let gw = start_gateway(
         &plant,
         broker.port,
         &dir,
         &[("line1", "d", 1, "yl67", "100ms")],
-        "",
+        &format!("[metrics]\nlisten = \"127.0.0.1:{metrics}\"\n"),
     );
     sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
         .await;
@@ -440,14 +441,31 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
         rss_peak - rss_before
     );
     // Results are chatter: a burst faster than the broker takes them keeps the newest 16,384
-    // (`outbox::CHATTER_MESSAGES`) and says how many it dropped; readings go on (below).
+    // (`outbox::CHATTER_MESSAGES`), drops the oldest and counts them; readings go on (below).
+    // Every command is accounted for: answered, or counted as a dropped result.
+    let exposition =
+        crate::metrics::scrape_until(metrics, Duration::from_secs(5), "a scrape", |t| {
+            t.contains("pulsegate_mqtt_chatter_dropped_total")
+        })
+        .await;
+    let dropped = crate::metrics::sample(&exposition, "pulsegate_mqtt_chatter_dropped_total")
+        .unwrap() as usize;
     let log = gw.log_text();
-    assert!(
-        answered == 50_000
-            || (answered >= pulsegate::outbox::CHATTER_MESSAGES
-                && log.contains("dropped: they came faster than the broker took them")),
-        "{answered} answered:\n{log}"
+    assert_eq!(
+        answered + dropped,
+        50_000,
+        "{answered} answered, {dropped} counted as dropped:\n{log}"
     );
+    assert!(
+        answered >= pulsegate::outbox::CHATTER_MESSAGES,
+        "{answered} answered"
+    );
+    if dropped > 0 {
+        assert!(
+            log.contains("dropped: they came faster than the broker took them"),
+            "the drop is said in the log:\n{log}"
+        );
+    }
     assert!(
         rss_peak - rss_before <= 16 * 1024,
         "RSS grew by {} kB",
