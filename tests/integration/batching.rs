@@ -3,7 +3,6 @@
 
 use std::time::{Duration, Instant};
 
-use rumqttc::v5::mqttbytes::QoS;
 use serde_json::json;
 
 use pulsegate::sim::Plant;
@@ -84,15 +83,11 @@ async fn without_a_batch_every_poll_reaches_the_broker_on_its_own() {
 async fn a_command_result_is_not_held_by_a_long_batch() {
     let (_broker, _plant, sub, _gw) = rig("batch-cmd", "5s").await;
     let sent = Instant::now();
-    sub.client
-        .publish(
-            "pulsegate/test/yl/enc0/cmd",
-            QoS::AtLeastOnce,
-            false,
-            json!({"op": "clear", "id": "b1"}).to_string(),
-        )
-        .await
-        .unwrap();
+    sub.send(
+        "pulsegate/test/yl/enc0/cmd",
+        json!({"op": "clear", "id": "b1"}).to_string(),
+    )
+    .await;
     let result = sub
         .wait_for(
             "pulsegate/test/yl/enc0/cmd/result",

@@ -573,15 +573,8 @@ async fn commands_to_a_disabled_or_offline_device_are_refused_without_a_write() 
                 .is_some()
         );
     }
-    sub.client
-        .publish(
-            "pulsegate/test/yl/enc0/cmd",
-            QoS::AtLeastOnce,
-            false,
-            r#"{"op":"clear","id":"d1"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send("pulsegate/test/yl/enc0/cmd", r#"{"op":"clear","id":"d1"}"#)
+        .await;
     let r = sub
         .wait_for(
             "pulsegate/test/yl/enc0/cmd/result",
@@ -604,15 +597,8 @@ async fn commands_to_a_disabled_or_offline_device_are_refused_without_a_write() 
             .is_some()
     );
     let sent = Instant::now();
-    sub.client
-        .publish(
-            "pulsegate/test/wj/a0/cmd",
-            QoS::AtLeastOnce,
-            false,
-            r#"{"op":"clear","id":"o1"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send("pulsegate/test/wj/a0/cmd", r#"{"op":"clear","id":"o1"}"#)
+        .await;
     let r = sub
         .wait_for(
             "pulsegate/test/wj/a0/cmd/result",

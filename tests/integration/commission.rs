@@ -512,28 +512,14 @@ model = "zh-yx1600"
     let base_to = std::time::Instant::now();
 
     // A WJ157 is wired onto the running line at unit 60.
-    let wj157 = pulsegate::profile::Profiles::builtin()
-        .get("wj157")
-        .unwrap();
-    let module = pulsegate::sim::SimModule::new(wj157, &[0]).unwrap();
-    plant
-        .bus("line")
-        .unwrap()
-        .modules
-        .lock()
-        .unwrap()
-        .insert(60, module);
+    wire_module(&plant, "line", 60, "wj157", &[0]);
 
     let scan_from = std::time::Instant::now();
-    sub.client
-        .publish(
-            "pulsegate/test/bus/line/scan",
-            QoS::AtLeastOnce,
-            false,
-            r#"{"units": "1-3,50-70", "id": "survey-1"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send(
+        "pulsegate/test/bus/line/scan",
+        r#"{"units": "1-3,50-70", "id": "survey-1"}"#,
+    )
+    .await;
     let result = sub
         .wait_for(
             "pulsegate/test/bus/line/scan/result",
@@ -589,7 +575,6 @@ model = "zh-yx1600"
 /// answers.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_scan_of_a_busy_line_names_a_module_at_a_low_unit_within_45_s() {
-    use rumqttc::v5::mqttbytes::QoS;
     let plant = plant(
         r#"
 [buses.line]
@@ -629,28 +614,11 @@ model = "zh-yx1600"
     println!("busy scan: line use {}", busy.json()["utilisation"]);
 
     // A WJ157 is wired onto the running line at unit 5.
-    let wj157 = pulsegate::profile::Profiles::builtin()
-        .get("wj157")
-        .unwrap();
-    let module = pulsegate::sim::SimModule::new(wj157, &[0]).unwrap();
-    plant
-        .bus("line")
-        .unwrap()
-        .modules
-        .lock()
-        .unwrap()
-        .insert(5, module);
+    wire_module(&plant, "line", 5, "wj157", &[0]);
 
     let asked = std::time::Instant::now();
-    sub.client
-        .publish(
-            "pulsegate/test/bus/line/scan",
-            QoS::AtLeastOnce,
-            false,
-            r#"{"id": "busy-1"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send("pulsegate/test/bus/line/scan", r#"{"id": "busy-1"}"#)
+        .await;
     let progress = sub
         .wait_for(
             "pulsegate/test/bus/line/scan/progress",

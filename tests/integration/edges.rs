@@ -5,7 +5,10 @@
 
 use std::time::Duration;
 
-use crate::support::{Broker, Gateway, Subscriber, gateway_toml, plant, temp_dir, write_config};
+use crate::support::{
+    Broker, Gateway, ONE_METER, Subscriber, gateway_toml, one_meter_toml, plant, temp_dir,
+    write_config,
+};
 
 /// `[gateway] min_interval = "1s"`, a device with `publish = "poll"` and `min_interval = "0s"`:
 /// that device publishes every poll, the other one still once a second.
@@ -73,16 +76,10 @@ async fn command_v5(sub: &Subscriber, topic: &str, payload: &str, response_topic
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_response_topic_into_the_gateways_own_topics_gets_nothing_published_there() {
     let broker = Broker::start();
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let dir = temp_dir("response-topics");
     let sub = Subscriber::start(broker.port, "#").await;
-    let text = gateway_toml(
-        &plant,
-        broker.port,
-        &dir,
-        &[("line1", "meter", 1, "yl67", "200ms")],
-        "",
-    );
+    let text = one_meter_toml(&plant, broker.port, &dir, "");
     let _gw = Gateway::start(&write_config(&dir, &text));
     let root = "pulsegate/test";
     sub.wait_for(
@@ -213,17 +210,11 @@ async fn a_broker_that_refuses_mqtt_5_is_named_with_the_setting_that_fixes_it() 
     let broker = Broker::start();
     let gate = crate::protocol::Gate::start(broker.port);
     let (old, refused) = v311_only_broker();
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let hint = "set mqtt.protocol = \"3.1.1\"";
     for (name, port) in [("refuses-v5-gate", gate.port), ("refuses-v5-old", old)] {
         let dir = temp_dir(name);
-        let text = gateway_toml(
-            &plant,
-            port,
-            &dir,
-            &[("line1", "meter", 1, "yl67", "200ms")],
-            "",
-        );
+        let text = one_meter_toml(&plant, port, &dir, "");
         let sock_path = dir.join("notify.sock");
         let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
         sock.set_read_timeout(Some(Duration::from_millis(200)))
@@ -303,18 +294,11 @@ async fn the_documented_acl_lets_each_user_do_its_part_and_nothing_else() {
         ),
         port,
     );
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let mes = Subscriber::start_with_login(port, "#", "mes", "pw").await;
     let ha = Subscriber::start_with_login(port, "#", "homeassistant", "pw").await;
     let grafana = Subscriber::start_with_login(port, "#", "grafana", "pw").await;
-    let text = gateway_toml(
-        &plant,
-        port,
-        &dir,
-        &[("line1", "meter", 1, "yl67", "200ms")],
-        "[homeassistant]\ndiscovery = true\n",
-    )
-    .replace(
+    let text = one_meter_toml(&plant, port, &dir, "[homeassistant]\ndiscovery = true\n").replace(
         "[mqtt]\n",
         "[mqtt]\nusername = \"pulsegate-test\"\npassword = \"pw\"\n",
     );
@@ -346,15 +330,11 @@ async fn the_documented_acl_lets_each_user_do_its_part_and_nothing_else() {
         "replies/mes/7",
     )
     .await;
-    mes.client
-        .publish(
-            format!("{root}/bus/line1/scan"),
-            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-            false,
-            r#"{"units":"1-2","id":"s1"}"#,
-        )
-        .await
-        .unwrap();
+    mes.send(
+        &format!("{root}/bus/line1/scan"),
+        r#"{"units":"1-2","id":"s1"}"#,
+    )
+    .await;
     let wait = Duration::from_secs(20);
     let ok = |m: &crate::support::Message| m.json()["ok"] == true;
     assert!(
@@ -375,15 +355,11 @@ async fn the_documented_acl_lets_each_user_do_its_part_and_nothing_else() {
         "the scan's result"
     );
     // Home Assistant presses a clear button.
-    ha.client
-        .publish(
-            format!("{root}/meter/cmd"),
-            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-            false,
-            r#"{"op":"clear_all","id":"h1"}"#,
-        )
-        .await
-        .unwrap();
+    ha.send(
+        &format!("{root}/meter/cmd"),
+        r#"{"op":"clear_all","id":"h1"}"#,
+    )
+    .await;
     assert!(
         ha.wait_for(&format!("{root}/meter/cmd/result"), wait, ok)
             .await
@@ -401,15 +377,7 @@ async fn the_documented_acl_lets_each_user_do_its_part_and_nothing_else() {
         )
         .await
         .unwrap();
-    mes.client
-        .publish(
-            format!("{root}/status"),
-            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-            false,
-            "offline",
-        )
-        .await
-        .unwrap();
+    mes.send(&format!("{root}/status"), "offline").await;
     tokio::time::sleep(Duration::from_secs(1)).await;
     assert!(
         grafana
@@ -459,15 +427,11 @@ async fn a_scan_neither_asks_nor_names_a_device_with_commands_false() {
     let _gw = Gateway::start(&write_config(&dir, &text));
     sub.expect_any("pulsegate/test/locked/enc0", Duration::from_secs(10))
         .await;
-    sub.client
-        .publish(
-            "pulsegate/test/bus/line1/scan",
-            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-            false,
-            r#"{"units":"1-3","id":"s"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send(
+        "pulsegate/test/bus/line1/scan",
+        r#"{"units":"1-3","id":"s"}"#,
+    )
+    .await;
     let result = sub
         .wait_for(
             "pulsegate/test/bus/line1/scan/result",

@@ -4,21 +4,23 @@
 
 use std::time::Duration;
 
-use crate::support::{Broker, Gateway, Subscriber, gateway_toml, plant, temp_dir, write_config};
+use crate::support::{
+    Broker, Gateway, ONE_METER, Subscriber, gateway_toml, one_meter_toml, plant, temp_dir,
+    write_config,
+};
 /// Sixteen connections that send half a request and hold it (a slow-loris client) do not keep
 /// a health probe out: `/healthz` answers 4 probes of 4, all within 2 s.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn held_half_written_requests_leave_healthz_answering() {
     use std::io::Write;
     let broker = Broker::start();
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let dir = temp_dir("slow-loris");
     let port = crate::support::free_port();
-    let text = gateway_toml(
+    let text = one_meter_toml(
         &plant,
         broker.port,
         &dir,
-        &[("line1", "meter", 1, "yl67", "200ms")],
         &format!("[metrics]\nlisten = \"127.0.0.1:{port}\"\n"),
     );
     let _gw = Gateway::start(&write_config(&dir, &text));
@@ -152,16 +154,10 @@ fn state_list_leaves_a_newer_format_file_untouched() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn state_prune_apply_refuses_while_a_gateway_holds_the_state_directory() {
     let broker = Broker::start();
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let dir = temp_dir("state-prune-lock");
     let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
-    let text = gateway_toml(
-        &plant,
-        broker.port,
-        &dir,
-        &[("line1", "meter", 1, "yl67", "200ms")],
-        "",
-    );
+    let text = one_meter_toml(&plant, broker.port, &dir, "");
     let config = write_config(&dir, &text);
     let gw = Gateway::start(&config);
     sub.expect_any("pulsegate/test/meter/enc0", Duration::from_secs(10))
@@ -185,16 +181,15 @@ async fn state_prune_apply_refuses_while_a_gateway_holds_the_state_directory() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unusable_spool_directory_falls_back_to_a_private_one_said_loudly() {
     let broker = Broker::start();
-    let plant = plant("[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n").await;
+    let plant = plant(ONE_METER).await;
     let dir = temp_dir("spool-fallback");
     std::fs::write(dir.join("spool"), "a file where the spool directory goes").unwrap();
     let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
     let port = crate::support::free_port();
-    let text = gateway_toml(
+    let text = one_meter_toml(
         &plant,
         broker.port,
         &dir,
-        &[("line1", "meter", 1, "yl67", "200ms")],
         &format!("[metrics]\nlisten = \"127.0.0.1:{port}\"\n"),
     );
     let config = write_config(&dir, &text);

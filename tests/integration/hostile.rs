@@ -846,15 +846,11 @@ async fn clears_while_counting_at_1_khz_lose_no_pulse_between_the_write_and_the_
     sub.expect_any(topic, Duration::from_secs(5)).await;
     for i in 0..10 {
         let id = format!("c{i}");
-        sub.client
-            .publish(
-                format!("{topic}/cmd"),
-                QoS::AtLeastOnce,
-                false,
-                format!(r#"{{"op":"clear","id":"{id}"}}"#),
-            )
-            .await
-            .unwrap();
+        sub.send(
+            &format!("{topic}/cmd"),
+            format!(r#"{{"op":"clear","id":"{id}"}}"#),
+        )
+        .await;
         let r = sub
             .wait_for(
                 &format!("{topic}/cmd/result"),

@@ -272,15 +272,11 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
     let writes = || plant.with_module("line1", 1, |m, _| m.writes).unwrap();
     let writes_before = writes();
 
-    sub.client
-        .publish(
-            format!("{topic}/cmd"),
-            rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-            false,
-            r#"{"op":"set_reading","value":"12345.678","id":"swap-1"}"#,
-        )
-        .await
-        .unwrap();
+    sub.send(
+        &format!("{topic}/cmd"),
+        r#"{"op":"set_reading","value":"12345.678","id":"swap-1"}"#,
+    )
+    .await;
     let result = sub
         .wait_for(
             &format!("{topic}/cmd/result"),
@@ -380,15 +376,7 @@ async fn set_reading_moves_the_reading_to_the_display_and_not_the_total_nor_the_
         ),
         (r#"{"op":"set_reading","id":"h3"}"#, "missing_value"),
     ] {
-        sub.client
-            .publish(
-                format!("{topic}/cmd"),
-                rumqttc::v5::mqttbytes::QoS::AtLeastOnce,
-                false,
-                payload,
-            )
-            .await
-            .unwrap();
+        sub.send(&format!("{topic}/cmd"), payload).await;
         let id = serde_json::from_str::<Value>(payload).unwrap()["id"].clone();
         let result = sub
             .wait_for(

@@ -226,15 +226,7 @@ async fn a_yl67_configured_as_wj157_and_a_zh_yx1600_as_yl67_are_wrong_models_wit
 /// Puts a module of `model` (in work `modes`) at unit 1 of line1 in place of the meter, and
 /// waits for the gateway to say `wrong_model` for it. Returns when the module was swapped.
 async fn swap_in_and_expect_wrong_model(s: &Setup, model: &str, modes: &[u16]) -> Instant {
-    let profiles = pulsegate::profile::Profiles::builtin();
-    let module = pulsegate::sim::SimModule::new(profiles.get(model).unwrap(), modes).unwrap();
-    s.plant
-        .bus("line1")
-        .unwrap()
-        .modules
-        .lock()
-        .unwrap()
-        .insert(1, module);
+    wire_module(&s.plant, "line1", 1, model, modes);
     let swapped = Instant::now();
     s.sub
         .wait_for("pulsegate/test/meter/status", Duration::from_secs(5), |m| {

@@ -273,6 +273,14 @@ impl Subscriber {
         Subscriber { client, messages }
     }
 
+    /// Publishes `payload` on `topic` as a command sender does: QoS 1, not retained.
+    pub async fn send(&self, topic: &str, payload: impl Into<String>) {
+        self.client
+            .publish(topic, QoS::AtLeastOnce, false, payload.into())
+            .await
+            .unwrap();
+    }
+
     pub fn all(&self) -> Vec<Message> {
         self.messages.lock().unwrap().clone()
     }
@@ -413,6 +421,20 @@ pub fn gateway_toml(
 }
 
 /// Starts a plant from TOML.
+/// A plant of one YL67 at factory state: `meter`, unit 1 on line1.
+pub const ONE_METER: &str = "[buses.line1.devices.meter]\nunit = 1\nmodel = \"yl67\"\n";
+
+/// The config of a gateway polling the one meter of `ONE_METER` every 200 ms.
+pub fn one_meter_toml(plant: &Plant, broker_port: u16, dir: &Path, extra: &str) -> String {
+    gateway_toml(
+        plant,
+        broker_port,
+        dir,
+        &[("line1", "meter", 1, "yl67", "200ms")],
+        extra,
+    )
+}
+
 pub async fn plant(toml: &str) -> Plant {
     Plant::start(&SimConfig::from_toml(toml).unwrap())
         .await
@@ -420,6 +442,21 @@ pub async fn plant(toml: &str) -> Plant {
 }
 
 /// Writes `text` to `dir/pulsegate.toml`.
+/// Wires a module of `model` in work `modes` at `unit` onto the running `bus` of the plant (in
+/// place of whatever answered there).
+pub fn wire_module(plant: &Plant, bus: &str, unit: u8, model: &str, modes: &[u16]) {
+    let profiles = pulsegate::profile::Profiles::builtin();
+    let profile = profiles.get(model).unwrap();
+    let module = pulsegate::sim::SimModule::new(profile, modes).unwrap();
+    plant
+        .bus(bus)
+        .unwrap()
+        .modules
+        .lock()
+        .unwrap()
+        .insert(unit, module);
+}
+
 pub fn write_config(dir: &Path, text: &str) -> PathBuf {
     let p = dir.join("pulsegate.toml");
     std::fs::write(&p, text).unwrap();
