@@ -394,3 +394,157 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
 fn reading_of(seq: u64) -> Output {
     Output::Reading(Reading::sample("d", "enc0", seq))
 }
+
+/// A record saved as closed is in the state file as unsent until it has gone out: a crash
+/// between that save and the hand-over no longer loses it (the next start takes it out of the
+/// file and sends it again), and the save after the hand-over leaves it out (a later start
+/// does not send it twice).
+#[tokio::test]
+async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
+    use crate::metering::{Record, Status};
+    use crate::reading::IntervalRecord;
+    let config = config("unsent");
+    let bus = &config.buses[0];
+    // The channel's state as the read that closed the record left it: record 1 of `10s`.
+    let mut state = crate::counter::CounterState::default();
+    state.intervals.entry("10s".into()).or_default().seq = 1;
+    let mut saved = BusState::default();
+    saved.channels.insert("1/yl67/enc0".into(), state);
+    let devices = vec![DeviceRt::new(
+        bus,
+        &bus.devices[0],
+        &saved.channels,
+        Heard::default(),
+    )];
+    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
+    let path = config.gateway.state_dir.join("l.json");
+    let saver = saver::Saver::new(path.clone(), "l".into());
+    let mut durable = saver::Durable::new(saver, Default::default());
+    let (out_tx, mut out) = unbounded_channel();
+    let record = Record {
+        start_ms: 100_000,
+        end_ms: 110_000,
+        delta: 5,
+        total_start: 7,
+        total_end: 12,
+        lag_start_ms: 50,
+        lag_end_ms: 40,
+        status: Status::Complete,
+        seq: 1,
+        events: vec![crate::event::Event::Reset],
+    };
+    let output = Output::Interval(Box::new(IntervalRecord {
+        device: devices[0].name.clone(),
+        channel: "enc0".into(),
+        period: "10s".into(),
+        record: record.clone(),
+        units: None,
+    }));
+    durable.publish(vec![output], 0, &devices, &out_tx);
+    let Ok(Output::Checkpoint(c)) = out.try_recv() else {
+        panic!("held for a save: its checkpoint goes first")
+    };
+    c.answer(true);
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    let sent = loop {
+        durable.collect(&devices, &out_tx).await;
+        if let Ok(o) = out.try_recv() {
+            break o;
+        }
+        assert!(std::time::Instant::now() < deadline, "never released");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    };
+    assert!(matches!(sent, Output::Interval(_)), "{sent:?}");
+
+    // A crash now: the file holds the record, and the next start takes it out to send again.
+    let mut file = BusState::load(&path).unwrap();
+    let unsent = saver::take_unsent(&mut file.channels);
+    assert_eq!(unsent["1/yl67/enc0"], vec![("10s".to_string(), record)]);
+    assert!(
+        file.channels["1/yl67/enc0"].intervals["10s"]
+            .unsent
+            .is_empty()
+    );
+
+    // The next save, after the record went out, leaves it out.
+    durable
+        .saver
+        .start(durable.snapshot(&devices, false), &out_tx);
+    let Ok(Output::Checkpoint(c)) = out.try_recv() else {
+        panic!("a checkpoint")
+    };
+    c.answer(true);
+    loop {
+        durable.collect(&devices, &out_tx).await;
+        let file = BusState::load(&path).unwrap();
+        if saver::take_unsent(&mut file.channels.clone()).is_empty() {
+            break;
+        }
+        assert!(std::time::Instant::now() < deadline, "still unsent");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+}
+
+/// The start after a crash sends the records its state file holds as unsent, with their seq
+/// and content, before anything else of the device; the clean stop after leaves none.
+#[tokio::test(start_paused = true)]
+async fn the_start_after_a_crash_sends_the_unsent_records_of_the_file_first() {
+    use crate::metering::{Record, Status};
+    let config = config("resend");
+    let record = Record {
+        start_ms: 100_000,
+        end_ms: 120_000,
+        delta: 9,
+        total_start: 3,
+        total_end: 12,
+        lag_start_ms: 10,
+        lag_end_ms: 20,
+        status: Status::Merged,
+        seq: 4,
+        events: vec![crate::event::Event::Gap],
+    };
+    let mut state = crate::counter::CounterState::default();
+    let st = state.intervals.entry("10s".into()).or_default();
+    st.seq = 4;
+    st.unsent.push(record.clone());
+    let mut file = BusState::default();
+    file.channels.insert("1/yl67/enc0".into(), state);
+    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
+    let path = crate::state::bus_path(&config.gateway.state_dir, "l");
+    file.save(&path).unwrap();
+
+    let mut bus = start_with(config, Duration::ZERO..Duration::ZERO);
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    bus.stop.cancel();
+    bus.task.await.unwrap();
+    let mut outs = Vec::new();
+    while let Ok(o) = bus.out.try_recv() {
+        outs.push(o);
+    }
+    let first = outs
+        .iter()
+        .position(|o| {
+            matches!(
+                o,
+                Output::Interval(_) | Output::Reading(_) | Output::DeviceReadings { .. }
+            )
+        })
+        .expect("something was sent");
+    let Output::Interval(i) = &outs[first] else {
+        panic!("the unsent record goes first: {:?}", outs[first])
+    };
+    assert_eq!(
+        (&*i.device, &*i.channel, &*i.period, &i.record),
+        ("d", "enc0", "10s", &record)
+    );
+    let again = outs
+        .iter()
+        .filter(|o| matches!(o, Output::Interval(_)))
+        .count();
+    assert_eq!(again, 1, "sent once");
+    let mut after = BusState::load(&path).unwrap();
+    assert!(
+        saver::take_unsent(&mut after.channels).is_empty(),
+        "none left after a clean stop"
+    );
+}

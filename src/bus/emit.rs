@@ -11,7 +11,7 @@ use super::device::DeviceRt;
 use crate::config::Gateway;
 use crate::config::policy::{Gate, PayloadMode, Policy, PolicyOverride};
 use crate::config::units::ChannelUnits;
-use crate::metering::{Clock, Period, Read};
+use crate::metering::{Clock, Period, Read, Record};
 use crate::reading::{IntervalRecord, Output, Reading, unix_ms};
 
 /// One channel's gate, policy, units and interval periods.
@@ -67,6 +67,7 @@ impl Emitter {
                 continue;
             }
             let (periods, units) = (c.periods.clone(), c.units.clone());
+            let device = d.name.clone();
             let Some(ch) = d.channels.iter_mut().find(|c| c.name == r.channel) else {
                 continue;
             };
@@ -80,16 +81,29 @@ impl Emitter {
                 let Some(record) = state.or_default().observe(&self.clock, &period, read) else {
                     continue;
                 };
-                out.push(Output::Interval(Box::new(IntervalRecord {
-                    device: d.name.clone(),
-                    channel: r.channel.clone(),
-                    period: text,
+                out.push(interval(
+                    &device,
+                    r.channel.clone(),
+                    text,
                     record,
-                    units: units.clone(),
-                })));
+                    units.clone(),
+                ));
             }
         }
         out
+    }
+
+    /// The output of a record of `d`'s `channel` closed in an earlier run, sent again at start.
+    pub(super) fn record<P>(
+        &mut self,
+        d: &DeviceRt<P>,
+        channel: &str,
+        period: &str,
+        record: Record,
+    ) -> Output {
+        let channel: Arc<str> = Arc::from(channel);
+        let units = self.channel(d, &channel).units.clone();
+        interval(&d.name, channel, Arc::from(period), record, units)
     }
 
     fn channel<P>(&mut self, d: &DeviceRt<P>, channel: &Arc<str>) -> &mut ChannelOut {
@@ -165,4 +179,20 @@ impl Emitter {
         outputs.extend(records);
         outputs
     }
+}
+
+fn interval(
+    device: &Arc<str>,
+    channel: Arc<str>,
+    period: Arc<str>,
+    record: Record,
+    units: Option<Arc<ChannelUnits>>,
+) -> Output {
+    Output::Interval(Box::new(IntervalRecord {
+        device: device.clone(),
+        channel,
+        period,
+        record,
+        units,
+    }))
 }

@@ -128,6 +128,7 @@ impl BusTask {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
         let mut saved = self.load_state(&name, shutdown).await?;
+        let unsent = saver::take_unsent(&mut saved.channels);
         let after_seq = if saved.clean {
             Default::default()
         } else {
@@ -151,14 +152,49 @@ impl BusTask {
             .collect();
         durable.orphans = unclaimed(&name, &saved, &devices);
         tracing::info!(bus = %name, devices = devices.len(), "bus started");
-        Some(Core::new(
+        let mut core = Core::new(
             name,
             driver,
             devices,
             durable,
             self.state_flush,
             self.stats_interval,
-        ))
+        );
+        self.resend(&mut core, unsent);
+        Some(core)
+    }
+
+    /// Sends again the interval records the state file held as unsent (a crash came between
+    /// their save and their hand-over to the MQTT side): same seq, same content, before
+    /// anything of this run; a consumer that has one already knows it by its seq.
+    fn resend<D: Driver>(&mut self, core: &mut Core<D>, mut unsent: saver::Unsent) {
+        for from in 0..core.devices.len() {
+            let d = &core.devices[from];
+            let prefix = d.state_key("");
+            let mut outputs = Vec::new();
+            for key in unsent
+                .keys()
+                .filter(|k| k.starts_with(&prefix))
+                .cloned()
+                .collect::<Vec<_>>()
+            {
+                for (period, record) in unsent.remove(&key).unwrap_or_default() {
+                    outputs.push(
+                        self.emitter
+                            .record(d, &key[prefix.len()..], &period, record),
+                    );
+                }
+            }
+            if !outputs.is_empty() {
+                tracing::info!(bus = %core.name, device = %d.name, records = outputs.len(), "interval records saved but not sent before a crash: sent again");
+                core.durable
+                    .publish(outputs, from, &core.devices, &self.out);
+            }
+        }
+        let lost: usize = unsent.values().map(Vec::len).sum();
+        if lost > 0 {
+            tracing::warn!(bus = %core.name, records = lost, "interval records of devices no longer configured were not sent before a crash: dropped");
+        }
     }
 
     /// Between polls: commands (one at a time), idle-time scans, the state flush and the bus
@@ -221,7 +257,7 @@ impl BusTask {
         }
         let now = Instant::now();
         if now >= core.flush_at {
-            let state = saver::snapshot(&core.devices, &core.durable.orphans, false);
+            let state = core.durable.snapshot(&core.devices, false);
             core.durable.saver.start(state, &self.out);
             core.flush_at = now + self.state_flush;
         }

@@ -269,7 +269,7 @@ impl Durable {
         self.saver.collect(&mut self.ledger).await;
         self.release(out);
         if self.holding() {
-            let state = snapshot(devices, &self.orphans, false);
+            let state = self.snapshot(devices, false);
             self.saver.start(state, out);
         }
     }
@@ -300,7 +300,7 @@ impl Durable {
         }
         self.release(out);
         if self.holding() {
-            let state = snapshot(devices, &self.orphans, false);
+            let state = self.snapshot(devices, false);
             self.saver.start(state, out);
         }
     }
@@ -327,34 +327,68 @@ impl Durable {
         devices: &[DeviceRt<P>],
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) -> bool {
-        let saved = self
-            .saver
-            .save_now(
-                snapshot(devices, &self.orphans, true),
-                &mut self.ledger,
-                out,
-            )
-            .await;
+        let state = self.snapshot(devices, true);
+        let mut saved = self.saver.save_now(state, &mut self.ledger, out).await;
+        let records = self
+            .held
+            .iter()
+            .any(|(_, o)| matches!(o, Output::Interval(_)));
         self.release(out);
+        if records && saved {
+            // The file just written keeps the records it held as unsent; now that they went
+            // out, one more save (after they are durable) keeps the next start from sending
+            // them again.
+            let state = self.snapshot(devices, true);
+            saved = self.saver.save_now(state, &mut self.ledger, out).await;
+        }
         saved
+    }
+
+    /// The bus's state now: every device's, the interval records still held as unsent, and
+    /// the saved state no configured device claims (kept, never attached to another meter);
+    /// `clean` only for the saves after the last reading at shutdown.
+    pub(super) fn snapshot<P: DeviceState>(
+        &self,
+        devices: &[DeviceRt<P>],
+        clean: bool,
+    ) -> BusState {
+        let mut s = BusState {
+            clean,
+            ..self.orphans.clone()
+        };
+        for d in devices {
+            s.channels.extend(d.counter_states());
+            d.proto.save(&mut s);
+        }
+        for (_, o) in &self.held {
+            let Output::Interval(i) = o else { continue };
+            let Some(d) = devices.iter().find(|d| d.name == i.device) else {
+                continue;
+            };
+            if let Some(ch) = s.channels.get_mut(&d.state_key(&i.channel)) {
+                let st = ch.intervals.entry(i.period.to_string()).or_default();
+                st.unsent.push(i.record.clone());
+            }
+        }
+        s
     }
 }
 
-/// The bus's state now: every device's, plus the saved state no configured device claims
-/// (kept, never attached to another meter); `clean` only for the save after the last reading
-/// at shutdown.
-pub(super) fn snapshot<P: DeviceState>(
-    devices: &[DeviceRt<P>],
-    orphans: &BusState,
-    clean: bool,
-) -> BusState {
-    let mut s = BusState {
-        clean,
-        ..orphans.clone()
-    };
-    for d in devices {
-        s.channels.extend(d.counter_states());
-        d.proto.save(&mut s);
+/// Interval records a state file held as unsent: by channel key, each with its period.
+pub(super) type Unsent = BTreeMap<String, Vec<(String, crate::metering::Record)>>;
+
+/// Takes the interval records a state file holds as unsent out of it, by channel key: they
+/// are sent again at start (see [`crate::metering::IntervalState::unsent`]).
+pub(super) fn take_unsent(channels: &mut BTreeMap<String, crate::counter::CounterState>) -> Unsent {
+    let mut out: BTreeMap<String, Vec<_>> = BTreeMap::new();
+    for (key, state) in channels.iter_mut() {
+        for (period, st) in state.intervals.iter_mut() {
+            for r in std::mem::take(&mut st.unsent) {
+                out.entry(key.clone())
+                    .or_default()
+                    .push((period.clone(), r));
+            }
+        }
     }
-    s
+    out
 }

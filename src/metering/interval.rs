@@ -34,6 +34,11 @@ pub struct IntervalState {
     pub open: Option<Open>,
     #[serde(default)]
     pub seq: u64,
+    /// Records closed in this state but not yet handed to the MQTT side when it was saved (only
+    /// in a state file, never in a running channel): the next start sends them again, with
+    /// their seq, so a crash right after the save cannot take one away.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unsent: Vec<Record>,
     /// The open interval's end boundary, once known in this run: reads before it need no
     /// time-zone arithmetic (most reads of a channel).
     #[serde(skip)]
@@ -41,7 +46,7 @@ pub struct IntervalState {
 }
 
 /// Whether both boundaries of a record were read one period apart.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
     /// One interval, both boundaries read.
@@ -51,8 +56,8 @@ pub enum Status {
     Merged,
 }
 
-/// One closed interval.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// One closed interval (kept in a state file until it is handed to the MQTT side).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Record {
     pub start_ms: i64,
     pub end_ms: i64,
@@ -64,6 +69,7 @@ pub struct Record {
     pub lag_end_ms: i64,
     pub status: Status,
     pub seq: u64,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub events: Vec<Event>,
 }
 
@@ -285,5 +291,24 @@ mod tests {
         let mut back: IntervalState = serde_json::from_str(&saved).unwrap();
         let r = back.observe(&clock, &p, read(110_020, 10)).unwrap();
         assert_eq!((r.status, r.delta, r.seq), (Status::Complete, 7, 1));
+    }
+
+    #[test]
+    fn an_unsent_record_survives_a_save_whole() {
+        let st = IntervalState {
+            unsent: run(&[
+                read(100_050, 7),
+                Read {
+                    event: Some(Event::Reset),
+                    ..read(105_000, 2)
+                },
+                read(110_040, 12),
+            ]),
+            ..Default::default()
+        };
+        let saved = serde_json::to_string(&st).unwrap();
+        let back: IntervalState = serde_json::from_str(&saved).unwrap();
+        assert_eq!(back.unsent, st.unsent);
+        assert_eq!(back.unsent[0].events, vec![Event::Reset]);
     }
 }
