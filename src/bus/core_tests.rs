@@ -401,7 +401,7 @@ fn reading_of(seq: u64) -> Output {
 /// does not send it twice).
 #[tokio::test]
 async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
-    use crate::metering::{Record, Status};
+    use crate::metering::Status;
     use crate::reading::IntervalRecord;
     let config = config("unsent");
     let bus = &config.buses[0];
@@ -421,18 +421,7 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
     let saver = saver::Saver::new(path.clone(), "l".into());
     let mut durable = saver::Durable::new(saver, Default::default());
     let (out_tx, mut out) = unbounded_channel();
-    let record = Record {
-        start_ms: 100_000,
-        end_ms: 110_000,
-        delta: 5,
-        total_start: 7,
-        total_end: 12,
-        lag_start_ms: 50,
-        lag_end_ms: 40,
-        status: Status::Complete,
-        seq: 1,
-        events: vec![crate::event::Event::Reset],
-    };
+    let record = closed_record(1, Status::Complete, crate::event::Event::Reset);
     let output = Output::Interval(Box::new(IntervalRecord {
         device: devices[0].name.clone(),
         channel: "enc0".into(),
@@ -489,20 +478,9 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
 /// and content, before anything else of the device; the clean stop after leaves none.
 #[tokio::test(start_paused = true)]
 async fn the_start_after_a_crash_sends_the_unsent_records_of_the_file_first() {
-    use crate::metering::{Record, Status};
+    use crate::metering::Status;
     let config = config("resend");
-    let record = Record {
-        start_ms: 100_000,
-        end_ms: 120_000,
-        delta: 9,
-        total_start: 3,
-        total_end: 12,
-        lag_start_ms: 10,
-        lag_end_ms: 20,
-        status: Status::Merged,
-        seq: 4,
-        events: vec![crate::event::Event::Gap],
-    };
+    let record = closed_record(4, Status::Merged, crate::event::Event::Gap);
     let mut state = crate::counter::CounterState::default();
     let st = state.intervals.entry("10s".into()).or_default();
     st.seq = 4;
@@ -547,4 +525,24 @@ async fn the_start_after_a_crash_sends_the_unsent_records_of_the_file_first() {
         saver::take_unsent(&mut after.channels).is_empty(),
         "none left after a clean stop"
     );
+}
+
+/// A record of `10s` closed with `event` in it.
+fn closed_record(
+    seq: u64,
+    status: crate::metering::Status,
+    event: crate::event::Event,
+) -> crate::metering::Record {
+    crate::metering::Record {
+        start_ms: 100_000,
+        end_ms: 110_000,
+        delta: 5,
+        total_start: 7,
+        total_end: 12,
+        lag_start_ms: 50,
+        lag_end_ms: 40,
+        status,
+        seq,
+        events: vec![event],
+    }
 }
