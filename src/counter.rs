@@ -129,6 +129,19 @@ pub struct CounterState {
     /// The offset of the channel's meter reading (`set_reading`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter: Option<crate::metering::meter::MeterOffset>,
+    /// Only in a state file, when it differs from `seq` and `total`: the channel's last
+    /// reading handed to the MQTT side before the save. The pulses between it and `total`
+    /// (deltas the publish policy carried, readings a crash took while they waited for a
+    /// save) ride on the next run's first reading.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub handed: Option<Handed>,
+}
+
+/// The seq and total of a reading handed to the MQTT side.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Handed {
+    pub seq: u64,
+    pub total: i64,
 }
 
 fn is_zero(v: &u64) -> bool {

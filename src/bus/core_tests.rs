@@ -374,7 +374,7 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
     let first_out = |trusted: bool| {
         let (out_tx, mut out) = unbounded_channel();
         let saver = saver::Saver::new(std::env::temp_dir().join("never-written"), "l".into());
-        let mut durable = saver::Durable::new(saver, Default::default());
+        let mut durable = saver::Durable::new(saver, &Default::default(), Default::default());
         if trusted {
             durable.trust(&saved);
         }
@@ -419,7 +419,7 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
     std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
     let path = config.gateway.state_dir.join("l.json");
     let saver = saver::Saver::new(path.clone(), "l".into());
-    let mut durable = saver::Durable::new(saver, Default::default());
+    let mut durable = saver::Durable::new(saver, &Default::default(), Default::default());
     let (out_tx, mut out) = unbounded_channel();
     let record = closed_record(1, Status::Complete, crate::event::Event::Reset);
     let output = Output::Interval(Box::new(IntervalRecord {
@@ -545,4 +545,72 @@ fn closed_record(
         seq,
         events: vec![event],
     }
+}
+
+/// Readings held for a save and released after it: a crash between the save and their
+/// hand-over is covered, since the file says which reading was handed over last, and the next
+/// start counts from it and carries the rest.
+#[tokio::test]
+async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
+    let config = config("handed");
+    let bus = &config.buses[0];
+    let key = "1/yl67/enc0".to_string();
+    let file_state = crate::counter::CounterState {
+        seq: 5,
+        total: 100,
+        ..Default::default()
+    };
+    let saved = std::collections::BTreeMap::from([(key.clone(), file_state)]);
+    let mut devices = vec![DeviceRt::new(
+        bus,
+        &bus.devices[0],
+        &saved,
+        Heard::default(),
+    )];
+    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
+    let path = config.gateway.state_dir.join("l.json");
+    let saver = saver::Saver::new(path.clone(), "l".into());
+    // After a crash (no trust): the first readings wait for a save.
+    let mut resumed = saved.clone();
+    let resume = super::ledger::resume(&mut resumed, true);
+    let mut durable = saver::Durable::new(saver, &resumed, resume);
+    // Two readings of this run, seq 1006 and 1007, total 130: held, the counter moved on.
+    let live = devices[0].saved.get_mut(&key).unwrap();
+    (live.seq, live.total) = (1007, 130);
+    let reading = |seq: u64, total: i64| {
+        let mut r = Reading::sample("d", "enc0", seq);
+        r.update.total = total;
+        Output::Reading(r)
+    };
+    let held = vec![reading(1006, 120), reading(1007, 130)];
+    let (out_tx, mut out) = unbounded_channel();
+    durable.publish(held, 0, &devices, &out_tx);
+    let Ok(Output::Checkpoint(c)) = out.try_recv() else {
+        panic!("held for a save")
+    };
+    c.answer(true);
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while out.is_empty() {
+        durable.collect(&devices, &out_tx).await;
+        assert!(std::time::Instant::now() < deadline, "never released");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let Ok(Output::Reading(first)) = out.try_recv() else {
+        panic!("the first held reading")
+    };
+    assert_eq!(
+        first.after_seq,
+        Some(5),
+        "counts from the crashed run's save"
+    );
+
+    // A crash now: the file says the last reading handed over is the file's own (5, 100), so
+    // the next start counts from seq 5 and carries the 30 pulses of the two readings.
+    let mut file = BusState::load(&path).unwrap();
+    assert_eq!(
+        file.channels[&key].handed,
+        Some(crate::counter::Handed { seq: 5, total: 100 })
+    );
+    let next = super::ledger::resume(&mut file.channels, true);
+    assert_eq!((next[&key].after_seq, next[&key].carry), (Some(5), 30));
 }

@@ -12,7 +12,7 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-use crate::counter::CounterState;
+use crate::counter::{CounterState, Handed};
 
 /// How far a channel's seq may run ahead of its last durable save.
 pub const HEADROOM: u64 = 1000;
@@ -63,15 +63,50 @@ fn is_record_key(key: &str) -> bool {
     key.contains("#interval/")
 }
 
-/// Moves every saved seq past what a crashed run could have published. Returns each channel's
-/// seq before the move (the `after_seq` of its first reading).
-pub fn after_crash(channels: &mut BTreeMap<String, CounterState>) -> BTreeMap<String, u64> {
-    let mut before = BTreeMap::new();
+/// Where a channel's readings resume after a start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Resume {
+    /// After a crash: the seq the first reading's delta counts from (readings of the crashed
+    /// run with a higher seq are superseded).
+    pub after_seq: Option<u64>,
+    /// Pulses in the saved total that no reading handed over carried (deltas the publish
+    /// policy held for its next reading, readings a crash took while they waited for a save):
+    /// the first reading's delta carries them.
+    pub carry: i64,
+    /// The last reading handed over, as the file says (until the first reading of this run).
+    pub handed: Handed,
+}
+
+/// Where each saved channel resumes, by channel key (only channels with something to carry
+/// or, after a crash, every one). After a crash (`crashed`) every saved seq is moved past what
+/// the crashed run could have published.
+pub fn resume(
+    channels: &mut BTreeMap<String, CounterState>,
+    crashed: bool,
+) -> BTreeMap<String, Resume> {
+    let mut out = BTreeMap::new();
     for (key, state) in channels.iter_mut() {
-        before.insert(key.clone(), state.seq);
-        state.seq = state.seq.saturating_add(HEADROOM);
+        let handed = state.handed.unwrap_or(Handed {
+            seq: state.seq,
+            total: state.total,
+        });
+        let after_seq = crashed.then_some(handed.seq);
+        if crashed {
+            state.seq = state.seq.saturating_add(HEADROOM);
+        }
+        let carry = state.total - handed.total;
+        if after_seq.is_some() || carry != 0 {
+            out.insert(
+                key.clone(),
+                Resume {
+                    after_seq,
+                    carry,
+                    handed,
+                },
+            );
+        }
     }
-    before
+    out
 }
 
 #[cfg(test)]
@@ -114,9 +149,47 @@ mod tests {
                 ..CounterState::default()
             },
         )]);
-        let before = after_crash(&mut channels);
-        assert_eq!(before["k"], 60);
+        let resumed = resume(&mut channels, true);
+        assert_eq!(resumed["k"].after_seq, Some(60));
+        assert_eq!(resumed["k"].carry, 0);
         assert!(channels["k"].seq + 1 > 60 + HEADROOM);
+    }
+
+    fn handed_at(seq: u64, total: i64) -> BTreeMap<String, CounterState> {
+        BTreeMap::from([(
+            "k".to_string(),
+            CounterState {
+                seq: 62,
+                total: 900,
+                handed: Some(Handed { seq, total }),
+                ..CounterState::default()
+            },
+        )])
+    }
+
+    /// Readings 61 and 62 (total 700 → 900) waited for a save that a crash followed: the
+    /// first reading of the next run counts from 60 and carries their 200 pulses.
+    #[test]
+    fn after_a_crash_the_first_reading_counts_from_the_last_one_handed_over() {
+        let mut channels = handed_at(60, 700);
+        let resumed = resume(&mut channels, true);
+        assert_eq!(
+            (resumed["k"].after_seq, resumed["k"].carry),
+            (Some(60), 200)
+        );
+        assert_eq!(channels["k"].seq, 62 + HEADROOM);
+    }
+
+    /// The publish policy held 50 pulses for its next reading at a clean stop: no
+    /// `after_seq`, the first reading carries them.
+    #[test]
+    fn after_a_clean_stop_the_first_reading_carries_what_the_policy_held() {
+        let mut channels = handed_at(62, 850);
+        let resumed = resume(&mut channels, false);
+        assert_eq!((resumed["k"].after_seq, resumed["k"].carry), (None, 50));
+        assert_eq!(channels["k"].seq, 62, "no seq moved");
+        let mut nothing_held = BTreeMap::from([("k".to_string(), CounterState::default())]);
+        assert!(resume(&mut nothing_held, false).is_empty());
     }
 
     #[test]

@@ -129,14 +129,11 @@ impl BusTask {
         let name: Arc<str> = Arc::from(bus.name.as_str());
         let mut saved = self.load_state(&name, shutdown).await?;
         let unsent = saver::take_unsent(&mut saved.channels);
-        let after_seq = if saved.clean {
-            Default::default()
-        } else {
-            ledger::after_crash(&mut saved.channels)
-        };
+        let resume = ledger::resume(&mut saved.channels, !saved.clean);
         let mut durable = saver::Durable::new(
             saver::Saver::new(self.state_path.clone(), name.clone()),
-            after_seq,
+            &saved.channels,
+            resume,
         );
         if saved.clean {
             durable.trust(&saved);

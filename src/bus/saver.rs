@@ -17,7 +17,8 @@ use tokio::time::Instant;
 
 use super::device::DeviceRt;
 use super::driver::DeviceState;
-use super::ledger::{Ledger, seqs};
+use super::ledger::{Ledger, Resume, seqs};
+use crate::counter::{CounterState, Handed};
 use crate::reading::Checkpoint;
 use crate::state::{BusState, StateError};
 
@@ -204,12 +205,16 @@ impl Saver {
 /// The way out of a bus for readings: a reading whose seq is not yet covered by a durable save
 /// is held (with every reading after it, so each channel keeps its order) until a save covers it;
 /// the bus goes on polling meanwhile, and one save covers everything polled while it ran. The
-/// first reading of each channel after a crash carries `after_seq`.
+/// first reading of each channel after a crash carries `after_seq`, and after any start the
+/// pulses the last run booked but handed over in no reading (see [`Resume`]).
 pub struct Durable {
     pub saver: Saver,
     ledger: Ledger,
-    /// Per channel key, the seq saved before a crash, until the channel's first reading.
-    after_seq: BTreeMap<String, u64>,
+    /// Per channel key, where the channel resumes, until its first reading.
+    resume: BTreeMap<String, Resume>,
+    /// Per channel key, the last reading handed to the MQTT side (from the file until then):
+    /// each save writes where it stands, for the next start's [`Resume`].
+    handed: BTreeMap<String, Handed>,
     /// Outputs waiting for a save, with the channel key and seq of each reading in them, in
     /// order.
     held: std::collections::VecDeque<(Vec<(String, u64)>, Output)>,
@@ -237,11 +242,29 @@ fn readings_of_mut(o: &mut Output) -> &mut [Reading] {
 }
 
 impl Durable {
-    pub fn new(saver: Saver, after_seq: BTreeMap<String, u64>) -> Durable {
+    /// `saved`: the channels of the state file, `resume` what [`super::ledger::resume`] made of
+    /// them.
+    pub fn new(
+        saver: Saver,
+        saved: &BTreeMap<String, CounterState>,
+        resume: BTreeMap<String, Resume>,
+    ) -> Durable {
+        let handed = saved
+            .iter()
+            .map(|(key, st)| {
+                let from_file = Handed {
+                    seq: st.seq,
+                    total: st.total,
+                };
+                let at = resume.get(key).map_or(from_file, |r| r.handed);
+                (key.clone(), at)
+            })
+            .collect();
         Durable {
             saver,
             ledger: Ledger::default(),
-            after_seq,
+            resume,
+            handed,
             held: Default::default(),
             orphans: Default::default(),
         }
@@ -315,7 +338,15 @@ impl Durable {
             }
             let (keys, mut o) = self.held.pop_front().expect("front exists");
             for (r, (k, _)) in readings_of_mut(&mut o).iter_mut().zip(&keys) {
-                r.after_seq = self.after_seq.remove(k);
+                if let Some(resume) = self.resume.remove(k) {
+                    r.after_seq = resume.after_seq;
+                    r.update.delta += resume.carry;
+                }
+                let at = Handed {
+                    seq: r.update.seq,
+                    total: r.update.total,
+                };
+                self.handed.insert(k.clone(), at);
             }
             let _ = out.send(o);
         }
@@ -329,15 +360,12 @@ impl Durable {
     ) -> bool {
         let state = self.snapshot(devices, true);
         let mut saved = self.saver.save_now(state, &mut self.ledger, out).await;
-        let records = self
-            .held
-            .iter()
-            .any(|(_, o)| matches!(o, Output::Interval(_)));
+        let held = self.holding();
         self.release(out);
-        if records && saved {
-            // The file just written keeps the records it held as unsent; now that they went
-            // out, one more save (after they are durable) keeps the next start from sending
-            // them again.
+        if held && saved {
+            // The file just written has the readings and records it held as not handed over;
+            // now that they went out, one more save (after they are durable) keeps the next
+            // start from sending or carrying them again.
             let state = self.snapshot(devices, true);
             saved = self.saver.save_now(state, &mut self.ledger, out).await;
         }
@@ -357,7 +385,15 @@ impl Durable {
             ..self.orphans.clone()
         };
         for d in devices {
-            s.channels.extend(d.counter_states());
+            for (key, mut state) in d.counter_states() {
+                let handed = self.handed.get(&key).copied().unwrap_or_default();
+                let now = Handed {
+                    seq: state.seq,
+                    total: state.total,
+                };
+                state.handed = (handed != now).then_some(handed);
+                s.channels.insert(key, state);
+            }
             d.proto.save(&mut s);
         }
         for (_, o) in &self.held {

@@ -266,3 +266,58 @@ async fn frequency_is_within_1_percent_and_rpm_follows_pulses_per_revolution() {
     let rate = pulses / secs;
     assert!((rate - 2500.0).abs() <= 25.0, "derived rate {rate}");
 }
+
+/// Paced publishing (`min_interval`) skips readings and carries their deltas to the next one
+/// published. A restart in between, clean or not, must not take the carried pulses from a
+/// consumer summing deltas: the first reading after it carries them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_between_paced_readings_loses_no_pulse_for_a_consumer() {
+    let mut rig = Rig::start("paced-restart", "yl67", "[1, 1, 1, 1]", "a0", "count = 0").await;
+    let (status, _) = rig.gateway.take().unwrap().terminate();
+    assert!(status.success());
+    let text = std::fs::read_to_string(&rig.config).unwrap();
+    let paced = text.replace("[gateway]\n", "[gateway]\nmin_interval = \"3s\"\n");
+    assert_ne!(text, paced);
+    std::fs::write(&rig.config, paced).unwrap();
+    rig.set_rate(200.0);
+    // Twice: a clean stop, then a SIGKILL, each about a second and a half after a published
+    // reading (so a second and a half of pulses is carried, not yet published).
+    for kill in [false, true] {
+        let started = Instant::now();
+        rig.gateway = Some(Gateway::start(&rig.config));
+        let m = rig
+            .sub
+            .wait_for(&rig.topic, Duration::from_secs(5), |m| m.at > started)
+            .await
+            .expect("a reading after the start");
+        let next = rig
+            .sub
+            .wait_for(&rig.topic, Duration::from_secs(5), |n| n.at > m.at)
+            .await
+            .expect("a paced reading");
+        tokio::time::sleep_until((next.at + Duration::from_millis(1500)).into()).await;
+        let gw = rig.gateway.take().unwrap();
+        if kill {
+            gw.kill();
+        } else {
+            assert!(gw.terminate().0.success());
+        }
+    }
+    rig.gateway = Some(Gateway::start(&rig.config));
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let last = rig.stop_and_settle().await;
+    let generated = rig.generated();
+    let sum: i64 = rig
+        .readings()
+        .iter()
+        .map(|r| r["delta"].as_i64().unwrap())
+        .sum();
+    assert_eq!(last["total"].as_i64().unwrap(), generated, "total");
+    assert_eq!(
+        sum,
+        generated,
+        "the deltas a consumer sums: {:#?}",
+        rig.readings()
+    );
+    let _ = (&rig.broker, &rig.dir);
+}
