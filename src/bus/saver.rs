@@ -346,7 +346,13 @@ impl Durable {
                     seq: r.update.seq,
                     total: r.update.total,
                 };
-                self.handed.insert(k.clone(), at);
+                // Every reading passes here: the key is copied once per channel, not each time.
+                match self.handed.get_mut(k) {
+                    Some(h) => *h = at,
+                    None => {
+                        self.handed.insert(k.clone(), at);
+                    }
+                }
             }
             let _ = out.send(o);
         }
