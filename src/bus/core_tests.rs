@@ -365,12 +365,7 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
         ..Default::default()
     };
     saved.channels.insert("1/yl67/enc0".into(), state);
-    let devices = vec![DeviceRt::new(
-        bus,
-        &bus.devices[0],
-        &saved.channels,
-        Heard::default(),
-    )];
+    let devices = one_device(bus, &saved.channels);
     let first_out = |trusted: bool| {
         let (out_tx, mut out) = unbounded_channel();
         let saver = saver::Saver::new(std::env::temp_dir().join("never-written"), "l".into());
@@ -410,15 +405,8 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
     state.intervals.entry("10s".into()).or_default().seq = 1;
     let mut saved = BusState::default();
     saved.channels.insert("1/yl67/enc0".into(), state);
-    let devices = vec![DeviceRt::new(
-        bus,
-        &bus.devices[0],
-        &saved.channels,
-        Heard::default(),
-    )];
-    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
-    let path = config.gateway.state_dir.join("l.json");
-    let saver = saver::Saver::new(path.clone(), "l".into());
+    let devices = one_device(bus, &saved.channels);
+    let (path, saver) = saver_in(&config);
     let mut durable = saver::Durable::new(saver, &Default::default(), Default::default());
     let (out_tx, mut out) = unbounded_channel();
     let record = closed_record(1, Status::Complete, crate::event::Event::Reset);
@@ -561,15 +549,8 @@ async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
         ..Default::default()
     };
     let saved = std::collections::BTreeMap::from([(key.clone(), file_state)]);
-    let mut devices = vec![DeviceRt::new(
-        bus,
-        &bus.devices[0],
-        &saved,
-        Heard::default(),
-    )];
-    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
-    let path = config.gateway.state_dir.join("l.json");
-    let saver = saver::Saver::new(path.clone(), "l".into());
+    let mut devices = one_device(bus, &saved);
+    let (path, saver) = saver_in(&config);
     // After a crash (no trust): the first readings wait for a save.
     let mut resumed = saved.clone();
     let resume = super::ledger::resume(&mut resumed, true);
@@ -613,4 +594,19 @@ async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
     );
     let next = super::ledger::resume(&mut file.channels, true);
     assert_eq!((next[&key].after_seq, next[&key].carry), (Some(5), 30));
+}
+
+/// The first device of `bus` with the counter states `saved`.
+fn one_device(
+    bus: &crate::config::Bus,
+    saved: &std::collections::BTreeMap<String, crate::counter::CounterState>,
+) -> Vec<DeviceRt<Heard>> {
+    vec![DeviceRt::new(bus, &bus.devices[0], saved, Heard::default())]
+}
+
+/// A saver writing the state file of bus `l` in the config's state directory.
+fn saver_in(config: &crate::config::Config) -> (std::path::PathBuf, saver::Saver) {
+    std::fs::create_dir_all(&config.gateway.state_dir).unwrap();
+    let path = config.gateway.state_dir.join("l.json");
+    (path.clone(), saver::Saver::new(path, "l".into()))
 }
