@@ -23,6 +23,7 @@
 
 mod chatter;
 mod message;
+mod window;
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -31,6 +32,7 @@ use tokio::time::Instant;
 
 pub use chatter::{CHATTER_BYTES, CHATTER_MESSAGES, CHATTER_WINDOW, Chatter};
 pub use message::{Class, Message, Properties, Will};
+use window::{Held, Window};
 
 use bytes::Bytes;
 use serde::{Deserialize, Serialize};
@@ -108,31 +110,6 @@ pub trait Store {
     fn broker_away(&mut self, _away: bool) {}
 }
 
-/// A message handed to the client, waiting for its acknowledgement.
-#[derive(Debug, Clone, PartialEq, Eq)]
-struct Slot {
-    held: Held,
-    /// Packet id, once the client has sent it (0 for QoS 0).
-    pkid: Option<u16>,
-    acked: bool,
-}
-
-/// What a slot of the window holds.
-#[derive(Debug, Clone, PartialEq, Eq)]
-enum Held {
-    /// The store's message with this sequence number.
-    Owed(u64),
-    /// A chatter message, kept to be queued again if the connection goes before its
-    /// acknowledgement.
-    Chatter(Box<Message>),
-}
-
-impl Slot {
-    fn owed(&self) -> bool {
-        matches!(self.held, Held::Owed(_))
-    }
-}
-
 /// What to do next, from [`Outbox::next`].
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Step {
@@ -160,7 +137,7 @@ pub struct Outbox<S> {
     store: S,
     /// What the client has, in the order it was handed over: the store's oldest messages (in
     /// order) and chatter between them.
-    window: VecDeque<Slot>,
+    window: Window,
     capacity: usize,
     /// What the gateway can make again, waiting.
     chatter: Chatter,
@@ -182,7 +159,7 @@ impl<S: Store> Outbox<S> {
     pub fn new(store: S, window: usize, now: Instant) -> Outbox<S> {
         Outbox {
             store,
-            window: VecDeque::new(),
+            window: Window::default(),
             capacity: window.max(1),
             chatter: Chatter::default(),
             replay_below: 0,
@@ -213,7 +190,7 @@ impl<S: Store> Outbox<S> {
 
     /// Owed messages the client holds.
     fn owed_in_flight(&self) -> usize {
-        self.window.iter().filter(|s| s.owed()).count()
+        self.window.owed()
     }
 
     /// A window kept something back: the owed window is full, or chatter waits (its window
@@ -257,15 +234,7 @@ impl<S: Store> Outbox<S> {
     /// chatter that came since).
     pub fn lost(&mut self) {
         self.connected = false;
-        let held: Vec<Message> = self
-            .window
-            .drain(..)
-            .filter_map(|s| match s.held {
-                Held::Chatter(m) if !s.acked => Some(*m),
-                _ => None,
-            })
-            .collect();
-        self.chatter.requeue(held);
+        self.chatter.requeue(self.window.lost());
         self.direct = 0;
         self.store.broker_away(true);
     }
@@ -292,22 +261,13 @@ impl<S: Store> Outbox<S> {
             self.direct -= 1;
             return;
         }
-        if let Some(slot) = self.window.iter_mut().find(|s| s.pkid.is_none()) {
-            slot.pkid = Some(pkid);
-            slot.acked = pkid == 0;
-        }
+        self.window.sent(pkid);
     }
 
     /// The broker acknowledged `pkid`.
     pub fn acked(&mut self, pkid: u16, now: Instant) {
         self.progress = now;
-        if let Some(slot) = self
-            .window
-            .iter_mut()
-            .find(|s| s.pkid == Some(pkid) && !s.acked)
-        {
-            slot.acked = true;
-        }
+        self.window.acked(pkid);
     }
 
     /// The next thing to do, or `None` when both windows are full, nothing waits or the broker
@@ -320,8 +280,7 @@ impl<S: Store> Outbox<S> {
         if !self.connected {
             return None;
         }
-        let chatter_in_flight = self.window.len() - self.owed_in_flight();
-        if chatter_in_flight < CHATTER_WINDOW
+        if self.window.chatter() < CHATTER_WINDOW
             && let Some(m) = self.chatter.pop()
         {
             return Some(self.hand_chatter(m));
@@ -338,11 +297,7 @@ impl<S: Store> Outbox<S> {
             };
         }
         let entry = Entry::of(0, m.clone());
-        self.window.push_back(Slot {
-            held: Held::Chatter(Box::new(m)),
-            pkid: None,
-            acked: false,
-        });
+        self.window.push(Held::Chatter(Box::new(m)), false);
         Step::Send {
             entry,
             replay: false,
@@ -371,22 +326,14 @@ impl<S: Store> Outbox<S> {
         };
         // An unsendable message counts as acknowledged, so order and the window hold.
         let acked = matches!(step, Step::Dropped { .. });
-        let pkid = acked.then_some(0);
-        self.window.push_back(Slot {
-            held: Held::Owed(seq),
-            pkid,
-            acked,
-        });
+        self.window.push(Held::Owed(seq), acked);
         Some(step)
     }
 
     /// The client could not take the message [`Outbox::next`] just returned (its queue is
     /// full): it is handed out again later.
     pub fn refused(&mut self) {
-        if self.window.back().is_some_and(|s| s.pkid.is_none())
-            && let Some(slot) = self.window.pop_back()
-            && let Held::Chatter(m) = slot.held
-        {
+        if let Some(Held::Chatter(m)) = self.window.take_back_unsent() {
             self.chatter.requeue(vec![*m]);
         }
     }
@@ -394,18 +341,7 @@ impl<S: Store> Outbox<S> {
     /// Forgets acknowledged chatter, and releases the acknowledged owed messages at the front
     /// of the store.
     fn release(&mut self, now: Instant) {
-        let mut released = 0;
-        let mut in_order = true;
-        self.window.retain(|s| {
-            if !s.owed() {
-                return !s.acked;
-            }
-            in_order &= s.acked;
-            if in_order {
-                released += 1;
-            }
-            !in_order
-        });
+        let released = self.window.release();
         if released > 0 {
             self.store.ack_front(released);
         }
@@ -418,7 +354,7 @@ impl<S: Store> Outbox<S> {
     /// connection is not publishing, whatever the socket says.
     pub fn stalled(&self, now: Instant, limit: Duration) -> bool {
         self.connected
-            && self.window.iter().any(|s| !s.acked)
+            && self.window.waiting()
             && now.saturating_duration_since(self.progress) > limit
     }
 }
