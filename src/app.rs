@@ -51,39 +51,11 @@ pub async fn run_with_reloads(
     }
     let router = Router::new(&config, &senders(&running), out_tx.clone());
     let targets = router.targets();
-    let (mqtt_reloads, mqtt_reloads_rx) = unbounded_channel();
     let scans = router.scans();
     *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
-    let mqtt_config = config.mqtt.clone();
-    let spool_dir = config.gateway.state_dir.join("spool");
-    let flush = config.gateway.state_flush;
-    let mqtt_shutdown = shutdown.clone();
-    let mqtt_heart = health.heart("mqtt");
-    let mqtt_health = health.clone();
-    let mqtt_metrics = metrics.clone();
-    let boot_dir = config.gateway.state_dir.clone();
-    let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
-        .await
-        .unwrap_or_default();
-    let task = crate::publish::mqtt::Task {
-        config: mqtt_config,
-        spool_dir,
-        flush_every: flush,
-        heart: mqtt_heart,
-        health: mqtt_health,
-        boot,
-        metrics: mqtt_metrics,
-        formats: crate::publish::formats::chosen(&config),
-    };
-    let mqtt = tokio::spawn(crate::publish::mqtt::run(
-        task,
-        out_rx,
-        incoming_tx,
-        mqtt_reloads_rx,
-        mqtt_shutdown,
-    ));
+    let north = Northbound::start(&config, &health, &metrics, incoming_tx, out_rx, &shutdown).await;
 
     let mut current = config;
     loop {
@@ -94,8 +66,8 @@ pub async fn run_with_reloads(
                     shutdown.cancelled().await;
                     break;
                 };
-                // The output stage (Home Assistant discovery describes the config).
-                let _ = mqtt_reloads.send(new.clone());
+                // The output stages (Home Assistant discovery describes the config).
+                north.reload(&new);
                 apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
                 Router::set_targets(&targets, &current, &senders(&running));
                 *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
@@ -108,13 +80,183 @@ pub async fn run_with_reloads(
             tracing::error!("bus task failed: {e}");
         }
     }
+    // The router holds a sender of the bus output: the fan-out ends once it is gone too.
     router.abort();
-    if let Err(e) = mqtt.await {
-        tracing::error!("MQTT task failed: {e}");
-    }
+    north.finish().await;
     let _ = supervisor.await;
     if let Some(e) = endpoint {
         let _ = e.await;
+    }
+}
+
+/// The outputs and the fan-out that feeds them.
+struct Northbound {
+    fanout: JoinHandle<()>,
+    tasks: Vec<JoinHandle<()>>,
+    reloads: Vec<UnboundedSender<Config>>,
+}
+
+impl Northbound {
+    /// One task per output and the fan-out from `events` (the buses' and the router's output).
+    async fn start(
+        config: &Config,
+        health: &Arc<Health>,
+        metrics: &Metrics,
+        incoming: tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
+        events: UnboundedReceiver<Output>,
+        shutdown: &CancellationToken,
+    ) -> Northbound {
+        let boot_dir = config.gateway.state_dir.clone();
+        let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
+            .await
+            .unwrap_or_default();
+        let (answers, answers_rx) = unbounded_channel();
+        let wiring = Wiring {
+            health,
+            metrics,
+            boot,
+            answers,
+            incoming,
+            shutdown,
+        };
+        let outputs = start_outputs(config, &wiring);
+        let fanout = crate::publish::fanout::Fanout {
+            outputs: outputs.iter().map(|o| o.events.clone()).collect(),
+            health: health.clone(),
+            metrics: metrics.clone(),
+        };
+        Northbound {
+            reloads: outputs.iter().map(|o| o.reloads.clone()).collect(),
+            tasks: outputs.into_iter().map(|o| o.task).collect(),
+            fanout: tokio::spawn(fanout.run(events, answers_rx)),
+        }
+    }
+
+    /// A reloaded config to every output's stage (Home Assistant discovery describes it).
+    fn reload(&self, config: &Config) {
+        for r in &self.reloads {
+            let _ = r.send(config.clone());
+        }
+    }
+
+    /// Waits for the fan-out (it ends when the buses and the router are gone) and then for the
+    /// outputs, which end when it closes their channels.
+    async fn finish(self) {
+        let _ = self.fanout.await;
+        for t in self.tasks {
+            if let Err(e) = t.await {
+                tracing::error!("MQTT output task failed: {e}");
+            }
+        }
+    }
+}
+
+/// What every output task is wired to.
+struct Wiring<'a> {
+    health: &'a Arc<Health>,
+    metrics: &'a Metrics,
+    boot: crate::boot::Boot,
+    /// The fan-out's input, for the answers an output gives itself.
+    answers: UnboundedSender<Output>,
+    /// The command router's bounded queue.
+    incoming: tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
+    shutdown: &'a CancellationToken,
+}
+
+/// A running output: its task, where its events and reloads go.
+struct OutputTask {
+    task: JoinHandle<()>,
+    events: UnboundedSender<Output>,
+    reloads: UnboundedSender<Config>,
+}
+
+/// One task per output, and the gateway's own connection when no output carries its voice
+/// on the `[mqtt]` broker (`config::outputs::VoiceHome`).
+fn start_outputs(config: &Config, w: &Wiring<'_>) -> Vec<OutputTask> {
+    use crate::config::outputs::{VOICE_NAME, VoiceHome};
+    adopt_legacy_spool(config);
+    let mut out = Vec::new();
+    for o in &config.outputs.list {
+        let formats = crate::publish::formats::build(config, o);
+        let voice = o.kind.carries_gateway_topics();
+        out.push(start_output(config, &o.name, &o.mqtt, formats, voice, w));
+    }
+    if config.outputs.voice == VoiceHome::Own {
+        let voice = crate::publish::voice::Voice::new(&config.mqtt.topic_root, VOICE_NAME);
+        let formats: Vec<Box<dyn crate::publish::format::Format>> = vec![Box::new(voice)];
+        out.push(start_output(
+            config,
+            VOICE_NAME,
+            &config.mqtt,
+            formats,
+            true,
+            w,
+        ));
+    }
+    out
+}
+
+/// What an earlier version spooled in `<state_dir>/spool` goes to the output that now carries
+/// the gateway's JSON topics on its broker (else the first output, else its own connection).
+fn adopt_legacy_spool(config: &Config) {
+    use crate::config::outputs::{VOICE_NAME, VoiceHome};
+    let name = match config.outputs.voice {
+        VoiceHome::Output(i) => config.outputs.list[i].name.as_str(),
+        VoiceHome::Own => config
+            .outputs
+            .list
+            .first()
+            .map_or(VOICE_NAME, |o| o.name.as_str()),
+    };
+    let state_dir = &config.gateway.state_dir;
+    let into = crate::publish::spool_place::output_dir(state_dir, name);
+    match crate::publish::spool_place::adopt_legacy(state_dir, &into) {
+        Ok(0) => {}
+        Ok(n) => tracing::info!(
+            files = n,
+            output = name,
+            "spool files of an earlier version handed to this output"
+        ),
+        Err(e) => tracing::error!(
+            "cannot move the spool files of an earlier version into {}: {e}; they stay where they are, unsent",
+            into.display()
+        ),
+    }
+}
+
+fn start_output(
+    config: &Config,
+    name: &str,
+    mqtt: &crate::config::Mqtt,
+    formats: Vec<Box<dyn crate::publish::format::Format>>,
+    voice: bool,
+    w: &Wiring<'_>,
+) -> OutputTask {
+    let (events, events_rx) = unbounded_channel();
+    let (reloads, reloads_rx) = unbounded_channel();
+    let task = crate::publish::mqtt::Task {
+        name: name.to_string(),
+        config: mqtt.clone(),
+        spool_dir: crate::publish::spool_place::output_dir(&config.gateway.state_dir, name),
+        flush_every: config.gateway.state_flush,
+        heart: w.health.heart(&format!("output/{name}")),
+        boot: w.boot.clone(),
+        metrics: w.metrics.output(name),
+        formats,
+        voice,
+        answers: w.answers.clone(),
+    };
+    let task = tokio::spawn(crate::publish::mqtt::run(
+        task,
+        events_rx,
+        w.incoming.clone(),
+        reloads_rx,
+        w.shutdown.clone(),
+    ));
+    OutputTask {
+        task,
+        events,
+        reloads,
     }
 }
 

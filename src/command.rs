@@ -46,8 +46,27 @@ pub struct Request {
 /// Where and how to answer.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Reply {
+    /// The gateway's result topics (said by its own voice): the command topic's `/result`,
+    /// then the MQTT v5 response topic, if any.
     pub topics: Vec<String>,
     pub correlation: Option<bytes::Bytes>,
+    /// The connection the command came in on: its answer is said there.
+    pub via: Option<Via>,
+}
+
+/// The connection (an output's, or the gateway's own) a command came in on, and, for a command
+/// of an output's own protocol, what it wrote there: that output answers it in its own terms.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Via {
+    pub output: std::sync::Arc<str>,
+    pub wrote: Option<Written>,
+}
+
+/// What a command of an output's own protocol wrote: a device's metric (Sparkplug: `a0/Clear`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Written {
+    pub device: String,
+    pub metric: String,
 }
 
 /// Why a command was refused or failed; `code` goes in the result, the text is for people.
@@ -97,6 +116,10 @@ pub enum CommandError {
     BadResponseTopic(&'static str),
     #[error("device {device} is busy: {why}; try again later")]
     Busy { device: String, why: &'static str },
+    /// Refused by the protocol it came in with before it became a command (a Sparkplug
+    /// DCMD that cannot be read, a metric that cannot be written).
+    #[error("{message}")]
+    Protocol { code: &'static str, message: String },
 }
 
 impl CommandError {
@@ -122,6 +145,7 @@ impl CommandError {
             CommandError::TooLarge { .. } => "too_large",
             CommandError::BadResponseTopic(_) => "bad_response_topic",
             CommandError::Busy { .. } => "busy",
+            CommandError::Protocol { code, .. } => code,
         }
     }
 }

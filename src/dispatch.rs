@@ -47,7 +47,8 @@ fn targets_of(
         .collect()
 }
 
-/// A message that arrived on a command topic.
+/// A message that arrived on a command topic (or a command of an output's own protocol, put
+/// as one), and the connection it came in on.
 #[derive(Debug, Clone)]
 pub struct Incoming {
     pub topic: String,
@@ -55,6 +56,7 @@ pub struct Incoming {
     pub retain: bool,
     pub response_topic: Option<String>,
     pub correlation: Option<Bytes>,
+    pub via: Option<crate::command::Via>,
 }
 
 /// Where a device's commands go.
@@ -108,7 +110,10 @@ impl Router {
     ) -> Router {
         Router {
             topics: crate::topics::Topics::new(&config.mqtt.topic_root),
-            responses: ResponseRule::new(&config.mqtt.topic_root, &config.homeassistant.prefix),
+            responses: ResponseRule::new(
+                &config.mqtt.topic_root,
+                config.outputs.reserved_prefixes(),
+            ),
             targets: Arc::new(std::sync::RwLock::new(targets_of(config, buses))),
             out,
             dedupe: Arc::default(),
@@ -128,6 +133,7 @@ impl Router {
         let mut reply = Reply {
             topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
+            via: msg.via.clone(),
         };
         let refuse = |reply: &Reply, code: &'static str, message: String| {
             self.warn(&msg.topic, &format!("scan refused: {message}"));
@@ -221,6 +227,7 @@ impl Router {
         let mut reply = Reply {
             topics: vec![crate::topics::Topics::result(&msg.topic)],
             correlation: None,
+            via: msg.via.clone(),
         };
         if let Err(e) = reply_to(&self.responses, &msg, &mut reply) {
             return self.refuse(&msg.topic, &reply, None, None, e);
@@ -317,8 +324,7 @@ impl Router {
                 lock(&dedupe).answered(&topic, id, outcome.clone());
             }
             let _ = out.send(Output::CommandResult {
-                topics: reply.topics,
-                correlation: reply.correlation,
+                reply,
                 outcome: Outcome::Command(outcome),
             });
         });
@@ -381,8 +387,7 @@ impl Router {
 
     fn send(&self, reply: &Reply, outcome: Outcome) {
         let _ = self.out.send(Output::CommandResult {
-            topics: reply.topics.clone(),
-            correlation: reply.correlation.clone(),
+            reply: reply.clone(),
             outcome,
         });
     }

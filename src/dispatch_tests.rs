@@ -54,6 +54,7 @@ fn message(topic: &str, payload: &str, response_topic: Option<&str>) -> Incoming
         retain: false,
         response_topic: response_topic.map(Into::into),
         correlation: None,
+        via: None,
     }
 }
 
@@ -80,10 +81,10 @@ fn a_response_topic_into_the_gateways_own_topics_is_answered_on_the_result_topic
         ("pg/e1/bus/line1/scan", "pg/e1/line1/status"),
     ] {
         router.handle(message(topic, r#"{"op":"clear"}"#, Some(response)));
-        let Ok(Output::CommandResult { topics, .. }) = results.try_recv() else {
+        let Ok(Output::CommandResult { reply, .. }) = results.try_recv() else {
             panic!("{response}: refused at once, with a result");
         };
-        assert_eq!(topics, [format!("{topic}/result")], "{response}");
+        assert_eq!(reply.topics, [format!("{topic}/result")], "{response}");
     }
     assert!(scans.try_recv().is_err(), "the refused scan went nowhere");
 }

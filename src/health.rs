@@ -1,8 +1,12 @@
-//! Liveness of the gateway's loops, for the systemd watchdog and status line.
+//! Liveness and truth of the gateway's loops, for the systemd watchdog and status line and for
+//! `/healthz`.
 //!
-//! Every bus loop and the MQTT task beat a heart at least once a second while they make
-//! progress; the watchdog is fed only while every heart is fresh, so a stuck bus gets the service
-//! restarted. The status line counts buses up and devices online.
+//! Every bus loop (`bus/<name>`) and every output's MQTT task (`output/<name>`) beat a heart at
+//! least once a second while they make progress; the watchdog is fed only while every heart is
+//! fresh, so a stuck bus gets the service restarted. The status line counts buses up, devices
+//! online and the outputs' connections, and names every problem; [`Health::verdict`] says
+//! whether all is well: every bus polling, and no output held or disconnected for longer than
+//! [`OUTPUT_GRACE`].
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -20,7 +24,19 @@ pub struct Beat {
     started: AtomicBool,
     /// Why the loop refuses to work (shown in the status line), e.g. a state file moved aside.
     problem: Mutex<Option<String>>,
+    /// Why an output holds what it would publish (Sparkplug: its primary host is offline).
+    held: Mutex<Option<String>>,
+    /// Milliseconds since the gateway started at which the loop went down, or was held;
+    /// [`UP`] while it is up and not held.
+    down_since_ms: AtomicU64,
 }
+
+/// [`Beat::down_since_ms`] of a loop that is up.
+const UP: u64 = u64::MAX;
+
+/// How long an output may be disconnected or held before the gateway is not well (a broker
+/// restart, a reconnect with back-off, is not a fault).
+pub const OUTPUT_GRACE: Duration = Duration::from_secs(30);
 
 /// Shared health of a running gateway.
 #[derive(Debug)]
@@ -60,11 +76,29 @@ impl Heart {
     pub fn set_up(&self, up: bool) {
         self.beat.up.store(up, Ordering::Relaxed);
         self.beat.started.store(true, Ordering::Relaxed);
+        self.mark();
     }
 
     /// The loop refuses to work, and why (for `systemctl status`).
     pub fn set_problem(&self, problem: Option<String>) {
         *lock(&self.beat.problem) = problem;
+    }
+
+    /// The output holds what it would publish, and why; `None` when it no longer does.
+    pub fn set_held(&self, why: Option<String>) {
+        *lock(&self.beat.held) = why;
+        self.mark();
+    }
+
+    /// Notes when the loop stopped being up and unheld (kept while it stays so).
+    fn mark(&self) {
+        let well = self.beat.up.load(Ordering::Relaxed) && lock(&self.beat.held).is_none();
+        let since = &self.beat.down_since_ms;
+        if well {
+            since.store(UP, Ordering::Relaxed);
+        } else if since.load(Ordering::Relaxed) == UP {
+            since.store(self.start.elapsed().as_millis() as u64, Ordering::Relaxed);
+        }
     }
 }
 
@@ -73,13 +107,16 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 impl Health {
-    /// Registers a loop (`bus/<name>` or `mqtt`) and returns its heart.
+    /// Registers a loop (`bus/<name>` or `output/<name>`) and returns its heart.
     pub fn heart(&self, name: &str) -> Heart {
+        let now = self.start.elapsed().as_millis() as u64;
         let beat = Arc::new(Beat {
-            at_ms: AtomicU64::new(self.start.elapsed().as_millis() as u64),
+            at_ms: AtomicU64::new(now),
             up: AtomicBool::new(false),
             started: AtomicBool::new(false),
             problem: Mutex::new(None),
+            held: Mutex::new(None),
+            down_since_ms: AtomicU64::new(now),
         });
         lock(&self.loops).insert(name.to_string(), beat.clone());
         Heart {
@@ -122,31 +159,33 @@ impl Health {
             .all(|b| b.started.load(Ordering::Relaxed))
     }
 
-    /// One line for `systemctl status`.
+    /// One line for `systemctl status` and `/healthz`: buses up, devices online, the outputs'
+    /// connections, and every problem a loop has (a refused state file, a held output).
     pub fn status_line(&self) -> String {
         let loops = lock(&self.loops);
-        let buses: Vec<_> = loops
-            .iter()
-            .filter(|(n, _)| n.starts_with("bus/"))
-            .collect();
-        let up = buses
-            .iter()
-            .filter(|(_, b)| b.up.load(Ordering::Relaxed))
-            .count();
-        let mqtt = loops
-            .get("mqtt")
-            .map(|b| {
-                if b.up.load(Ordering::Relaxed) {
-                    "MQTT connected"
-                } else {
-                    "MQTT disconnected"
-                }
-            })
-            .unwrap_or("MQTT not started");
+        let of = |prefix: &str| -> Vec<(&String, &Arc<Beat>)> {
+            loops
+                .iter()
+                .filter(|(n, _)| n.starts_with(prefix))
+                .collect()
+        };
+        let (buses, outputs) = (of("bus/"), of("output/"));
+        let up = |list: &[(&String, &Arc<Beat>)]| {
+            list.iter()
+                .filter(|(_, b)| b.up.load(Ordering::Relaxed))
+                .count()
+        };
+        let mqtt = match (up(&outputs), outputs.len()) {
+            (_, 0) => "MQTT not started".to_string(),
+            (n, all) if n == all => "MQTT connected".to_string(),
+            (0, _) => "MQTT disconnected".to_string(),
+            (n, all) => format!("MQTT {n}/{all} outputs connected"),
+        };
         let devices = lock(&self.devices);
         let online = devices.values().filter(|o| **o).count();
         let mut line = format!(
-            "{up}/{} buses up, {online}/{} devices online, {mqtt}",
+            "{}/{} buses up, {online}/{} devices online, {mqtt}",
+            up(&buses),
             buses.len(),
             devices.len()
         );
@@ -154,8 +193,50 @@ impl Health {
             if let Some(p) = lock(&b.problem).as_ref() {
                 line += &format!("; {name}: {p}");
             }
+            if let Some(h) = lock(&b.held).as_ref() {
+                line += &format!("; {name} held: {h}");
+            }
+            if name.starts_with("output/") && !b.up.load(Ordering::Relaxed) {
+                line += &format!("; {name} disconnected");
+            }
         }
         line
+    }
+
+    /// `Ok` with the status line when all is well; `Err` with what is not: a loop that makes no
+    /// progress, a bus that is not polling (its line down, its state file refused), an output
+    /// held or disconnected for more than [`OUTPUT_GRACE`].
+    pub fn verdict(&self, stale_after: Duration) -> Result<String, String> {
+        let stale = self.stale(stale_after);
+        if !stale.is_empty() {
+            return Err(format!("not making progress: {}", stale.join(", ")));
+        }
+        let now = self.start.elapsed().as_millis() as u64;
+        let grace = OUTPUT_GRACE.as_millis() as u64;
+        let loops = lock(&self.loops);
+        let mut faults = Vec::new();
+        for (name, b) in loops.iter() {
+            let since = b.down_since_ms.load(Ordering::Relaxed);
+            let down = since != UP;
+            if name.starts_with("bus/") && (down || lock(&b.problem).is_some()) {
+                faults.push(format!("{name} not polling"));
+            } else if name.starts_with("output/") && down && now.saturating_sub(since) > grace {
+                let what = if lock(&b.held).is_some() {
+                    "held"
+                } else {
+                    "disconnected"
+                };
+                let secs = now.saturating_sub(since) / 1000;
+                faults.push(format!("{name} {what} for {secs} s"));
+            }
+        }
+        drop(loops);
+        let line = self.status_line();
+        if faults.is_empty() {
+            Ok(line)
+        } else {
+            Err(format!("{}: {line}", faults.join(", ")))
+        }
     }
 }
 
@@ -184,7 +265,7 @@ mod tests {
         let h = Health::default();
         h.heart("bus/a").set_up(true);
         h.heart("bus/b");
-        h.heart("mqtt").set_up(true);
+        h.heart("output/json").set_up(true);
         h.device("press", true);
         h.device("doors", false);
         assert_eq!(
@@ -201,5 +282,52 @@ mod tests {
         assert!(!h.all_started(), "running is not yet having tried the line");
         a.set_up(false);
         assert!(h.all_started());
+    }
+
+    #[test]
+    fn a_bus_that_is_not_polling_is_not_well() {
+        let h = Health::default();
+        h.heart("output/json").set_up(true);
+        let bus = h.heart("bus/a");
+        bus.set_up(true);
+        assert!(h.verdict(Duration::from_secs(60)).is_ok());
+        bus.set_problem(Some("state file refused, not polling".into()));
+        let why = h.verdict(Duration::from_secs(60)).unwrap_err();
+        assert!(why.contains("bus/a not polling"), "{why}");
+        assert!(why.contains("state file refused"), "{why}");
+        bus.set_problem(None);
+        bus.set_up(false);
+        assert!(
+            h.verdict(Duration::from_secs(60)).is_err(),
+            "its line is down"
+        );
+    }
+
+    #[test]
+    fn an_output_held_or_down_is_not_well_after_the_grace_only() {
+        let h = Health::default();
+        let out = h.heart("output/scada");
+        out.set_up(true);
+        h.heart("bus/a").set_up(true);
+        out.set_held(Some("primary host offline".into()));
+        let line = h
+            .verdict(Duration::from_secs(60))
+            .expect("within the grace");
+        assert!(
+            line.contains("output/scada held: primary host offline"),
+            "{line}"
+        );
+        // Held since long ago: the mark is what the verdict reads.
+        out.beat.down_since_ms.store(0, Ordering::Relaxed);
+        std::thread::sleep(Duration::from_millis(5));
+        let h2 = Health {
+            start: h.start - OUTPUT_GRACE - Duration::from_secs(1),
+            loops: Mutex::new(lock(&h.loops).clone()),
+            devices: Mutex::default(),
+        };
+        let why = h2.verdict(Duration::from_secs(3600)).unwrap_err();
+        assert!(why.contains("output/scada held for"), "{why}");
+        out.set_held(None);
+        assert!(h2.verdict(Duration::from_secs(3600)).is_ok(), "well again");
     }
 }

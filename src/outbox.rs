@@ -31,7 +31,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 pub use chatter::{CHATTER_BYTES, CHATTER_MESSAGES, CHATTER_WINDOW, Chatter};
-pub use message::{Class, Message, Properties, Will};
+pub use message::{Class, Content, Message, Properties, Will};
 use window::{Held, Window};
 
 use bytes::Bytes;

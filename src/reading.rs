@@ -91,10 +91,9 @@ pub enum Output {
         bus: Arc<str>,
         stats: Box<crate::bus_health::BusStats>,
     },
-    /// The answer to a command or a scan, and the topics it goes to.
+    /// The answer to a command or a scan, and where it goes.
     CommandResult {
-        topics: Vec<String>,
-        correlation: Option<bytes::Bytes>,
+        reply: crate::command::Reply,
         outcome: crate::outcome::Outcome,
     },
     /// A module a bus scan found, as it answered (`<root>/bus/<bus>/scan/progress`).

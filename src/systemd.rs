@@ -55,7 +55,11 @@ pub async fn supervise(health: Arc<Health>, shutdown: CancellationToken) {
             _ = interval.tick() => {}
             () = shutdown.cancelled() => break,
         }
-        let status = health.status_line();
+        // The same truth as `/healthz`: what is not well leads the line.
+        let status = match health.verdict(stale_after) {
+            Ok(line) => line,
+            Err(why) => format!("degraded: {why}"),
+        };
         if !ready && (health.all_started() || started.elapsed() >= READY_AT_THE_LATEST) {
             ready = true;
             tracing::info!("ready: {status}");

@@ -1,9 +1,6 @@
 //! Topic names under the gateway's root, both ways: what the gateway publishes, what it
 //! subscribes to, and how an arriving topic is read. The one place for these rules. Pure.
 
-/// The namespace of Sparkplug B.
-pub const SPARKPLUG_NAMESPACE: &str = "spBv1.0";
-
 /// A name that can stand as one level of an MQTT topic and as a key in the environment:
 /// letters, digits, `-` and `_`, not empty, no wildcards or separators.
 pub fn is_topic_safe(name: &str) -> bool {
@@ -12,6 +9,14 @@ pub fn is_topic_safe(name: &str) -> bool {
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+/// A topic that other topics are built under (`mqtt.topic_root`, Home Assistant's prefix): no
+/// wildcard, no empty level, no leading or trailing `/`.
+pub fn is_topic_prefix(prefix: &str) -> bool {
+    !prefix.is_empty()
+        && !prefix.contains(['+', '#', '\0'])
+        && prefix.split('/').all(|level| !level.is_empty())
 }
 
 /// Topics of one gateway.
@@ -110,17 +115,19 @@ impl Topics {
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ResponseRule {
     root: String,
-    discovery_prefix: String,
+    /// Namespaces the gateway's outputs publish in, and why a result may not go there.
+    reserved: Vec<(String, &'static str)>,
 }
 
 impl ResponseRule {
-    /// The rule of a gateway publishing under `root`, beside Home Assistant's
-    /// `discovery_prefix` (the prefix counts whether discovery is on or not: Home Assistant
-    /// listens there either way).
-    pub fn new(root: &str, discovery_prefix: &str) -> ResponseRule {
+    /// The rule of a gateway publishing under `root`, beside the namespaces of its formats
+    /// (Home Assistant's discovery prefix, whether discovery is on or not: Home Assistant
+    /// listens there either way; the Sparkplug B namespace), each with the reason it is
+    /// refused.
+    pub fn new(root: &str, reserved: Vec<(String, &'static str)>) -> ResponseRule {
         ResponseRule {
             root: root.to_string(),
-            discovery_prefix: discovery_prefix.to_string(),
+            reserved,
         }
     }
 
@@ -152,11 +159,8 @@ impl ResponseRule {
                 Err("it is under the gateway's own topics (only their /result topics may be used)")
             };
         }
-        if under(&self.discovery_prefix) {
-            return Err("it is under the Home Assistant discovery prefix");
-        }
-        if under(SPARKPLUG_NAMESPACE) {
-            return Err("it is in the Sparkplug B namespace (births, data and deaths of nodes)");
+        if let Some((_, why)) = self.reserved.iter().find(|(prefix, _)| under(prefix)) {
+            return Err(why);
         }
         if matches!(topic.rsplit('/').next(), Some("cmd" | "scan")) {
             return Err("it is a command or scan topic");
@@ -225,7 +229,13 @@ mod tests {
     #[test]
     fn a_response_topic_may_not_reach_the_gateways_own_topics_or_home_assistants() {
         let t = Topics::new("pg/e1");
-        let rule = ResponseRule::new("pg/e1", "homeassistant");
+        let rule = ResponseRule::new(
+            "pg/e1",
+            vec![
+                ("homeassistant".into(), "Home Assistant's"),
+                ("spBv1.0".into(), "Sparkplug's"),
+            ],
+        );
         for refused in [
             t.gateway_status(),
             t.gateway_marker(),

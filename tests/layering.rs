@@ -43,6 +43,7 @@ const FLOORS: &[(&str, &[&str])] = &[
         "reading",
         &[
             "bus_health",
+            "command",
             "config",
             "counter",
             "metering",
@@ -119,6 +120,7 @@ const FLOORS: &[(&str, &[&str])] = &[
         "publish",
         &[
             "boot",
+            "command",
             "config",
             "counter",
             "dispatch",
@@ -128,6 +130,7 @@ const FLOORS: &[(&str, &[&str])] = &[
             "metering",
             "metrics",
             "outbox",
+            "outcome",
             "profile",
             "reading",
             "state",

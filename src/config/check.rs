@@ -6,14 +6,11 @@ use std::time::Duration;
 
 use config::Value;
 
-use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Mqtt, Parity};
+use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Parity};
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
 use crate::profile::MAX_TIMEOUT;
-
-/// Largest spool (1 TiB): beyond any edge PC's disk, and far from overflowing the byte count.
-pub const MAX_SPOOL_MB: u64 = 1 << 20;
 
 /// Baud rates the seed modules can be set to (their baud-code tables).
 pub const BAUDS: [u32; 7] = [2400, 4800, 9600, 19200, 38400, 57600, 115200];
@@ -36,7 +33,15 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     let config_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
 
     let gateway = gateway(root.table("gateway", errs), &config_dir, errs);
-    let mqtt = mqtt(root.table("mqtt", errs), &gateway.id, errs);
+    let (mqtt, legacy) = match root.table("mqtt", errs) {
+        Some(mut t) => {
+            let mqtt = super::mqtt::mqtt(&mut t, &gateway.id, errs);
+            let legacy = super::outputs::formats(&mut t, errs);
+            t.finish(errs);
+            (mqtt, legacy)
+        }
+        None => (super::mqtt::mqtt_default(&gateway.id), None),
+    };
     let metrics = super::metrics::check(root.table("metrics", errs), errs);
 
     let profiles = match Profiles::with_dir(&gateway.profile_dir) {
@@ -59,20 +64,8 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
             buses.push(bus);
         }
     }
-    let homeassistant = super::publish::homeassistant(root.table("homeassistant", errs), errs);
-    let sparkplug_table = root.table("sparkplug", errs);
-    let sparkplug_set = sparkplug_table.is_some();
-    let sparkplug = super::sparkplug::sparkplug(sparkplug_table, &gateway.id, errs);
-    let origin = root.origin().map(str::to_string);
+    let outputs = super::outputs::read(&mut root, legacy, &mqtt, &gateway.id, errs);
     root.finish(errs);
-    let named = mqtt.format.iter().any(|f| f == "sparkplug");
-    if named && !sparkplug_set {
-        let why = "mqtt.format names \"sparkplug\": add [sparkplug] with its group_id";
-        errs.push("sparkplug", origin.as_deref(), why);
-    } else if sparkplug_set && !named {
-        let why = "[sparkplug] is set but mqtt.format does not name \"sparkplug\"";
-        errs.push("mqtt.format", origin.as_deref(), why);
-    }
 
     // Device names become topic levels, so they are unique across the gateway.
     let mut seen: HashMap<&str, &str> = HashMap::new();
@@ -94,8 +87,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         mqtt,
         metrics,
         buses,
-        homeassistant,
-        sparkplug,
+        outputs,
     })
 }
 
@@ -191,193 +183,6 @@ fn refuse_unusable_host(g: &Gateway, errs: &mut Errors) {
                 "not set, and the hostname {host:?} cannot be made a topic level: set gateway.id"
             ),
         );
-    }
-}
-
-/// A password read from a file: the line ending is not part of it.
-fn secret(text: String) -> super::model::Secret {
-    super::model::Secret(text.trim_end_matches(['\n', '\r']).to_string())
-}
-
-fn mqtt(table: Option<Table<'_>>, gateway_id: &str, errs: &mut Errors) -> Mqtt {
-    let mut m = Mqtt {
-        host: "127.0.0.1".into(),
-        port: 1883,
-        socket: None,
-        client_id: format!("pulsegate-{gateway_id}"),
-        username: None,
-        password: None,
-        tls: None,
-        keep_alive: Duration::from_secs(30),
-        qos: 1,
-        retain: false,
-        topic_root: format!("pulsegate/{gateway_id}"),
-        spool_bytes: 64 << 20,
-        commands: true,
-        protocol: super::model::MqttProtocol::V5,
-        format: vec!["json".into()],
-        batch: DEFAULT_BATCH,
-    };
-    let Some(mut t) = table else { return m };
-    if let Some(list) = super::sparkplug::formats(&mut t, super::publish::FORMAT_NAMES, errs) {
-        m.format = list;
-    }
-    if let Some(v) = t.opt::<String>("protocol", errs) {
-        match v.as_str() {
-            "5" => m.protocol = super::model::MqttProtocol::V5,
-            "3.1.1" => m.protocol = super::model::MqttProtocol::V311,
-            _ => errs.push(
-                &join(&t.path, "protocol"),
-                t.origin(),
-                format!("unknown MQTT protocol {v:?}: \"5\" or \"3.1.1\""),
-            ),
-        }
-    }
-    if let Some(v) = t.opt("host", errs) {
-        m.host = v;
-    }
-    if let Some(v) = t.int::<u16>("port", errs) {
-        if v == 0 {
-            errs.push(&join(&t.path, "port"), t.origin(), "must be 1..65535");
-        }
-        m.port = v;
-    }
-    if let Some(v) = t.opt("client_id", errs) {
-        m.client_id = v;
-    }
-    m.username = t.opt("username", errs);
-    m.password = mqtt_password(&mut t, errs);
-    m.tls = mqtt_tls(&mut t, errs);
-    m.socket = super::socket::mqtt_socket(&mut t, errs);
-    mqtt_delivery(&mut t, &mut m, errs);
-    t.finish(errs);
-    m
-}
-
-/// `mqtt.password`, `mqtt.password_file`, or systemd's credential.
-fn mqtt_password(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::model::Secret> {
-    let mut password = t.opt::<String>("password", errs).map(super::model::Secret);
-    if let Some(file) = t.opt::<PathBuf>("password_file", errs) {
-        match std::fs::read_to_string(&file) {
-            Ok(p) => password = Some(secret(p)),
-            Err(e) => errs.push(
-                &join(&t.path, "password_file"),
-                t.origin(),
-                format!("cannot read {}: {e}", file.display()),
-            ),
-        }
-    }
-    if password.is_none() {
-        // systemd's LoadCredential=mqtt-password:… puts it here for this service only.
-        if let Some(dir) = std::env::var_os("CREDENTIALS_DIRECTORY") {
-            if let Ok(p) = std::fs::read_to_string(Path::new(&dir).join("mqtt-password")) {
-                password = Some(secret(p));
-            }
-        }
-    }
-    password
-}
-
-/// `[mqtt.tls]`, built as `run` builds it.
-fn mqtt_tls(t: &mut Table<'_>, errs: &mut Errors) -> Option<super::model::Tls> {
-    let mut tt = t.table("tls", errs)?;
-    let tt_path = tt.path.clone();
-    let ca_file = tt.req::<PathBuf>("ca_file", errs);
-    let cert_file = tt.opt::<PathBuf>("cert_file", errs);
-    let key_file = tt.opt::<PathBuf>("key_file", errs);
-    if cert_file.is_some() != key_file.is_some() {
-        errs.push(
-            &tt.path.clone(),
-            tt.origin(),
-            "cert_file and key_file go together",
-        );
-    }
-    for (key, file) in [
-        ("ca_file", &ca_file),
-        ("cert_file", &cert_file),
-        ("key_file", &key_file),
-    ] {
-        if let Some(f) = file
-            && !f.is_file()
-        {
-            errs.push(
-                &join(&tt.path, key),
-                tt.origin(),
-                format!("no such file {}", f.display()),
-            );
-        }
-    }
-    tt.finish(errs);
-    let tls = ca_file.map(|ca_file| super::model::Tls {
-        ca_file,
-        cert_file,
-        key_file,
-    });
-    // Built here exactly as `run` builds it, so `check` (run as the service user) reports
-    // a file the service could not read, and the gateway never starts without TLS.
-    let files_exist = errs.list.iter().all(|e| !e.path.starts_with(&tt_path));
-    if let Some(tls) = &tls
-        && files_exist
-        && let Err(e) = crate::config::tls::client_config(tls)
-    {
-        errs.push(&tt_path, t.origin(), format!("TLS cannot be set up: {e}"));
-    }
-    tls
-}
-
-/// Readings wait this long at most to share a write to the broker with the next polls'.
-pub const DEFAULT_BATCH: Duration = Duration::from_millis(250);
-
-/// A dashboard a reading reaches later than this is not live any more.
-const MAX_BATCH: Duration = Duration::from_secs(5);
-
-/// Keep-alive, batch, QoS, retain, commands, spool size and topic root.
-fn mqtt_delivery(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
-    // MQTT carries it in 16 bits of seconds.
-    let keep_alive_max = Duration::from_secs(u64::from(u16::MAX));
-    if let Some(v) = t.duration_within("keep_alive", Duration::from_secs(5), keep_alive_max, errs) {
-        m.keep_alive = v;
-    }
-    if let Some(v) = t.duration_within("batch", Duration::ZERO, MAX_BATCH, errs) {
-        m.batch = v;
-    }
-    if let Some(v) = t.int::<u8>("qos", errs) {
-        if v > 2 {
-            errs.push(&join(&t.path, "qos"), t.origin(), "must be 0, 1 or 2");
-        }
-        m.qos = v;
-    }
-    if let Some(v) = t.opt("retain", errs) {
-        m.retain = v;
-    }
-    if let Some(v) = t.opt("commands", errs) {
-        m.commands = v;
-    }
-    if let Some(mb) = t.int::<u64>("spool_mb", errs) {
-        if !(1..=MAX_SPOOL_MB).contains(&mb) {
-            errs.push(
-                &join(&t.path, "spool_mb"),
-                t.origin(),
-                format!("must be 1..{MAX_SPOOL_MB}"),
-            );
-        }
-        m.spool_bytes = mb.min(MAX_SPOOL_MB) << 20;
-    }
-    if let Some(v) = t.opt::<String>("topic_root", errs) {
-        let ok = !v.is_empty()
-            && !v.starts_with('/')
-            && !v.ends_with('/')
-            && !v.contains(['+', '#'])
-            && v.split('/').all(|level| !level.is_empty());
-        if ok {
-            m.topic_root = v;
-        } else {
-            errs.push(
-                &join(&t.path, "topic_root"),
-                t.origin(),
-                "must be a topic without wildcards, empty levels or a leading/trailing '/'",
-            );
-        }
     }
 }
 

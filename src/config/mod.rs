@@ -6,10 +6,14 @@
 
 pub mod channel;
 mod check;
+mod connection;
 mod error;
+pub mod homeassistant;
 mod metering;
 mod metrics;
 mod model;
+mod mqtt;
+pub mod outputs;
 pub mod policy;
 pub mod publish;
 mod socket;
@@ -23,8 +27,9 @@ use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
+pub use homeassistant::HomeAssistant;
 pub use metrics::Metrics as MetricsEndpoint;
-pub use publish::HomeAssistant;
+pub use outputs::{OutputConfig, OutputKind, Outputs};
 pub use sparkplug::Sparkplug;
 
 pub use model::*;

@@ -3,7 +3,6 @@
 //! them without going through the loader.
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -14,8 +13,9 @@ pub use super::error::{ConfigError, ConfigErrors};
 
 use super::channel::ChannelConfig;
 use super::metrics::Metrics as MetricsEndpoint;
-use super::publish::HomeAssistant;
-use super::sparkplug::Sparkplug;
+use super::outputs::Outputs;
+
+pub use super::connection::{Mqtt, MqttProtocol, Secret, Tls};
 
 use super::policy::{PayloadMode, PolicyOverride};
 
@@ -33,10 +33,8 @@ pub struct Config {
     pub metrics: Option<MetricsEndpoint>,
     /// Buses sorted by name.
     pub buses: Vec<Bus>,
-    /// `[homeassistant]`: MQTT discovery.
-    pub homeassistant: HomeAssistant,
-    /// `[sparkplug]`: present exactly when `mqtt.format` names `"sparkplug"`.
-    pub sparkplug: Option<Sparkplug>,
+    /// `[outputs]` (or `mqtt.format`): where readings go, and their formats' settings.
+    pub outputs: Outputs,
 }
 
 /// `[gateway]`
@@ -61,80 +59,6 @@ pub struct Gateway {
     pub clock: crate::metering::Clock,
     /// `intervals` of every channel unless a device or channel says otherwise.
     pub intervals: Option<Vec<crate::metering::Period>>,
-}
-
-/// A secret (the MQTT password): never printed, never logged.
-#[derive(Clone, PartialEq, Eq)]
-pub struct Secret(pub String);
-
-impl fmt::Debug for Secret {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str("Secret(***)")
-    }
-}
-
-/// `[mqtt.tls]`: TLS to the broker (rustls).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Tls {
-    /// CA certificate(s) the broker's certificate must chain to (PEM).
-    pub ca_file: PathBuf,
-    /// Client certificate and key (PEM), for brokers that ask for one.
-    pub cert_file: Option<PathBuf>,
-    pub key_file: Option<PathBuf>,
-}
-
-/// `[mqtt]`
-#[derive(Debug, Clone, PartialEq)]
-pub struct Mqtt {
-    /// Not used when `socket` is set.
-    pub host: String,
-    pub port: u16,
-    /// `mqtt.socket`: a local broker's Unix domain socket, used instead of `host`/`port`
-    /// (no TCP port: the socket file's permissions decide who may connect).
-    pub socket: Option<PathBuf>,
-    pub client_id: String,
-    pub username: Option<String>,
-    /// From `password`, `password_file`, `PULSEGATE__MQTT__PASSWORD`, or the systemd credential
-    /// `mqtt-password` (`LoadCredential=`).
-    pub password: Option<Secret>,
-    pub tls: Option<Tls>,
-    pub keep_alive: Duration,
-    pub qos: u8,
-    pub retain: bool,
-    pub topic_root: String,
-    /// Bound of the store-and-forward spool (memory and disk), in bytes.
-    pub spool_bytes: u64,
-    /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
-    /// MQTT whatever the devices say).
-    pub commands: bool,
-    /// `mqtt.protocol`: "5" (default) or "3.1.1".
-    pub protocol: MqttProtocol,
-    /// `mqtt.format`: how events become payloads, each one of [`publish::FORMAT_NAMES`]
-    /// (a list runs them side by side: `["json", "sparkplug"]`).
-    pub format: Vec<String>,
-    /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
-    /// [`crate::publish::batch`]); zero sends each poll's at once.
-    pub batch: Duration,
-}
-
-impl Mqtt {
-    /// The broker as logs and status name it: the socket path, or `host:port`.
-    pub fn broker(&self) -> String {
-        match &self.socket {
-            Some(path) => path.display().to_string(),
-            None => format!("{}:{}", self.host, self.port),
-        }
-    }
-}
-
-/// The MQTT protocol version spoken to the broker.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub enum MqttProtocol {
-    #[default]
-    V5,
-    /// For brokers that refuse v5 (Azure IoT Hub, older Mosquitto, some embedded brokers): no
-    /// response topic or correlation data; everything else works the same.
-    V311,
 }
 
 /// `[buses.<name>]`

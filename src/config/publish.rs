@@ -1,9 +1,7 @@
 //! Publish keys at the gateway, device and channel levels (`publish`, `heartbeat`,
-//! `min_interval`, `payload`), and `[homeassistant]`.
+//! `min_interval`, `payload`).
 
 use super::walk::{Errors, MAX_DURATION, Table, join};
-/// The formats `mqtt.format` may name (each built by `publish::formats::build`).
-pub const FORMAT_NAMES: &[&str] = &["json", "sparkplug"];
 
 use crate::config::policy::{PayloadMode, PolicyOverride, PublishMode};
 
@@ -49,45 +47,4 @@ pub(crate) fn payload(t: &mut Table<'_>, errs: &mut Errors) -> Option<PayloadMod
             None
         }
     }
-}
-
-/// `[homeassistant]`: MQTT discovery, opt-in.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct HomeAssistant {
-    pub discovery: bool,
-    /// Discovery prefix; Home Assistant announces itself on `<prefix>/status`.
-    pub prefix: String,
-}
-
-impl Default for HomeAssistant {
-    fn default() -> Self {
-        HomeAssistant {
-            discovery: false,
-            prefix: "homeassistant".into(),
-        }
-    }
-}
-
-/// Reads `[homeassistant]`.
-pub(crate) fn homeassistant(table: Option<Table<'_>>, errs: &mut Errors) -> HomeAssistant {
-    let mut ha = HomeAssistant::default();
-    let Some(mut t) = table else { return ha };
-    if let Some(v) = t.opt::<bool>("discovery", errs) {
-        ha.discovery = v;
-    }
-    if let Some(p) = t.opt::<String>("prefix", errs) {
-        let ok =
-            !p.is_empty() && !p.contains(['+', '#']) && p.split('/').all(|level| !level.is_empty());
-        if ok {
-            ha.prefix = p;
-        } else {
-            errs.push(
-                &join(&t.path, "prefix"),
-                t.origin(),
-                "must be a topic without wildcards, empty levels or a leading/trailing '/'",
-            );
-        }
-    }
-    t.finish(errs);
-    ha
 }

@@ -1,9 +1,10 @@
-//! `[sparkplug]`: the gateway as a Sparkplug B edge node (selected by `mqtt.format`), and the
-//! `mqtt.format` key itself (one name or a list).
-
-use config::ValueKind;
+//! `[sparkplug]`: the settings of the outputs of kind `sparkplug` (the gateway as a Sparkplug B
+//! edge node).
 
 use super::walk::{Errors, Table, join};
+
+/// The topic namespace of Sparkplug B.
+pub const NAMESPACE: &str = "spBv1.0";
 
 /// `[sparkplug]`, checked.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -57,45 +58,4 @@ fn checked_id(t: &Table<'_>, key: &str, value: String, errs: &mut Errors) -> Opt
     );
     errs.push(&join(&t.path, key), t.origin(), why);
     None
-}
-
-/// Reads `mqtt.format`: one name or a list of names, each in `names`, none twice; `None` when
-/// absent (or broken: the error is in `errs`).
-pub(crate) fn formats(t: &mut Table<'_>, names: &[&str], errs: &mut Errors) -> Option<Vec<String>> {
-    let path = join(&t.path, "format");
-    let value = t.raw("format")?;
-    let list: Option<Vec<String>> = match &value.kind {
-        ValueKind::String(name) => Some(vec![name.clone()]),
-        ValueKind::Array(items) => items
-            .iter()
-            .map(|v| match &v.kind {
-                ValueKind::String(name) => Some(name.clone()),
-                _ => None,
-            })
-            .collect(),
-        _ => None,
-    };
-    let Some(list) = list else {
-        let why = "expected a format name or a list of names (\"json\", [\"json\", \"sparkplug\"])";
-        errs.push(&path, value.origin(), why);
-        return None;
-    };
-    let mut ok = !list.is_empty();
-    if list.is_empty() {
-        errs.push(&path, t.origin(), "an empty list: name at least one format");
-    }
-    for (i, name) in list.iter().enumerate() {
-        if !names.contains(&name.as_str()) {
-            let why = format!(
-                "unknown output format {name:?}: one of {}",
-                names.join(", ")
-            );
-            errs.push(&path, t.origin(), why);
-            ok = false;
-        } else if list[..i].contains(name) {
-            errs.push(&path, t.origin(), format!("{name:?} is named twice"));
-            ok = false;
-        }
-    }
-    ok.then_some(list)
 }

@@ -9,7 +9,7 @@ use rustls::ClientConfig;
 use rustls::pki_types::pem::PemObject;
 use rustls::pki_types::{CertificateDer, PrivateKeyDer};
 
-use super::model::Tls;
+use super::connection::Tls;
 
 /// Why TLS could not be set up; names the file and the cause.
 #[derive(Debug, thiserror::Error)]

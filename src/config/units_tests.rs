@@ -110,12 +110,13 @@ fn publish_keys_resolve_gateway_then_device_then_channel() {
 
 #[test]
 fn homeassistant_discovery_is_off_unless_asked_for() {
+    use crate::config::OutputKind;
     let c = check("", &[]).unwrap();
-    assert!(!c.homeassistant.discovery);
-    assert_eq!(c.homeassistant.prefix, "homeassistant");
+    assert!(!c.outputs.has(OutputKind::HomeAssistant));
+    assert_eq!(c.outputs.homeassistant.prefix, "homeassistant");
     let c = check("[homeassistant]\ndiscovery = true\nprefix = \"ha\"\n", &[]).unwrap();
-    assert!(c.homeassistant.discovery);
-    assert_eq!(c.homeassistant.prefix, "ha");
+    assert!(c.outputs.has(OutputKind::HomeAssistant));
+    assert_eq!(c.outputs.homeassistant.prefix, "ha");
     let e = errors("[homeassistant]\nprefix = \"ha/#\"\nnope = 1\n");
     assert!(
         e.contains("homeassistant.prefix") && e.contains("homeassistant.nope"),

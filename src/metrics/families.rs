@@ -4,13 +4,14 @@
 use std::collections::BTreeSet;
 
 use prometheus::{
-    CounterVec, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    CounterVec, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec,
     IntGaugeVec, Opts, Registry,
 };
 
 const BUS: &[&str] = &["bus"];
 const DEVICE: &[&str] = &["bus", "device"];
 const CHANNEL: &[&str] = &["bus", "device", "channel"];
+const OUTPUT: &[&str] = &["output"];
 
 /// Modbus transaction latency buckets (seconds): a 9600-baud read takes 30–60 ms, a timeout
 /// hundreds; TCP answers in a millisecond or two.
@@ -36,14 +37,15 @@ pub(super) struct Families {
     pub bus_line_faults: IntCounterVec,
     pub bus_busy: CounterVec,
     pub bus_utilisation: GaugeVec,
-    pub mqtt_connected: IntGauge,
-    pub spool_messages: IntGauge,
-    pub spool_bytes: IntGauge,
-    pub spool_dropped: IntCounter,
-    pub spool_fallback: IntGauge,
-    pub spool_written: IntCounter,
-    pub chatter_messages: IntGauge,
-    pub chatter_dropped: IntCounter,
+    pub mqtt_connected: IntGaugeVec,
+    pub mqtt_held: IntGaugeVec,
+    pub spool_messages: IntGaugeVec,
+    pub spool_bytes: IntGaugeVec,
+    pub spool_dropped: IntCounterVec,
+    pub spool_fallback: IntGaugeVec,
+    pub spool_written: IntCounterVec,
+    pub chatter_messages: IntGaugeVec,
+    pub chatter_dropped: IntCounterVec,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -145,7 +147,11 @@ const BUS_UTILISATION: Family = (
 );
 const MQTT_CONNECTED: Family = (
     "pulsegate_mqtt_connected",
-    "1 while connected to the MQTT broker.",
+    "1 while the output's connection to its MQTT broker is up.",
+);
+const MQTT_HELD: Family = (
+    "pulsegate_mqtt_held",
+    "1 while the output holds what it would publish (Sparkplug: its primary host is offline).",
 );
 const SPOOL_MESSAGES: Family = (
     "pulsegate_spool_messages",
@@ -259,14 +265,15 @@ impl Families {
             bus_line_faults: family!(r, IntCounterVec, BUS_LINE_FAULTS, BUS),
             bus_busy: family!(r, CounterVec, BUS_BUSY, BUS),
             bus_utilisation: family!(r, GaugeVec, BUS_UTILISATION, BUS),
-            mqtt_connected: family!(r, IntGauge, MQTT_CONNECTED),
-            spool_messages: family!(r, IntGauge, SPOOL_MESSAGES),
-            spool_bytes: family!(r, IntGauge, SPOOL_BYTES),
-            spool_dropped: family!(r, IntCounter, SPOOL_DROPPED),
-            spool_fallback: family!(r, IntGauge, SPOOL_FALLBACK),
-            spool_written: family!(r, IntCounter, SPOOL_WRITTEN),
-            chatter_messages: family!(r, IntGauge, CHATTER_MESSAGES),
-            chatter_dropped: family!(r, IntCounter, CHATTER_DROPPED),
+            mqtt_connected: family!(r, IntGaugeVec, MQTT_CONNECTED, OUTPUT),
+            mqtt_held: family!(r, IntGaugeVec, MQTT_HELD, OUTPUT),
+            spool_messages: family!(r, IntGaugeVec, SPOOL_MESSAGES, OUTPUT),
+            spool_bytes: family!(r, IntGaugeVec, SPOOL_BYTES, OUTPUT),
+            spool_dropped: family!(r, IntCounterVec, SPOOL_DROPPED, OUTPUT),
+            spool_fallback: family!(r, IntGaugeVec, SPOOL_FALLBACK, OUTPUT),
+            spool_written: family!(r, IntCounterVec, SPOOL_WRITTEN, OUTPUT),
+            chatter_messages: family!(r, IntGaugeVec, CHATTER_MESSAGES, OUTPUT),
+            chatter_dropped: family!(r, IntCounterVec, CHATTER_DROPPED, OUTPUT),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

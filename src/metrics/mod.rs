@@ -80,41 +80,14 @@ impl Metrics {
         }
     }
 
-    /// The MQTT side, sampled by the MQTT task: connected, spool depth, spool drops so far.
-    pub fn mqtt(&self, connected: bool, spool_messages: u64, spool_bytes: u64, dropped: u64) {
-        let Some(e) = &self.inner else { return };
-        let f = &e.families;
-        f.mqtt_connected.set(connected as i64);
-        f.spool_messages.set(spool_messages as i64);
-        f.spool_bytes.set(spool_bytes as i64);
-        let seen = f.spool_dropped.get();
-        if dropped > seen {
-            f.spool_dropped.inc_by(dropped - seen);
-        }
-    }
-
-    /// Whether the spool fell back to a private temporary directory (see
-    /// `publish::spool_place`).
-    pub fn spool_fallback(&self, fallback: bool) {
-        if let Some(e) = &self.inner {
-            e.families.spool_fallback.set(fallback as i64);
-        }
-    }
-
-    /// The chatter queue (waiting, dropped since start) and the spool's bytes written to disk
-    /// since start.
-    pub fn chatter(&self, waiting: usize, dropped: u64, spool_written: u64) {
-        let Some(e) = &self.inner else { return };
-        let f = &e.families;
-        f.chatter_messages.set(waiting as i64);
-        for (counter, now) in [
-            (&f.chatter_dropped, dropped),
-            (&f.spool_written, spool_written),
-        ] {
-            let seen = counter.get();
-            if now > seen {
-                counter.inc_by(now - seen);
-            }
+    /// The handles of one output's connection (`output` label: its name, or `gateway` for the
+    /// gateway's own connection).
+    pub fn output(&self, name: &str) -> OutputMetrics {
+        OutputMetrics {
+            inner: self
+                .inner
+                .as_ref()
+                .map(|e| (e.families.clone(), name.to_string())),
         }
     }
 
@@ -419,3 +392,65 @@ impl DeviceMetrics {
 
 #[cfg(test)]
 mod tests;
+
+/// What one output's MQTT task records, sampled at its beat.
+#[derive(Clone, Default)]
+pub struct OutputMetrics {
+    inner: Option<(Arc<Families>, String)>,
+}
+
+/// One beat's look at an output: its connection, hold, spool and chatter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct OutputSample {
+    pub connected: bool,
+    pub held: bool,
+    pub spool_messages: u64,
+    pub spool_bytes: u64,
+    /// Messages the spool dropped since start (its bound), and bytes it wrote to disk.
+    pub spool_dropped: u64,
+    pub spool_written: u64,
+    pub chatter_waiting: usize,
+    pub chatter_dropped: u64,
+}
+
+impl OutputMetrics {
+    /// Records `s`; counters move by what they gained since the last sample.
+    pub fn sample(&self, s: &OutputSample) {
+        let Some((f, name)) = &self.inner else { return };
+        let l = [name.as_str()];
+        f.mqtt_connected
+            .with_label_values(&l)
+            .set(s.connected as i64);
+        f.mqtt_held.with_label_values(&l).set(s.held as i64);
+        f.spool_messages
+            .with_label_values(&l)
+            .set(s.spool_messages as i64);
+        f.spool_bytes
+            .with_label_values(&l)
+            .set(s.spool_bytes as i64);
+        f.chatter_messages
+            .with_label_values(&l)
+            .set(s.chatter_waiting as i64);
+        for (counter, now) in [
+            (&f.spool_dropped, s.spool_dropped),
+            (&f.spool_written, s.spool_written),
+            (&f.chatter_dropped, s.chatter_dropped),
+        ] {
+            let c = counter.with_label_values(&l);
+            let seen = c.get();
+            if now > seen {
+                c.inc_by(now - seen);
+            }
+        }
+    }
+
+    /// Whether the spool fell back to a private temporary directory (see
+    /// `publish::spool_place`).
+    pub fn spool_fallback(&self, fallback: bool) {
+        if let Some((f, name)) = &self.inner {
+            f.spool_fallback
+                .with_label_values(&[name])
+                .set(fallback as i64);
+        }
+    }
+}

@@ -1,5 +1,6 @@
-//! The HTTP endpoint: `GET /metrics` (Prometheus text format) and `GET /healthz` (200 while
-//! every bus loop and the MQTT task make progress, 503 naming the stuck ones).
+//! The HTTP endpoint: `GET /metrics` (Prometheus text format) and `GET /healthz` (200 only
+//! while every loop makes progress, every bus polls and no output has been held or
+//! disconnected for more than 30 s; 503 naming what is not well, see `Health::verdict`).
 //!
 //! hyper's HTTP/1 server on the gateway's own single-threaded runtime: no extra threads. It is
 //! meant for a local scraper (loopback by default), not the open network, and a client can cost
@@ -151,17 +152,10 @@ async fn answer(
                 .insert(CONTENT_TYPE, HeaderValue::from_static(TEXT_FORMAT));
             r
         }
-        "/healthz" => {
-            let stale = health.stale(STALE_AFTER);
-            if stale.is_empty() {
-                plain(StatusCode::OK, format!("ok: {}\n", health.status_line()))
-            } else {
-                plain(
-                    StatusCode::SERVICE_UNAVAILABLE,
-                    format!("not making progress: {}\n", stale.join(", ")),
-                )
-            }
-        }
+        "/healthz" => match health.verdict(STALE_AFTER) {
+            Ok(line) => plain(StatusCode::OK, format!("ok: {line}\n")),
+            Err(why) => plain(StatusCode::SERVICE_UNAVAILABLE, format!("{why}\n")),
+        },
         _ => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
     }
 }

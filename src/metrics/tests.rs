@@ -173,13 +173,26 @@ fn refused_commands_are_counted_by_error_code() {
 #[test]
 fn the_spool_and_mqtt_state_are_sampled_and_drops_only_count_up() {
     let m = Metrics::new();
-    m.mqtt(false, 42, 4096, 3);
-    m.mqtt(false, 43, 4200, 3);
+    let sample = |messages, bytes| crate::metrics::OutputSample {
+        spool_messages: messages,
+        spool_bytes: bytes,
+        spool_dropped: 3,
+        ..Default::default()
+    };
+    m.output("json").sample(&sample(42, 4096));
+    m.output("json").sample(&sample(43, 4200));
+    m.output("scada").sample(&crate::metrics::OutputSample {
+        connected: true,
+        held: true,
+        ..Default::default()
+    });
     let text = m.encode();
-    assert!(text.contains("pulsegate_mqtt_connected 0"));
-    assert!(text.contains("pulsegate_spool_messages 43"));
-    assert!(text.contains("pulsegate_spool_bytes 4200"));
-    assert!(text.contains("pulsegate_spool_dropped_messages_total 3"));
+    assert!(text.contains("pulsegate_mqtt_connected{output=\"json\"} 0"));
+    assert!(text.contains("pulsegate_spool_messages{output=\"json\"} 43"));
+    assert!(text.contains("pulsegate_spool_bytes{output=\"json\"} 4200"));
+    assert!(text.contains("pulsegate_spool_dropped_messages_total{output=\"json\"} 3"));
+    assert!(text.contains("pulsegate_mqtt_connected{output=\"scada\"} 1"));
+    assert!(text.contains("pulsegate_mqtt_held{output=\"scada\"} 1"));
 }
 
 #[test]
@@ -211,7 +224,10 @@ fn metrics_that_are_off_record_nothing_and_expose_nothing() {
     d.up(Some(true));
     d.reading(&reading("press1", "a2", 5, 1.0, false));
     bus.wire(&WireCounters::default(), Duration::from_secs(1));
-    m.mqtt(true, 1, 2, 3);
+    m.output("json").sample(&crate::metrics::OutputSample {
+        connected: true,
+        ..Default::default()
+    });
     assert_eq!(m.encode(), "");
 }
 

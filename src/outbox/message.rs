@@ -13,10 +13,28 @@ pub struct Message {
     pub retain: bool,
     /// MQTT v5 publish properties.
     pub properties: Properties,
+    /// What it carries, as the format that made it says (its delivery follows from it).
+    pub content: Content,
     /// Of the moment only (bus health): dropped rather than kept while the broker is away.
     pub transient: bool,
     /// Owed (kept, in order) or chatter (made again, dropped first).
     pub class: Class,
+}
+
+/// What a message carries. A format says it; how the message is delivered (owed or chatter,
+/// kept while the broker is away or not) is decided from it in one place,
+/// `publish::delivery`, never by the format.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Content {
+    /// Readings, availability, interval records: what a consumer counts on.
+    #[default]
+    Data,
+    /// A description the gateway can make again (a Home Assistant discovery config).
+    Config,
+    /// The answer to a command or scan, or a scan's progress.
+    Answer,
+    /// Of the moment only (bus health).
+    Health,
 }
 
 /// What losing a message costs, and so how it is kept.
@@ -56,12 +74,19 @@ impl Message {
             qos,
             retain,
             properties: Properties::default(),
+            content: Content::Data,
             transient: false,
             class: Class::Owed,
         }
     }
 
-    /// A chatter message: one the gateway can make again.
+    /// The same message, saying it carries `content`.
+    pub fn carrying(self, content: Content) -> Message {
+        Message { content, ..self }
+    }
+
+    /// A chatter message: one the gateway can make again (for the outbox's own tests; formats
+    /// say what they carry instead).
     pub fn chatter(topic: String, payload: impl Into<Bytes>, qos: u8, retain: bool) -> Message {
         Message {
             class: Class::Chatter,

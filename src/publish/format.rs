@@ -1,27 +1,29 @@
-//! The output stage: typed events from the buses and the command router in, MQTT messages out
-//! (topic, payload bytes, QoS, retain, properties). A format is one implementation of
-//! [`Format`]; the config chooses which run ([`chosen`]), in one [`Stage`] owned by the MQTT
-//! task. Pure.
+//! The output stage of one output: typed events from the buses and the command router in, MQTT
+//! messages out (topic, payload bytes, QoS, retain, properties, and what they carry). A format
+//! is one implementation of [`Format`]; an output's kind chooses which run
+//! ([`super::formats::build`]), in one [`Stage`] owned by that output's MQTT task. Pure.
 //!
-//! Adding one: a new file with a type that implements [`Format`], plus its config key. A payload
-//! format (today's JSON, [`super::json`], is the first) is named by `mqtt.format`: its name goes
-//! in `config::publish::FORMAT_NAMES` and a line in [`super::formats::build`]. A format that
-//! runs beside it (Home Assistant discovery, [`super::discovery`], under
-//! `[homeassistant] discovery`) is a line in [`super::formats::chosen`].
+//! Adding one: a new file (or folder) with a type that implements [`Format`], a variant of
+//! `config::OutputKind`, and its arm in [`super::formats::build`]. A format is an encoder: it
+//! says what each message carries ([`Content`]) and has no say over its delivery (owed or
+//! chatter, decided in [`super::delivery`] and applied here).
 //!
-//! Most formats only turn events into messages. A format also owns its lifecycle on the wire,
-//! as Telegraf's outputs own `Connect`/`Write`/`Close`: what it publishes at every connection
-//! (the gateway's `online`, Sparkplug's births), the will it leaves with the broker, what it
-//! publishes when the gateway stops, what its subscriptions mean (Home Assistant's birth
-//! message; commands of its own protocol, handed to the command router), timers of its own
-//! (`tick`), and a last look at each stored message as it leaves (a protocol that numbers its
-//! messages on the wire). The MQTT task only calls these hooks; it knows no format.
+//! A format also owns its protocol's lifecycle on the wire, as Telegraf's outputs own
+//! `Connect`/`Write`/`Close`: what it publishes at every connection (Sparkplug's births), the
+//! will it leaves with the broker, what it publishes when the gateway stops, what its
+//! subscriptions mean (Home Assistant's birth message; commands of its own protocol, handed to
+//! the command router), timers of its own (`tick`), its hold (Sparkplug's primary host), and a
+//! last look at each stored message as it leaves (a protocol that numbers its messages on the
+//! wire). The MQTT task only calls these hooks; it knows no format.
 
 use bytes::Bytes;
 use tokio::time::Instant;
 
+use super::delivery::classified;
 use crate::config::Config;
 use crate::dispatch::Incoming;
+#[cfg(doc)]
+use crate::outbox::Content;
 use crate::outbox::{Message, Will};
 use crate::reading::Output;
 
@@ -37,6 +39,9 @@ pub struct Reaction {
     /// [`Format::connected`] returns (Sparkplug's births when its primary host comes online,
     /// before what was held for it).
     pub at_once: Vec<Message>,
+    /// Answers the format gave itself (a command of its protocol it refused before the router
+    /// saw it): `Output::CommandResult`s, counted and routed back like every answer.
+    pub answers: Vec<Output>,
 }
 
 impl From<Vec<Message>> for Reaction {
@@ -108,9 +113,9 @@ pub trait Format: Send + Sync {
 
     /// While a format holds, the outbox hands nothing stored to the client: it is kept (and
     /// spooled) as during an outage. Sparkplug holds while its primary host is offline (the
-    /// spec has the node go quiet then).
-    fn holding(&self) -> bool {
-        false
+    /// spec has the node go quiet then). `Some` says why (for health and the status line).
+    fn held(&self) -> Option<String> {
+        None
     }
 
     /// A stored message of this format leaves for the broker now, in wire order: `Some`
@@ -119,11 +124,6 @@ pub trait Format: Send + Sync {
     fn outgoing(&mut self, _topic: &str, _payload: &Bytes, _replay: bool) -> Option<Bytes> {
         None
     }
-}
-
-/// One format's messages for one event.
-pub fn render(format: &mut dyn Format, event: &Output) -> Vec<Message> {
-    format.messages(event)
 }
 
 /// The formats in use, run one after the other on every event.
@@ -136,7 +136,7 @@ impl Stage {
         Stage { formats }
     }
 
-    /// Every format's messages for `event`, in the formats' order.
+    /// Every format's messages for `event`, in the formats' order, classified for delivery.
     pub fn render(&mut self, event: &Output) -> Vec<Message> {
         self.each(|f| f.messages(event))
     }
@@ -167,16 +167,17 @@ impl Stage {
         let mut out = Reaction::default();
         for format in &mut self.formats {
             let r = f(&mut **format);
-            out.messages.extend(r.messages);
+            out.messages.extend(classified(r.messages));
             out.commands.extend(r.commands);
             out.at_once.extend(r.at_once);
+            out.answers.extend(r.answers);
         }
         out
     }
 
-    /// Some format holds the outbox ([`Format::holding`]).
-    pub fn holding(&self) -> bool {
-        self.formats.iter().any(|f| f.holding())
+    /// Some format holds the outbox ([`Format::held`]), and why.
+    pub fn held(&self) -> Option<String> {
+        self.formats.iter().find_map(|f| f.held())
     }
 
     pub fn reload(&mut self, config: &Config) -> Vec<Message> {
@@ -194,8 +195,7 @@ impl Stage {
         }
     }
 
-    /// The first will a format sets (formats that must own the will come first in
-    /// [`super::formats::chosen`]).
+    /// The first will a format sets (an output's kind has one format with a will, at most).
     pub fn will(&mut self) -> Option<Will> {
         self.formats.iter_mut().find_map(|f| f.will())
     }
@@ -220,10 +220,11 @@ impl Stage {
         changed
     }
 
+    /// Every format's messages from `f`, classified for delivery ([`super::delivery`]).
     fn each(&mut self, mut f: impl FnMut(&mut dyn Format) -> Vec<Message>) -> Vec<Message> {
         let mut out = Vec::new();
         for format in &mut self.formats {
-            out.extend(f(&mut **format));
+            out.extend(classified(f(&mut **format)));
         }
         out
     }

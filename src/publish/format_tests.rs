@@ -3,12 +3,31 @@
 use std::time::{Duration, SystemTime};
 
 use super::*;
-use crate::config::publish::FORMAT_NAMES as NAMES;
+use crate::config::{OutputConfig, OutputKind};
 use crate::counter::Update;
 use crate::outbox::{MemoryStore, Outbox, Step, Store};
-use crate::publish::formats::build;
 use crate::reading::Reading;
 use crate::topics::Topics;
+
+/// The output stage of `config`'s first output of `kind`.
+fn build(config: &crate::config::Config, kind: OutputKind) -> Stage {
+    let output = output_of(config, kind);
+    Stage::new(crate::publish::formats::build(config, &output))
+}
+
+fn output_of(config: &crate::config::Config, kind: OutputKind) -> OutputConfig {
+    config
+        .outputs
+        .list
+        .iter()
+        .find(|o| o.kind == kind)
+        .cloned()
+        .unwrap_or_else(|| OutputConfig {
+            name: kind.name().into(),
+            kind,
+            mqtt: config.mqtt.clone(),
+        })
+}
 
 fn reading(total: i64) -> Reading {
     Reading {
@@ -46,8 +65,8 @@ fn config() -> crate::config::Config {
 
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
-    let mut json = build(&config(), "json");
-    let m = render(&mut *json, &Output::Reading(reading(42)));
+    let mut json = build(&config(), OutputKind::Json);
+    let m = json.render(&Output::Reading(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
     assert_eq!((m[0].qos, m[0].retain, m[0].transient), (0, true, false));
@@ -59,12 +78,12 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
 
 #[test]
 fn json_status_is_retained_and_bus_health_is_transient() {
-    let mut json = build(&config(), "json");
+    let mut json = build(&config(), OutputKind::Json);
     let status = Output::DeviceStatus {
         device: "press1".into(),
         online: false,
     };
-    let m = render(&mut *json, &status);
+    let m = json.render(&status);
     assert_eq!(
         (m[0].topic.as_str(), &m[0].payload[..]),
         ("pg/e1/press1/status", &b"offline"[..])
@@ -86,7 +105,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
         bus: "line1".into(),
         stats: Box::new(stats),
     };
-    let m = render(&mut *json, &stats);
+    let m = json.render(&stats);
     assert_eq!(m[0].topic, "pg/e1/bus/line1/stats");
     assert!(m[0].transient && m[0].qos == 0);
     let v: serde_json::Value = serde_json::from_slice(&m[0].payload).unwrap();
@@ -98,17 +117,23 @@ fn json_status_is_retained_and_bus_health_is_transient() {
 
 #[test]
 fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
-    let mut json = build(&config(), "json");
+    let mut json = build(&config(), OutputKind::Json);
     let result = Output::CommandResult {
-        topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
-        correlation: Some(bytes::Bytes::from_static(b"c-1")),
+        reply: crate::command::Reply {
+            topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
+            correlation: Some(bytes::Bytes::from_static(b"c-1")),
+            via: Some(crate::command::Via {
+                output: "json".into(),
+                wrote: None,
+            }),
+        },
         outcome: crate::outcome::Outcome::Command(crate::outcome::CommandOutcome {
             id: None,
             op: None,
             result: Ok(None),
         }),
     };
-    let m = render(&mut *json, &result);
+    let m = json.render(&result);
     assert_eq!(m.len(), 2);
     assert_eq!(m[0].properties.correlation, None);
     assert_eq!(m[1].properties.correlation.as_deref(), Some(&b"c-1"[..]));
@@ -142,7 +167,7 @@ fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchang
     let now = tokio::time::Instant::now();
     let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
     outbox.connected(None, now);
-    for m in render(&mut packed, &Output::Reading(reading(-2))) {
+    for m in packed.messages(&Output::Reading(reading(-2))) {
         outbox.enqueue(m).unwrap();
     }
     assert_eq!(outbox.store().len(), 1);
@@ -163,17 +188,22 @@ fn an_unknown_format_is_a_config_error_naming_the_choices() {
 }
 
 #[test]
-fn every_format_name_the_config_takes_is_built() {
+fn every_output_kind_the_config_takes_is_built_and_publishes_a_reading() {
     let c = check("format = [\"json\", \"sparkplug\"]\n[sparkplug]\ngroup_id = \"g\"").unwrap();
-    assert_eq!(c.mqtt.format.len(), NAMES.len());
-    for name in NAMES {
-        let mut built = build(&c, name);
+    for kind in OutputKind::ALL {
+        let mut built = build(&c, kind);
         let mut r = reading(1);
         (r.device, r.channel) = ("d".into(), "a0".into());
-        assert!(
-            !render(&mut *built, &Output::Reading(r)).is_empty(),
-            "{name}"
-        );
+        assert!(!built.render(&Output::Reading(r)).is_empty(), "{kind}");
+    }
+}
+
+#[test]
+fn the_kinds_are_named_once_and_the_error_lists_them_all() {
+    for kind in OutputKind::ALL {
+        assert_eq!(kind.name().parse::<OutputKind>(), Ok(kind));
+        let err = "xml".parse::<OutputKind>().unwrap_err().to_string();
+        assert!(err.contains(&format!("{:?}", kind.name())), "{err}");
     }
 }
 
@@ -213,8 +243,9 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
             },
         ],
     };
-    let mut per_channel = build(&config(), "json");
-    let topics: Vec<String> = render(&mut *per_channel, &poll)
+    let mut per_channel = build(&config(), OutputKind::Json);
+    let topics: Vec<String> = per_channel
+        .render(&poll)
         .into_iter()
         .map(|m| m.topic)
         .collect();
@@ -225,8 +256,8 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
     let env = Some(std::collections::HashMap::new());
     let device_config =
         crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env).unwrap();
-    let mut per_device = build(&device_config, "json");
-    let m = render(&mut *per_device, &poll);
+    let mut per_device = build(&device_config, OutputKind::Json);
+    let m = per_device.render(&poll);
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/d");
 }

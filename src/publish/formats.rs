@@ -1,40 +1,29 @@
-//! The formats a config chooses, built: the one place that knows every format by name (the
-//! trait they implement is in [`super::format`]).
+//! The formats of each output, built: the one place that knows every format by its kind (the
+//! trait they implement is in [`super::format`], the kinds in [`crate::config::OutputKind`]).
 
 use super::format::Format;
-use crate::config::Config;
-#[cfg(doc)]
-use crate::config::publish::FORMAT_NAMES;
+use super::voice::Voice;
+use crate::config::{Config, OutputConfig, OutputKind};
 
-/// The payload format `name` (checked against [`FORMAT_NAMES`] when the config is read).
-pub fn build(config: &Config, name: &str) -> Box<dyn Format> {
-    match name {
-        "json" => Box::new(super::json::Json::new(config)),
-        "sparkplug" => Box::new(super::sparkplug::Sparkplug::new(config)),
-        other => unreachable_format(other, config),
-    }
-}
-
-/// A name `check` let through that [`build`] does not know: JSON, logged (a programming error
-/// between [`FORMAT_NAMES`] and [`build`], never a crash of the gateway).
-fn unreachable_format(name: &str, config: &Config) -> Box<dyn Format> {
-    tracing::error!("output format {name:?} is not built in; publishing JSON");
-    Box::new(super::json::Json::new(config))
-}
-
-/// Every format the config chooses, in the order their messages go out: discovery first, so an
-/// entity is announced before its first reading.
-pub fn chosen(config: &Config) -> Vec<Box<dyn Format>> {
+/// The formats of `output`, in the order their messages go out: Home Assistant's discovery
+/// before the JSON readings (an entity is announced before its first reading), and the
+/// gateway's voice on every connection that carries its JSON topics (its will is theirs).
+pub fn build(config: &Config, output: &OutputConfig) -> Vec<Box<dyn Format>> {
     let mut formats: Vec<Box<dyn Format>> = Vec::new();
-    if config.homeassistant.discovery {
-        formats.push(Box::new(super::discovery::Discovery::new(config)));
+    if output.kind.carries_gateway_topics() {
+        formats.push(Box::new(Voice::new(&output.mqtt.topic_root, &output.name)));
     }
-    // Sparkplug first: its NDEATH must be the will (a connection has one), before JSON's
-    // `offline` status.
-    let mut names: Vec<&String> = config.mqtt.format.iter().collect();
-    names.sort_by_key(|n| n.as_str() != "sparkplug");
-    for name in names {
-        formats.push(build(config, name));
+    match output.kind {
+        OutputKind::Json => formats.push(Box::new(super::json::Json::new(config, output))),
+        OutputKind::HomeAssistant => {
+            formats.push(Box::new(super::homeassistant::Discovery::new(
+                config, output,
+            )));
+            formats.push(Box::new(super::json::Json::new(config, output)));
+        }
+        OutputKind::Sparkplug => {
+            formats.push(Box::new(super::sparkplug::Sparkplug::new(config, output)));
+        }
     }
     formats
 }

@@ -1,16 +1,16 @@
-//! The JSON format: one message per reading (or per device poll), retained status words, bus
-//! health, command results, and the gateway's own status (`online` at every connection, its
-//! will `offline`). Payload shapes are in [`super::payload`]; topics in [`crate::topics`].
-//! Readings and statuses are owed; bus health and results are chatter (made again).
+//! The JSON format: one message per reading (or per device poll), interval records, retained
+//! device status words and bus health, under the output's topic root. Payload shapes are in
+//! [`super::payload`]; topics in [`crate::topics`]. The gateway's own status and results are
+//! its voice's ([`super::voice`]), not this format's.
 
 use super::format::Format;
 use super::payload;
 use crate::topics::Topics;
 use std::collections::HashSet;
 
-use crate::config::Config;
 use crate::config::policy::PayloadMode;
-use crate::outbox::{Message, Will};
+use crate::config::{Config, OutputConfig};
+use crate::outbox::{Content, Message};
 use crate::reading::{Output, Reading};
 
 /// Today's payloads.
@@ -26,9 +26,9 @@ pub struct Json {
 }
 
 impl Json {
-    /// The JSON format of `config` (the payload shape of each device from its own config).
-    pub fn new(config: &Config) -> Json {
-        let mqtt = &config.mqtt;
+    /// The JSON format of `output` (the payload shape of each device from its own config).
+    pub fn new(config: &Config, output: &OutputConfig) -> Json {
+        let mqtt = &output.mqtt;
         Json {
             topics: Topics::new(&mqtt.topic_root),
             retain: mqtt.retain,
@@ -77,27 +77,8 @@ impl Format for Json {
             Output::BusStats { bus, stats } => {
                 // Health is of the moment: not worth keeping while the broker is away.
                 let body = serde_json::to_string(&**stats).unwrap_or_default();
-                let mut m = Message::chatter(t.bus_stats(bus), body, 0, false);
-                m.transient = true;
-                vec![m]
-            }
-            Output::CommandResult {
-                topics,
-                correlation,
-                outcome,
-            } => {
-                let body = bytes::Bytes::from(outcome.to_json().to_string());
-                let mut out = Vec::with_capacity(topics.len());
-                for (i, topic) in topics.iter().enumerate() {
-                    let mut m = Message::chatter(topic.clone(), body.clone(), 1, false);
-                    // The MQTT v5 response topic (after the result topic) gets the request's
-                    // correlation data back.
-                    if i > 0 {
-                        m.properties.correlation = correlation.clone();
-                    }
-                    out.push(m);
-                }
-                out
+                let m = Message::new(t.bus_stats(bus), body, 0, false);
+                vec![m.carrying(Content::Health)]
             }
             Output::Interval(i) => {
                 let topic = t.interval(&i.device, &i.channel, &i.period);
@@ -108,12 +89,7 @@ impl Format for Json {
                     self.retain,
                 )]
             }
-            Output::ScanProgress { topic, progress } => {
-                let body = serde_json::to_string(&**progress).unwrap_or_default();
-                // Made again by the next scan: chatter, never spooled.
-                vec![Message::chatter(topic.clone(), body, 1, false)]
-            }
-            Output::Checkpoint(_) => Vec::new(),
+            _ => Vec::new(),
         }
     }
 
@@ -121,35 +97,5 @@ impl Format for Json {
     fn reload(&mut self, config: &Config) -> Vec<Message> {
         self.per_device = per_device(config);
         Vec::new()
-    }
-
-    /// The gateway's status, retained: `online` at every connection.
-    fn connected(&mut self) -> Vec<Message> {
-        vec![Message::new(
-            self.topics.gateway_status(),
-            "online",
-            1,
-            true,
-        )]
-    }
-
-    /// `offline` when the connection dies without a word.
-    fn will(&mut self) -> Option<Will> {
-        Some(Will {
-            topic: self.topics.gateway_status(),
-            payload: bytes::Bytes::from_static(b"offline"),
-            qos: 1,
-            retain: true,
-        })
-    }
-
-    /// `offline` as the gateway stops.
-    fn stopping(&mut self) -> Vec<Message> {
-        vec![Message::new(
-            self.topics.gateway_status(),
-            "offline",
-            1,
-            true,
-        )]
     }
 }

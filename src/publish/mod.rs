@@ -1,13 +1,15 @@
-//! Readings and availability → MQTT: topic names and payloads (pure) and the MQTT task.
+//! Readings and availability → MQTT. Each output is a task of its own ([`mqtt`]: its
+//! connection, outbox, will and hold), fed by [`fanout`] from the buses; its formats are pure
+//! encoders ([`format`], built per kind in [`formats`]); how a message is delivered is decided
+//! in [`delivery`]; the gateway's own status and answers are its [`voice`].
 
 pub mod batch;
-pub mod discovery;
+pub mod delivery;
+pub mod fanout;
 pub mod format;
 pub mod formats;
-pub mod ha_entity;
 pub mod homeassistant;
 pub mod json;
-pub mod meter_entities;
 pub mod mqtt;
 pub mod payload;
 pub mod poller;
@@ -15,8 +17,7 @@ pub mod session;
 pub mod sparkplug;
 pub mod spool;
 pub mod spool_place;
+pub mod voice;
 
-#[cfg(test)]
-mod discovery_tests;
 #[cfg(test)]
 mod socket_tests;

@@ -21,13 +21,12 @@
 
 use std::path::PathBuf;
 use std::pin::Pin;
-use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::time::Instant;
 
 use rumqttc::{TlsConfiguration, Transport};
-use tokio::sync::mpsc::{Sender, UnboundedReceiver};
+use tokio::sync::mpsc::{Sender, UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
@@ -89,7 +88,7 @@ impl Shell {
     fn pump(&mut self, stage: &mut Stage) {
         let now = Instant::now();
         self.backlog = false;
-        if stage.holding() {
+        if stage.held().is_some() {
             return;
         }
         while let Some(step) = self.outbox.next(now) {
@@ -148,12 +147,14 @@ impl Shell {
     /// session); the caller sends the backlog.
     fn on_connack(&mut self, max_packet: Option<u32>, link: &Connection, stage: &mut Stage) {
         self.outbox.connected(max_packet, Instant::now());
-        // The boot marker: subscribe first, so the retained one of another gateway arrives
-        // before ours replaces it.
-        let marker = self.topics.gateway_marker();
-        self.subscribe(&marker);
-        let boot = link.boot.marker(&link.client_id);
-        self.publish_direct(Message::new(marker, boot, 1, true));
+        if link.voice {
+            // The boot marker: subscribe first, so the retained one of another gateway arrives
+            // before ours replaces it.
+            let marker = self.topics.gateway_marker();
+            self.subscribe(&marker);
+            let boot = link.boot.marker(&link.client_id);
+            self.publish_direct(Message::new(marker, boot, 1, true));
+        }
         for m in stage.connected() {
             self.publish_direct(m);
         }
@@ -222,18 +223,27 @@ pub(crate) fn broker_transport(
     }
 }
 
-/// What the MQTT task is given, besides its channels.
+/// What one output's MQTT task is given, besides its channels.
 pub struct Task {
+    /// The output's name (`gateway` for the gateway's own connection): in logs, metrics, and
+    /// on the commands that come in on this connection.
+    pub name: String,
+    /// This connection's settings (`[mqtt]` with the output's own keys over it).
     pub config: Mqtt,
     pub spool_dir: PathBuf,
     /// How often the spool is flushed (spilled to disk while the broker is away).
     pub flush_every: Duration,
     pub heart: Heart,
-    pub health: Arc<crate::health::Health>,
     pub boot: crate::boot::Boot,
-    pub metrics: crate::metrics::Metrics,
-    /// The output stage's formats ([`super::formats::chosen`]).
+    pub metrics: crate::metrics::OutputMetrics,
+    /// The output stage's formats ([`super::formats::build`]).
     pub formats: Vec<Box<dyn Format>>,
+    /// The connection carries the gateway's voice: its boot marker and, with
+    /// `mqtt.commands`, its command topics.
+    pub voice: bool,
+    /// Answers this output gives itself (a command of its protocol refused before the router,
+    /// or the router too busy to take it), handed back to the fan-out to be counted and said.
+    pub answers: UnboundedSender<Output>,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -257,15 +267,25 @@ pub async fn run(
     let (client, eventloop) = options.connect(stage.will().as_ref(), REQUESTS);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
+    // Everything but the command topics is the task's: a connection without the voice
+    // subscribes to no command topic, and what else arrives is its formats'.
+    if !task.voice {
+        to_task.push("#".into());
+    }
     let routes = Routes {
         to_task,
         router: incoming,
+        via: crate::command::Via {
+            output: task.name.as_str().into(),
+            wrote: None,
+        },
     };
     let link = Connection {
         options,
         broker: task.config.broker(),
         client_id: task.config.client_id.clone(),
-        commands: task.config.commands,
+        commands: task.voice && task.config.commands,
+        voice: task.voice,
         boot: task.boot.clone(),
     };
     let mut publisher = Publisher {
@@ -314,7 +334,11 @@ async fn start(task: &Task) -> Option<(Options, Spool)> {
 
 /// Opens the spool off the runtime thread (a large one left by the last run must not hold up
 /// the buses); a fresh private directory when its own cannot be used (see `spool_place`).
-async fn open_spool(dir: PathBuf, bytes: u64, metrics: &crate::metrics::Metrics) -> Option<Spool> {
+async fn open_spool(
+    dir: PathBuf,
+    bytes: u64,
+    metrics: &crate::metrics::OutputMetrics,
+) -> Option<Spool> {
     let opened = tokio::task::spawn_blocking(move || super::spool_place::open(&dir, bytes)).await;
     match opened {
         Ok(Ok(o)) => {
@@ -395,13 +419,8 @@ impl Publisher<'_> {
     /// One event from the buses or the router: its side effects on health and metrics, then
     /// its messages into the outbox, to rumqttc at once or, readings, with their batch.
     fn handle(&mut self, out: Output) {
-        let task = self.task;
-        match &out {
-            Output::DeviceStatus { device, online } => task.health.device(device, *online),
-            Output::DeviceProblem { device, .. } => task.health.device(device, false),
-            Output::CommandResult { outcome, .. } => task.metrics.command_result(outcome),
-            Output::Checkpoint(c) => return self.checkpoint(c.clone()),
-            _ => {}
+        if let Output::Checkpoint(c) = &out {
+            return self.checkpoint(c.clone());
         }
         for m in self.stage.render(&out) {
             self.shell.queue(m);
@@ -540,11 +559,43 @@ impl Publisher<'_> {
             self.shell.queue(m);
         }
         for c in reaction.commands {
-            if self.routes.router.try_send(c).is_err() {
-                tracing::warn!(%topic, "command router busy: a format's command was dropped");
-            }
+            self.admit(c);
+        }
+        for a in reaction.answers {
+            let _ = self.task.answers.send(a);
         }
         self.pump();
+    }
+
+    /// A command of a format's own protocol into the router's bounded queue; when the queue is
+    /// full it is refused (answered `busy`, counted), never dropped.
+    fn admit(&mut self, c: Incoming) {
+        let Err(e) = self.routes.router.try_send(c) else {
+            return;
+        };
+        let c = e.into_inner();
+        let busy = crate::command::CommandError::Busy {
+            device: c
+                .via
+                .as_ref()
+                .and_then(|v| v.wrote.as_ref())
+                .map_or_else(String::new, |w| w.device.clone()),
+            why: "the gateway's command queue is full",
+        };
+        let outcome = crate::outcome::Outcome::Command(crate::outcome::CommandOutcome {
+            id: None,
+            op: None,
+            result: Err(busy),
+        });
+        let reply = crate::command::Reply {
+            topics: Vec::new(),
+            correlation: None,
+            via: c.via,
+        };
+        let _ = self
+            .task
+            .answers
+            .send(Output::CommandResult { reply, outcome });
     }
 
     /// The connection failed or stalled: everything rumqttc held goes with it, a fresh client
@@ -585,12 +636,21 @@ impl Publisher<'_> {
         self.settle(now);
         let up = self.shell.outbox.is_connected();
         self.task.heart.set_up(up);
+        let held = self.stage.held();
+        self.task.heart.set_held(held.clone());
         let outbox = &self.shell.outbox;
         let spool = outbox.store();
-        let metrics = &self.task.metrics;
-        metrics.mqtt(up, spool.len(), spool.total_bytes(), spool.dropped);
         let chatter = outbox.chatter();
-        metrics.chatter(chatter.len(), chatter.dropped, spool.written);
+        self.task.metrics.sample(&crate::metrics::OutputSample {
+            connected: up,
+            held: held.is_some(),
+            spool_messages: spool.len(),
+            spool_bytes: spool.total_bytes(),
+            spool_dropped: spool.dropped,
+            spool_written: spool.written,
+            chatter_waiting: chatter.len(),
+            chatter_dropped: chatter.dropped,
+        });
         self.watch.chatter_dropped(chatter.dropped, now);
     }
 
@@ -666,8 +726,10 @@ struct Connection {
     options: Options,
     broker: String,
     client_id: String,
-    /// Subscribe to command topics (`mqtt.commands`).
+    /// Subscribe to command topics (the voice's, with `mqtt.commands`).
     commands: bool,
+    /// Carries the gateway's voice: publishes and watches the boot marker.
+    voice: bool,
     /// This run's boot id, published retained on `<root>/gateway`.
     boot: crate::boot::Boot,
 }

@@ -10,12 +10,13 @@ use super::*;
 use crate::command::CommandError;
 use crate::outcome::{CommandOutcome, Outcome};
 use crate::publish::format::Stage;
-use crate::publish::formats::chosen;
 
 fn refused(n: usize) -> Output {
     Output::CommandResult {
-        topics: vec!["pg/t/nosuch/cmd/result".into()],
-        correlation: None,
+        reply: crate::command::Reply {
+            topics: vec!["pg/t/nosuch/cmd/result".into()],
+            ..Default::default()
+        },
         outcome: Outcome::Command(CommandOutcome {
             id: Some(format!("flood-{n}")),
             op: Some("clear_all".into()),
@@ -185,7 +186,7 @@ async fn held_readings_leave_when_the_batch_window_ends() {
 #[tokio::test(start_paused = true)]
 async fn a_flood_of_home_assistant_online_costs_one_announcement_per_gap() {
     let config = config("[homeassistant]\ndiscovery = true\n");
-    let mut stage = Stage::new(chosen(&config));
+    let mut stage = Stage::new(super::formats_of(&config));
     let configs = stage.start().len();
     assert!(configs > 0);
     let mut sent = Vec::new();

@@ -92,17 +92,24 @@ fn config(extra: &str) -> Config {
 
 fn task(name: &str) -> Task {
     let config = config("");
-    let health = Arc::new(crate::health::Health::default());
+    let health = std::sync::Arc::new(crate::health::Health::default());
     Task {
+        name: "json".into(),
         spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
         flush_every: Duration::from_secs(1),
-        heart: health.heart("mqtt"),
-        health,
+        heart: health.heart("output/json"),
         boot: crate::boot::Boot::default(),
-        metrics: crate::metrics::Metrics::disabled(),
+        metrics: crate::metrics::OutputMetrics::default(),
         formats: Vec::new(),
         config: config.mqtt,
+        voice: true,
+        answers: tokio::sync::mpsc::unbounded_channel().0,
     }
+}
+
+/// The formats of the config's first output.
+pub(super) fn formats_of(config: &Config) -> Vec<Box<dyn Format>> {
+    super::super::formats::build(config, &config.outputs.list[0])
 }
 
 /// The task's state over a connected shell, its connection scripted by the test.
@@ -114,12 +121,13 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         broker: "127.0.0.1:1".into(),
         client_id: "t".into(),
         commands: true,
+        voice: true,
         boot: task.boot.clone(),
     };
     let (router, _) = tokio::sync::mpsc::channel(1);
     let p = Publisher {
         task,
-        stage: Stage::new(vec![super::super::formats::build(&config(""), "json")]),
+        stage: Stage::new(formats_of(&config(""))),
         reloads: tokio::sync::mpsc::unbounded_channel().1,
         shell,
         link,
@@ -128,6 +136,10 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         routes: Routes {
             to_task: Vec::new(),
             router,
+            via: crate::command::Via {
+                output: "json".into(),
+                wrote: None,
+            },
         },
         stall_after: Duration::from_secs(10),
         batch: Batch::new(task.config.batch),

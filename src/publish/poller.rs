@@ -31,6 +31,8 @@ pub struct Routes {
     pub to_task: Vec<String>,
     /// The command router.
     pub router: Sender<Incoming>,
+    /// This connection, named on each command so its answer is said here.
+    pub via: crate::command::Via,
 }
 
 impl Routes {
@@ -90,7 +92,7 @@ async fn poll(mut eventloop: EventLoop, pause: Duration, routes: Routes, events:
         match polled {
             Ok(Event::Other) => continue,
             Ok(Event::Received(p)) if !routes.to_task(&p.topic) => {
-                command(p, &routes.router).await;
+                command(p, &routes.router, &routes.via).await;
                 continue;
             }
             _ => {}
@@ -104,13 +106,14 @@ async fn poll(mut eventloop: EventLoop, pause: Duration, routes: Routes, events:
 }
 
 /// A message on a command topic (or any filter not the MQTT task's) to the router.
-async fn command(p: Received, router: &Sender<Incoming>) {
+async fn command(p: Received, router: &Sender<Incoming>, via: &crate::command::Via) {
     let msg = Incoming {
         topic: String::from_utf8_lossy(&p.topic).into_owned(),
         payload: p.payload,
         retain: p.retain,
         response_topic: p.response_topic,
         correlation: p.correlation,
+        via: Some(via.clone()),
     };
     if router.send(msg).await.is_err() {
         tracing::debug!("command router gone");
@@ -127,6 +130,10 @@ mod tests {
         let routes = Routes {
             to_task: vec!["pg/t/gateway".into(), "homeassistant/+/t/+/config".into()],
             router,
+            via: crate::command::Via {
+                output: "json".into(),
+                wrote: None,
+            },
         };
         assert!(routes.to_task(b"pg/t/gateway"));
         assert!(routes.to_task(b"homeassistant/sensor/t/x/config"));

@@ -171,6 +171,12 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> SpoolError + '_ {
     }
 }
 
+/// Whether `name` is the name of one of the spool's segment files: `<20 digits>.jsonl`.
+pub fn is_segment_name(name: &str) -> bool {
+    name.strip_suffix(".jsonl")
+        .is_some_and(|stem| stem.len() == 20 && stem.bytes().all(|b| b.is_ascii_digit()))
+}
+
 impl Spool {
     /// Opens the spool in `dir`, picking up segment files a previous run left.
     pub fn open(dir: &Path, max_bytes: u64) -> Result<Spool, SpoolError> {

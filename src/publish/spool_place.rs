@@ -11,6 +11,46 @@ use std::path::{Path, PathBuf};
 
 use super::spool::{Spool, SpoolError};
 
+/// The spool directory of the output (or connection) `name`: `<state_dir>/spool/<name>`.
+pub fn output_dir(state_dir: &Path, name: &str) -> PathBuf {
+    state_dir.join("spool").join(name)
+}
+
+/// Segments an earlier version left in `<state_dir>/spool` itself (one spool for every format)
+/// move into `into`, the spool of the output that now sends what they hold, so nothing spooled
+/// before an upgrade is lost. Only the spool's own files (`<20 digits>.jsonl`) are moved;
+/// returns how many.
+pub fn adopt_legacy(state_dir: &Path, into: &Path) -> std::io::Result<usize> {
+    let legacy = state_dir.join("spool");
+    let entries = match std::fs::read_dir(&legacy) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut moved = 0;
+    for entry in entries {
+        let path = entry?.path();
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+            continue;
+        };
+        if !super::spool::is_segment_name(name) || !path.is_file() {
+            continue;
+        }
+        std::fs::create_dir_all(into)?;
+        let target = into.join(name);
+        if target.exists() {
+            continue; // never over a file of the new layout
+        }
+        std::fs::rename(&path, &target)?;
+        moved += 1;
+    }
+    if moved > 0 {
+        crate::state::sync_dir(into)?;
+        crate::state::sync_dir(&legacy)?;
+    }
+    Ok(moved)
+}
+
 /// An opened spool, and the private directory it fell back to, if it did.
 pub struct Opened {
     pub spool: Spool,

@@ -668,13 +668,13 @@ const CASES: &[(&str, &str, &str, &str)] = &[
         "mqtt.format",
         "\"sparkplug\"",
         "sparkplug",
-        "add [sparkplug] with its group_id",
+        "needs [sparkplug] with its group_id",
     ),
     (
         "sparkplug.group_id",
         "\"plant\"",
-        "mqtt.format",
-        "does not name \"sparkplug\"",
+        "sparkplug",
+        "no output is of kind \"sparkplug\"",
     ),
     ("mqtt.format", "[]", "mqtt.format", "an empty list"),
     (
@@ -690,7 +690,92 @@ const CASES: &[(&str, &str, &str, &str)] = &[
         "unknown output format \"xml\"",
     ),
     ("mqtt.format", "5", "mqtt.format", "a format name or a list"),
+    (
+        "mqtt.format",
+        "\"homeassistant\"",
+        "mqtt.format",
+        "not a payload format",
+    ),
+    // [outputs.NAME]: a kind, a name fit for a file and a client id, [mqtt]'s keys only
+    (
+        "outputs.scada",
+        "{ kind = \"opcua\" }",
+        "outputs.scada.kind",
+        "unknown output format \"opcua\": one of \"json\", \"sparkplug\", \"homeassistant\"",
+    ),
+    (
+        "outputs.scada",
+        "{ host = \"10.0.0.9\" }",
+        "outputs.scada.kind",
+        "missing",
+    ),
+    (
+        "outputs.gateway",
+        "{ kind = \"json\" }",
+        "outputs.gateway",
+        "not an output name",
+    ),
+    (
+        "outputs.\"Bad Name\"",
+        "{ kind = \"json\" }",
+        "outputs.Bad Name",
+        "not an output name",
+    ),
+    (
+        "outputs.json",
+        "{ kind = \"json\", format = \"json\" }",
+        "outputs.json.format",
+        "unknown key",
+    ),
+    (
+        "outputs.json",
+        "{ kind = \"json\", port = 0 }",
+        "outputs.json.port",
+        "must be 1..65535",
+    ),
+    (
+        "outputs.json",
+        "{ kind = \"json\", tls = { ca_file = \"/nonexistent/ca.pem\" } }",
+        "outputs.json.tls.ca_file",
+        "no such file",
+    ),
+    (
+        "outputs.s",
+        "{ kind = \"sparkplug\" }",
+        "sparkplug",
+        "an output of kind \"sparkplug\" needs [sparkplug]",
+    ),
 ];
+
+/// Outputs that would fight on one broker, each a change to [`BASE`] with an output `b`.
+const OUTPUT_CLASHES: &[(&str, &str, &str, &str)] = &[
+    (
+        "outputs.a",
+        "{ kind = \"json\", client_id = \"same\" }",
+        "outputs.b.client_id",
+        "same client id \"same\" on the same broker as output \"a\"",
+    ),
+    (
+        "outputs.a",
+        "{ kind = \"homeassistant\", topic_root = \"x/b\" }",
+        "outputs.b",
+        "publishes the same JSON topics on the same broker as output \"a\"",
+    ),
+];
+
+#[test]
+fn two_outputs_that_would_fight_on_one_broker_are_refused() {
+    let base = mutate(
+        BASE,
+        "outputs.b",
+        "{ kind = \"json\", client_id = \"same\", topic_root = \"x/b\" }",
+    );
+    let file = Path::new("/etc/pulsegate/pulsegate.toml");
+    let good = pulsegate::config::Config::from_toml(&base, file, Some(Default::default()));
+    let good = good.expect("one output is fine");
+    assert_eq!(good.outputs.list.len(), 1);
+    refused(&base, OUTPUT_CLASHES);
+}
 
 /// Broken `[sparkplug]` tables, each a change to [`BASE`] with `mqtt.format = ["json",
 /// "sparkplug"]` and `[sparkplug] group_id = "plant"`.
@@ -793,7 +878,9 @@ fn every_broken_sparkplug_table_is_refused_naming_its_key_and_file() {
     let base = mutate(&base, "sparkplug.group_id", "\"plant\"");
     let file = Path::new("/etc/pulsegate/pulsegate.toml");
     let good = pulsegate::config::Config::from_toml(&base, file, Some(Default::default()));
-    assert_eq!(good.unwrap().mqtt.format, ["json", "sparkplug"]);
+    let kinds: Vec<_> = good.unwrap().outputs.list.iter().map(|o| o.kind).collect();
+    use pulsegate::config::OutputKind;
+    assert_eq!(kinds, [OutputKind::Json, OutputKind::Sparkplug]);
     refused(&base, SPARKPLUG_CASES);
 }
 

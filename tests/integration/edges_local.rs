@@ -25,7 +25,7 @@ async fn held_half_written_requests_leave_healthz_answering() {
     );
     let _gw = Gateway::start(&write_config(&dir, &text));
     crate::metrics::scrape_until(port, Duration::from_secs(10), "the endpoint is up", |t| {
-        t.contains("pulsegate_mqtt_connected 1")
+        t.contains("pulsegate_mqtt_connected{output=\"json\"} 1")
     })
     .await;
     let mut held = Vec::new();
@@ -206,7 +206,10 @@ async fn an_unusable_spool_directory_falls_back_to_a_private_one_said_loudly() {
         port,
         Duration::from_secs(5),
         "the fallback is exported",
-        |t| crate::metrics::sample(t, "pulsegate_spool_private_fallback") == Some(1.0),
+        |t| {
+            crate::metrics::sample(t, "pulsegate_spool_private_fallback{output=\"json\"}")
+                == Some(1.0)
+        },
     )
     .await;
     let log = gw.log_text();

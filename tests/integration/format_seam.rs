@@ -46,14 +46,16 @@ fn run_toy(port: u16, dir: &std::path::Path, stop: std::sync::mpsc::Receiver<()>
     runtime.spawn(async move {
         let health = Arc::new(pulsegate::health::Health::default());
         let task = pulsegate::publish::mqtt::Task {
+            name: "toy".into(),
             config: config.mqtt,
             spool_dir: dir_spool(&config.gateway.state_dir),
             flush_every: Duration::from_secs(1),
-            heart: health.heart("mqtt"),
-            health,
+            heart: health.heart("output/toy"),
             boot: pulsegate::boot::Boot::default(),
-            metrics: pulsegate::metrics::Metrics::disabled(),
+            metrics: pulsegate::metrics::OutputMetrics::default(),
             formats: vec![Box::new(Toy)],
+            voice: false,
+            answers: tokio::sync::mpsc::unbounded_channel().0,
         };
         let (_out, output) = tokio::sync::mpsc::unbounded_channel();
         let (incoming, _commands) = tokio::sync::mpsc::channel(8);

@@ -445,11 +445,14 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
     // Every command is accounted for: answered, or counted as a dropped result.
     let exposition =
         crate::metrics::scrape_until(metrics, Duration::from_secs(5), "a scrape", |t| {
-            t.contains("pulsegate_mqtt_chatter_dropped_total")
+            t.contains("pulsegate_mqtt_chatter_dropped_total{output=\"json\"}")
         })
         .await;
-    let dropped = crate::metrics::sample(&exposition, "pulsegate_mqtt_chatter_dropped_total")
-        .unwrap() as usize;
+    let dropped = crate::metrics::sample(
+        &exposition,
+        "pulsegate_mqtt_chatter_dropped_total{output=\"json\"}",
+    )
+    .unwrap() as usize;
     let log = gw.log_text();
     assert_eq!(
         answered + dropped,

@@ -114,7 +114,7 @@ channels.enc0 = { rate = -50.0 }
         |t| {
             sample(t, UP_A) == Some(1.0)
                 && sample(t, UP_B) == Some(1.0)
-                && sample(t, "pulsegate_mqtt_connected") == Some(1.0)
+                && sample(t, "pulsegate_mqtt_connected{output=\"json\"}") == Some(1.0)
                 && sample(
                     t,
                     "pulsegate_channel_pulses_total{bus=\"line1\",channel=\"a0\",device=\"a\"}",
@@ -145,18 +145,21 @@ channels.enc0 = { rate = -50.0 }
         port,
         Duration::from_secs(10),
         "b down and MQTT disconnected",
-        |t| sample(t, UP_B) == Some(0.0) && sample(t, "pulsegate_mqtt_connected") == Some(0.0),
+        |t| {
+            sample(t, UP_B) == Some(0.0)
+                && sample(t, "pulsegate_mqtt_connected{output=\"json\"}") == Some(0.0)
+        },
     )
     .await;
     assert_eq!(sample(&first, UP_A), Some(1.0), "the other device stays up");
-    let depth = sample(&first, "pulsegate_spool_messages").unwrap();
+    let depth = sample(&first, "pulsegate_spool_messages{output=\"json\"}").unwrap();
     let during = scrape_until(
         port,
         Duration::from_secs(10),
         "the spool grows while the broker is away",
         |t| {
-            sample(t, "pulsegate_spool_messages").is_some_and(|d| d > depth)
-                && sample(t, "pulsegate_spool_bytes").is_some_and(|b| b > 0.0)
+            sample(t, "pulsegate_spool_messages{output=\"json\"}").is_some_and(|d| d > depth)
+                && sample(t, "pulsegate_spool_bytes{output=\"json\"}").is_some_and(|b| b > 0.0)
         },
     )
     .await;

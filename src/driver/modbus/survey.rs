@@ -226,8 +226,7 @@ pub async fn idle_step(
 
 fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome: ScanOutcome) {
     let _ = out.send(Output::CommandResult {
-        topics: reply.topics.clone(),
-        correlation: reply.correlation.clone(),
+        reply: reply.clone(),
         outcome: Outcome::Scan(outcome),
     });
 }

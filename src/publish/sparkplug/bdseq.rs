@@ -4,8 +4,18 @@
 
 use std::path::{Path, PathBuf};
 
-/// The file under the state directory.
+/// The file under the state directory (of the output named `sparkplug`, as `mqtt.format`
+/// names it; another output's is `sparkplug-bdseq.<name>`).
 pub const FILE: &str = "sparkplug-bdseq";
+
+/// The file of the output `output`.
+pub fn file(output: &str) -> String {
+    if output == "sparkplug" {
+        FILE.to_string()
+    } else {
+        format!("{FILE}.{output}")
+    }
+}
 
 /// The bdSeq of the next session, persisted.
 #[derive(Debug)]
@@ -15,10 +25,10 @@ pub struct BdSeq {
 }
 
 impl BdSeq {
-    /// Reads the next bdSeq from `<state_dir>/sparkplug-bdseq`; 0 when there is none yet, or
-    /// (logged) when the file is unreadable or not a number 0..255.
-    pub fn load(state_dir: &Path) -> BdSeq {
-        let path = state_dir.join(FILE);
+    /// Reads the next bdSeq of `output` from its file under `state_dir` ([`file`]); 0 when
+    /// there is none yet, or (logged) when the file is unreadable or not a number 0..255.
+    pub fn load(state_dir: &Path, output: &str) -> BdSeq {
+        let path = state_dir.join(file(output));
         let next = match std::fs::read_to_string(&path) {
             Ok(text) => text.trim().parse::<u8>().unwrap_or_else(|_| {
                 tracing::warn!(file = %path.display(), "Sparkplug bdSeq file is not a number 0..255: starting at 0");
@@ -73,12 +83,12 @@ mod tests {
     #[test]
     fn each_session_takes_the_next_number_across_restarts_and_wraps_after_255() {
         let d = dir("restart");
-        let mut b = BdSeq::load(&d);
+        let mut b = BdSeq::load(&d, "sparkplug");
         assert_eq!((b.take(), b.take()), (0, 1));
-        let mut again = BdSeq::load(&d);
+        let mut again = BdSeq::load(&d, "sparkplug");
         assert_eq!(again.take(), 2);
         std::fs::write(d.join(FILE), "255\n").unwrap();
-        let mut wrap = BdSeq::load(&d);
+        let mut wrap = BdSeq::load(&d, "sparkplug");
         assert_eq!((wrap.take(), wrap.take()), (255, 0));
     }
 
@@ -86,6 +96,6 @@ mod tests {
     fn a_garbled_file_starts_again_at_zero() {
         let d = dir("garbled");
         std::fs::write(d.join(FILE), "9000").unwrap();
-        assert_eq!(BdSeq::load(&d).take(), 0);
+        assert_eq!(BdSeq::load(&d, "sparkplug").take(), 0);
     }
 }

@@ -5,6 +5,7 @@
 use bytes::Bytes;
 
 use super::proto::{Metric, Payload, Value};
+use crate::command::{Via, Written};
 use crate::dispatch::Incoming;
 
 /// The NBIRTH metric a host writes to ask for a rebirth.
@@ -13,9 +14,9 @@ pub const REBIRTH: &str = "Node Control/Rebirth";
 /// The most metrics one command may carry (a host writes one or a few at a time).
 pub const MAX_METRICS: usize = 64;
 
-/// Why a command from the host is refused.
+/// Why a command from the host is refused before it becomes a command of the gateway.
 #[derive(Debug, thiserror::Error, PartialEq)]
-pub enum CommandError {
+pub enum HostCommandError {
     #[error("not a Sparkplug B payload: {0}")]
     Undecodable(String),
     #[error("{0} metrics in one command (at most {MAX_METRICS})")]
@@ -30,6 +31,8 @@ pub enum CommandError {
     Anonymous,
     #[error("{metric}: {why}")]
     BadValue { metric: String, why: &'static str },
+    #[error("{0:?} is not a device of this node")]
+    UnknownDevice(String),
 }
 
 /// One write of a DCMD.
@@ -40,9 +43,23 @@ pub enum Write {
 }
 
 impl Write {
+    /// The metric the host wrote.
+    pub fn metric(&self) -> String {
+        match self {
+            Write::Clear { channel } => format!("{channel}/Clear"),
+            Write::Preset { channel, .. } => format!("{channel}/Preset"),
+        }
+    }
+
     /// The same request as a JSON command on the device's channel command topic, so it goes
-    /// through the router's checks and admission like any other.
-    pub fn incoming(&self, topics: &crate::topics::Topics, device: &str) -> Incoming {
+    /// through the router's checks and admission like any other; its answer comes back to
+    /// `output` ([`Via`]).
+    pub fn incoming(
+        &self,
+        topics: &crate::topics::Topics,
+        device: &str,
+        output: &std::sync::Arc<str>,
+    ) -> Incoming {
         let (channel, body) = match self {
             Write::Clear { channel } => (channel, serde_json::json!({"op": "clear"})),
             Write::Preset { channel, value } => {
@@ -55,21 +72,42 @@ impl Write {
             retain: false,
             response_topic: None,
             correlation: None,
+            via: Some(Via {
+                output: output.clone(),
+                wrote: Some(Written {
+                    device: device.to_string(),
+                    metric: self.metric(),
+                }),
+            }),
         }
     }
 }
 
-fn decode(payload: &[u8]) -> Result<Payload, CommandError> {
-    let p = Payload::decode(payload).map_err(|e| CommandError::Undecodable(e.to_string()))?;
+impl HostCommandError {
+    /// The code of the answer the host sees.
+    pub fn code(&self) -> &'static str {
+        match self {
+            HostCommandError::Undecodable(_) | HostCommandError::TooMany(_) => "bad_payload",
+            HostCommandError::Anonymous => "bad_payload",
+            HostCommandError::NotWritable(_) => "not_writable",
+            HostCommandError::UnknownAlias(_) => "unknown_alias",
+            HostCommandError::BadValue { .. } => "bad_value",
+            HostCommandError::UnknownDevice(_) => "unknown_device",
+        }
+    }
+}
+
+fn decode(payload: &[u8]) -> Result<Payload, HostCommandError> {
+    let p = Payload::decode(payload).map_err(|e| HostCommandError::Undecodable(e.to_string()))?;
     if p.metrics.len() > MAX_METRICS {
-        return Err(CommandError::TooMany(p.metrics.len()));
+        return Err(HostCommandError::TooMany(p.metrics.len()));
     }
     Ok(p)
 }
 
 /// NCMD: whether it asks for a rebirth (`Node Control/Rebirth` = true). Other node metrics
 /// are not writable and are ignored.
-pub fn node(payload: &[u8]) -> Result<bool, CommandError> {
+pub fn node(payload: &[u8]) -> Result<bool, HostCommandError> {
     let p = decode(payload)?;
     Ok(p.metrics
         .iter()
@@ -80,14 +118,14 @@ pub fn node(payload: &[u8]) -> Result<bool, CommandError> {
 pub fn device(
     payload: &[u8],
     name_of: impl Fn(u64) -> Option<String>,
-) -> Result<Vec<Write>, CommandError> {
+) -> Result<Vec<Write>, HostCommandError> {
     let p = decode(payload)?;
     let mut writes = Vec::new();
     for m in &p.metrics {
         let name = match (&m.name, m.alias) {
             (Some(n), _) if !n.is_empty() => n.clone(),
-            (_, Some(a)) => name_of(a).ok_or(CommandError::UnknownAlias(a))?,
-            _ => return Err(CommandError::Anonymous),
+            (_, Some(a)) => name_of(a).ok_or(HostCommandError::UnknownAlias(a))?,
+            _ => return Err(HostCommandError::Anonymous),
         };
         if let Some(w) = write(&name, m)? {
             writes.push(w);
@@ -97,15 +135,17 @@ pub fn device(
 }
 
 /// One metric of a DCMD: a clear (true; false asks for nothing) or a preset.
-fn write(name: &str, m: &Metric) -> Result<Option<Write>, CommandError> {
-    let bad = |why| CommandError::BadValue {
+fn write(name: &str, m: &Metric) -> Result<Option<Write>, HostCommandError> {
+    let bad = |why| HostCommandError::BadValue {
         metric: name.to_string(),
         why,
     };
+    // A channel is one topic level of a name the gateway gave it: `a0/x/Clear` or
+    // `../m2/enc0/Clear` name nothing writable.
     let (channel, what) = name
         .rsplit_once('/')
-        .filter(|(c, _)| !c.is_empty())
-        .ok_or_else(|| CommandError::NotWritable(name.to_string()))?;
+        .filter(|(c, _)| crate::topics::is_topic_safe(c))
+        .ok_or_else(|| HostCommandError::NotWritable(name.to_string()))?;
     let channel = channel.to_string();
     match what {
         "Clear" => match m.value {
@@ -117,7 +157,7 @@ fn write(name: &str, m: &Metric) -> Result<Option<Write>, CommandError> {
             let value = preset_value(m).ok_or_else(|| bad("a preset is a whole number"))?;
             Ok(Some(Write::Preset { channel, value }))
         }
-        _ => Err(CommandError::NotWritable(name.to_string())),
+        _ => Err(HostCommandError::NotWritable(name.to_string())),
     }
 }
 

@@ -1,5 +1,5 @@
 //! Sparkplug B (Eclipse Sparkplug 3.0): the gateway as an edge node, its modules as devices.
-//! `mqtt.format = "sparkplug"` (or a list with it) and `[sparkplug]` choose it; docs/sparkplug.md
+//! The format of an output of kind `sparkplug`, set up by `[sparkplug]`; docs/sparkplug.md
 //! tells what a SCADA host sees.
 //!
 //! [`node`] is the state machine (births, deaths, `seq`, aliases, commands), [`metrics`] what a
@@ -17,7 +17,7 @@ pub mod topic;
 use std::collections::BTreeSet;
 use std::time::SystemTime;
 
-use crate::config::Config;
+use crate::config::{Config, OutputConfig};
 use bytes::Bytes;
 
 use crate::outbox::{Message, Will};
@@ -35,16 +35,21 @@ pub struct Sparkplug {
     commands: bool,
     /// The devices and channels the births describe (a reload that changes them rebirths).
     devices: Vec<(String, Vec<ChannelShape>)>,
+    /// The output it publishes for (its settings as started).
+    output: OutputConfig,
 }
 
 impl Sparkplug {
-    pub fn new(config: &Config) -> Sparkplug {
-        let setup = setup(config);
+    /// The edge node of `output` (its QoS, commands and name; the node's ids from
+    /// `[sparkplug]`).
+    pub fn new(config: &Config, output: &OutputConfig) -> Sparkplug {
+        let setup = setup(config, output);
         Sparkplug {
             devices: setup.devices.clone(),
             node: Node::new(setup),
-            bd_seq: bdseq::BdSeq::load(&config.gateway.state_dir),
-            commands: config.mqtt.commands,
+            bd_seq: bdseq::BdSeq::load(&config.gateway.state_dir, &output.name),
+            commands: output.mqtt.commands,
+            output: output.clone(),
         }
     }
 }
@@ -53,10 +58,10 @@ fn now_ms() -> u64 {
     unix_ms(SystemTime::now())
 }
 
-/// The node's setup from a checked config. `check` refuses `mqtt.format = "sparkplug"` without
-/// `[sparkplug]`; a config built another way gets the gateway id as group and node.
-fn setup(config: &Config) -> Setup {
-    let (group, node, host) = match &config.sparkplug {
+/// The node's setup from a checked config. `check` refuses an output of kind `sparkplug`
+/// without `[sparkplug]`; a config built another way gets the gateway id as group and node.
+fn setup(config: &Config, output: &OutputConfig) -> Setup {
+    let (group, node, host) = match &config.outputs.sparkplug {
         Some(s) => (
             s.group_id.clone(),
             s.edge_node_id.clone(),
@@ -70,16 +75,18 @@ fn setup(config: &Config) -> Setup {
     Setup {
         topics: topic::Topics::new(&group, &node),
         commands: crate::topics::Topics::new(&config.mqtt.topic_root),
+        output: output.name.as_str().into(),
+        takes_commands: output.mqtt.commands,
         primary_host: host,
-        qos: config.mqtt.qos,
-        devices: shapes(config),
+        qos: output.mqtt.qos,
+        devices: shapes(config, output.mqtt.commands),
     }
 }
 
 /// Every enabled device with the channels its profile can have (one shape per name, in the
 /// profile's order; a channel whose kind depends on the mode takes the first and is born again
 /// when a reading says otherwise), less the disabled ones.
-pub fn shapes(config: &Config) -> Vec<(String, Vec<ChannelShape>)> {
+pub fn shapes(config: &Config, commands: bool) -> Vec<(String, Vec<ChannelShape>)> {
     let mut out = Vec::new();
     for (_, d) in config.enabled_devices() {
         let all = d.profile.all_channels();
@@ -101,7 +108,7 @@ pub fn shapes(config: &Config) -> Vec<(String, Vec<ChannelShape>)> {
                 freq,
                 rpm,
                 value_unit: units.and_then(|u| u.scale.map(|_| u.unit.clone())),
-                writable: config.mqtt.commands && d.commands,
+                writable: commands && d.commands,
             });
         }
         out.push((d.name.clone(), shapes));
@@ -134,7 +141,7 @@ impl Format for Sparkplug {
 
     /// Devices or channels changed: the node is born again with them (same session and bdSeq).
     fn reload(&mut self, config: &Config) -> Vec<Message> {
-        let fresh = setup(config);
+        let fresh = setup(config, &self.output);
         if fresh.devices == self.devices {
             return Vec::new();
         }
@@ -167,8 +174,8 @@ impl Format for Sparkplug {
         vec![self.node.death(now_ms())]
     }
 
-    fn holding(&self) -> bool {
-        self.node.holding()
+    fn held(&self) -> Option<String> {
+        self.node.held()
     }
 
     fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {

@@ -12,16 +12,28 @@ use std::collections::{BTreeMap, HashSet};
 
 use bytes::Bytes;
 
+use super::command::{HostCommandError, Write};
 use super::metrics::{self, Aliases, ChannelShape};
 use super::proto::{Metric, Payload, Value, datatype};
 use super::topic::{Kind, Topics};
-use crate::dispatch::Incoming;
-use crate::outbox::Message;
+use crate::command::{CommandError, Reply, Via, Written};
+use crate::outbox::{Content, Message};
+use crate::outcome::{CommandOutcome, Outcome};
 use crate::publish::format::Reaction;
 use crate::reading::{Output, Reading};
 
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.
 pub const BD_SEQ: &str = "bdSeq";
+
+/// The node metrics that answer a host's command (in the NBIRTH when the node takes commands;
+/// an NDATA sets all four for each command answered): the device and metric it wrote, `ok`
+/// or the refusal's code, and what a person reads.
+pub const ANSWER: [&str; 4] = [
+    "Command/Device",
+    "Command/Metric",
+    "Command/Result",
+    "Command/Message",
+];
 
 /// What the node knows of a device's availability.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -49,6 +61,11 @@ pub struct Setup {
     pub topics: Topics,
     /// Where DCMD writes go: the JSON command topics the command router takes.
     pub commands: crate::topics::Topics,
+    /// The output the node publishes for: answers to its host's commands come back to it.
+    pub output: std::sync::Arc<str>,
+    /// The output takes commands (`commands` of its connection): the births declare the
+    /// writable metrics and the answer metrics.
+    pub takes_commands: bool,
     pub primary_host: Option<String>,
     /// QoS of births and data (the will is QoS 1).
     pub qos: u8,
@@ -203,22 +220,29 @@ impl Node {
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
         self.born = true;
         self.last_out = None;
+        let mut metrics = vec![
+            Metric::new(
+                BD_SEQ,
+                None,
+                datatype::INT64,
+                Some(Value::Long(self.bd_seq.into())),
+            ),
+            Metric::new(
+                super::command::REBIRTH,
+                None,
+                datatype::BOOLEAN,
+                Some(Value::Boolean(false)),
+            ),
+        ];
+        if self.setup.takes_commands {
+            for name in ANSWER {
+                let empty = Some(Value::String(String::new()));
+                metrics.push(Metric::new(name, None, datatype::STRING, empty));
+            }
+        }
         let payload = Payload {
             timestamp: Some(now_ms),
-            metrics: vec![
-                Metric::new(
-                    BD_SEQ,
-                    None,
-                    datatype::INT64,
-                    Some(Value::Long(self.bd_seq.into())),
-                ),
-                Metric::new(
-                    super::command::REBIRTH,
-                    None,
-                    datatype::BOOLEAN,
-                    Some(Value::Boolean(false)),
-                ),
-            ],
+            metrics,
             seq: Some(self.number(Kind::NBirth)),
             ..Payload::default()
         };
@@ -265,8 +289,47 @@ impl Node {
             Output::DeviceProblem { device, status } if *status == "wrong_model" => {
                 self.offline(device)
             }
+            Output::CommandResult { reply, outcome } => self.answer(reply, outcome, now_ms),
             _ => Vec::new(),
         }
+    }
+
+    /// The answer to a command the host wrote to this node: an NDATA setting the answer
+    /// metrics ([`ANSWER`]). Answers to anyone else's commands are not the node's.
+    fn answer(&mut self, reply: &Reply, outcome: &Outcome, now_ms: u64) -> Vec<Message> {
+        let Some(Via {
+            output,
+            wrote: Some(wrote),
+        }) = &reply.via
+        else {
+            return Vec::new();
+        };
+        if **output != *self.setup.output {
+            return Vec::new();
+        }
+        let (result, message) = match outcome.refusal() {
+            None => ("ok".to_string(), String::new()),
+            Some(code) => (
+                code.to_string(),
+                outcome.to_json()["message"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .to_string(),
+            ),
+        };
+        let values = [wrote.device.clone(), wrote.metric.clone(), result, message];
+        let metrics = ANSWER
+            .iter()
+            .zip(values)
+            .map(|(name, v)| Metric::new(name, None, datatype::STRING, Some(Value::String(v))))
+            .collect();
+        let payload = Payload {
+            timestamp: Some(now_ms),
+            metrics,
+            ..Payload::default()
+        };
+        let topic = self.setup.topics.node(Kind::NData);
+        vec![self.message(topic, &payload).carrying(Content::Answer)]
     }
 
     /// A device answers: its DBIRTH when the session has none for it.
@@ -423,10 +486,7 @@ impl Node {
         }
         match self.setup.topics.parse(topic) {
             Some((Kind::NCmd, None)) => self.node_command(payload, now_ms).into(),
-            Some((Kind::DCmd, Some(device))) => Reaction {
-                commands: self.device_command(device, payload),
-                ..Reaction::default()
-            },
+            Some((Kind::DCmd, Some(device))) => self.device_command(device, payload),
             _ => Reaction::default(),
         }
     }
@@ -435,6 +495,13 @@ impl Node {
     /// holds goes out after the births, flagged historical).
     pub fn holding(&self) -> bool {
         self.connected && !self.born
+    }
+
+    /// Why it holds, while it does.
+    pub fn held(&self) -> Option<String> {
+        let host = self.setup.primary_host.as_deref().unwrap_or_default();
+        self.holding()
+            .then(|| format!("Sparkplug primary host {host:?} is offline"))
     }
 
     /// `spBv1.0/STATE/<host>`: online, the births at once (ahead of what was held for them);
@@ -483,30 +550,79 @@ impl Node {
         }
     }
 
-    /// DCMD: writes to `<c>/Clear` and `<c>/Preset`, as commands for the command router.
-    fn device_command(&mut self, device: &str, payload: &[u8]) -> Vec<Incoming> {
-        let writes = match self.devices.get(device) {
-            None => Err(format!("{device:?} is not a device of this node")),
-            Some(d) => {
-                let names = |alias: u64| {
-                    d.declared
-                        .iter()
-                        .flatten()
-                        .find(|n| self.aliases.get(device, n) == Some(alias))
-                        .cloned()
-                };
-                super::command::device(payload, names).map_err(|e| format!("{device}: {e}"))
+    /// DCMD: writes to `<c>/Clear` and `<c>/Preset` of a writable channel, as commands for the
+    /// command router; a DCMD the node cannot take is refused whole and answered.
+    fn device_command(&mut self, device: &str, payload: &[u8]) -> Reaction {
+        match self.writes(device, payload) {
+            Ok(writes) => Reaction {
+                commands: writes
+                    .into_iter()
+                    .map(|w| w.incoming(&self.setup.commands, device, &self.setup.output))
+                    .collect(),
+                ..Reaction::default()
+            },
+            Err(e) => {
+                self.refused("DCMD", &format!("{device}: {e}"));
+                Reaction {
+                    answers: vec![self.refusal(device, &e)],
+                    ..Reaction::default()
+                }
             }
+        }
+    }
+
+    /// The writes of a DCMD to `device`, each to a writable channel of it.
+    fn writes(&self, device: &str, payload: &[u8]) -> Result<Vec<Write>, HostCommandError> {
+        let d = self
+            .devices
+            .get(device)
+            .ok_or_else(|| HostCommandError::UnknownDevice(device.to_string()))?;
+        let names = |alias: u64| {
+            d.declared
+                .iter()
+                .flatten()
+                .find(|n| self.aliases.get(device, n) == Some(alias))
+                .cloned()
         };
-        match writes {
-            Ok(writes) => writes
-                .into_iter()
-                .map(|w| w.incoming(&self.setup.commands, device))
-                .collect(),
-            Err(why) => {
-                self.refused("DCMD", &why);
-                Vec::new()
+        let writes = super::command::device(payload, names)?;
+        for w in &writes {
+            let (Write::Clear { channel } | Write::Preset { channel, .. }) = w;
+            if !d.shapes.iter().any(|s| s.name == *channel && s.writable) {
+                return Err(HostCommandError::NotWritable(w.metric()));
             }
+        }
+        Ok(writes)
+    }
+
+    /// The answer to a DCMD refused before it became a command.
+    fn refusal(&self, device: &str, e: &HostCommandError) -> Output {
+        let metric = match e {
+            HostCommandError::NotWritable(m) => m.clone(),
+            HostCommandError::BadValue { metric, .. } => metric.clone(),
+            _ => String::new(),
+        };
+        let via = Via {
+            output: self.setup.output.clone(),
+            wrote: Some(Written {
+                device: device.to_string(),
+                metric,
+            }),
+        };
+        let result = Err(CommandError::Protocol {
+            code: e.code(),
+            message: e.to_string(),
+        });
+        Output::CommandResult {
+            reply: Reply {
+                topics: Vec::new(),
+                correlation: None,
+                via: Some(via),
+            },
+            outcome: Outcome::Command(CommandOutcome {
+                id: None,
+                op: None,
+                result,
+            }),
         }
     }
 

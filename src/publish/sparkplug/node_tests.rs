@@ -21,6 +21,8 @@ fn setup(host: Option<&str>) -> Setup {
     Setup {
         topics: Topics::new("plant", "e1"),
         commands: crate::topics::Topics::new("pg/e1"),
+        output: "sparkplug".into(),
+        takes_commands: true,
         primary_host: host.map(str::to_string),
         qos: 1,
         devices: vec![

@@ -6,10 +6,20 @@ use std::time::SystemTime;
 
 use serde_json::Value;
 
-use super::discovery::Discovery;
-use super::format::Stage;
-use super::formats::chosen;
+use super::Discovery;
 use crate::config::Config;
+use crate::publish::format::Stage;
+
+/// The formats of the config's first output (discovery on: the JSON one, of kind
+/// `homeassistant`).
+fn chosen(config: &Config) -> Vec<Box<dyn crate::publish::format::Format>> {
+    crate::publish::formats::build(config, &config.outputs.list[0])
+}
+
+/// Discovery over the config's first output.
+fn discovery(config: &Config) -> Discovery {
+    Discovery::new(config, &config.outputs.list[0])
+}
 use crate::counter::Update;
 use crate::profile::ChannelKind;
 use crate::reading::{Output, Reading};
@@ -84,7 +94,7 @@ fn json(d: &mut Discovery, topic: &str) -> Value {
 
 #[test]
 fn a_counter_total_is_total_increasing_in_its_units_with_both_statuses_for_availability() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     d.start();
     assert!(!d.reading(&reading("meter", "a0")).is_empty());
     let v = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
@@ -125,7 +135,7 @@ fn a_counter_total_is_total_increasing_in_its_units_with_both_statuses_for_avail
 
 #[test]
 fn an_encoder_position_is_a_measurement_never_total_increasing() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     d.reading(&reading("meter", "enc1"));
     let v = json(
         &mut d,
@@ -139,7 +149,7 @@ fn an_encoder_position_is_a_measurement_never_total_increasing() {
 
 #[test]
 fn buttons_exist_only_where_commands_are_enabled() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     let start: Vec<String> = d.start().into_iter().map(|a| a.topic).collect();
     assert!(start.contains(&"homeassistant/button/edge/line1_u3_clear_all/config".to_string()));
     assert!(!start.iter().any(|t| t.contains("line1_u4")));
@@ -161,7 +171,7 @@ fn buttons_exist_only_where_commands_are_enabled() {
 
 #[test]
 fn a_channel_is_announced_once_and_everything_again_when_home_assistant_returns() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     let first = d.start().len();
     let announced = d.reading(&reading("meter", "a0")).len();
     assert!(d.reading(&reading("meter", "a0")).is_empty());
@@ -172,7 +182,7 @@ fn a_channel_is_announced_once_and_everything_again_when_home_assistant_returns(
 
 #[test]
 fn retained_configs_of_devices_no_longer_configured_are_cleared() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     let gone = "homeassistant/sensor/edge/line9_u7_a0_total/config";
     let cleared = d.config_seen(gone, b"{}").unwrap();
     assert_eq!(
@@ -189,7 +199,7 @@ fn retained_configs_of_devices_no_longer_configured_are_cleared() {
 
 #[test]
 fn a_reload_clears_a_removed_device_and_keeps_a_renamed_one() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     d.start();
     d.reading(&reading("meter", "a0"));
     d.reading(&reading("press", "enc0"));
@@ -220,7 +230,7 @@ fn a_reload_clears_a_removed_device_and_keeps_a_renamed_one() {
 #[test]
 fn with_one_message_per_device_templates_reach_into_the_channel() {
     let text = CONFIG.replace("id = \"edge\"", "id = \"edge\"\npayload = \"device\"");
-    let mut d = Discovery::new(&config(&text));
+    let mut d = discovery(&config(&text));
     d.reading(&reading("meter", "a0"));
     let v = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
     assert_eq!(v["state_topic"], "pulsegate/edge/meter");
@@ -238,7 +248,7 @@ fn a_zh_yx1600_pair_in_quadrature_mode_is_a_position_not_a_meter_total() {
         "model = \"yl67\"\ncommands = false",
         "model = \"zh-yx1600\"",
     );
-    let mut d = Discovery::new(&config(&text));
+    let mut d = discovery(&config(&text));
     let mut r = reading("press", "di1");
     r.kind = ChannelKind::Encoder;
     d.reading(&r);
@@ -259,7 +269,7 @@ fn a_zh_yx1600_pair_in_quadrature_mode_is_a_position_not_a_meter_total() {
 
 #[test]
 fn after_a_full_poll_configs_of_another_work_modes_channels_are_cleared() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     // Left over from when encoder 0 of the meter ran in quadrature mode.
     let old = "homeassistant/sensor/edge/line1_u3_enc0_position/config";
     assert!(
@@ -285,7 +295,7 @@ fn after_a_full_poll_configs_of_another_work_modes_channels_are_cleared() {
 
 #[test]
 fn a_disabled_device_or_channel_has_no_entities_and_its_configs_are_cleared() {
-    let mut d = Discovery::new(&config(CONFIG));
+    let mut d = discovery(&config(CONFIG));
     d.start();
     d.reading(&reading("meter", "a0"));
     d.reading(&reading("meter", "a1"));
@@ -412,7 +422,7 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
         "[buses.line1.devices.meter.channels.a0]",
         "intervals = [\"15min\", \"1d\"]\n[buses.line1.devices.meter.channels.a0]",
     );
-    let mut d = Discovery::new(&config(&text));
+    let mut d = discovery(&config(&text));
     d.start();
     assert!(!d.reading(&reading("meter", "a0")).is_empty());
     let total = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
@@ -454,8 +464,8 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
     }
     // An encoder's position is no meter: no reading, no intervals; the press has no intervals
     // and no scale: neither.
-    use crate::publish::ha_entity::{Module, Site};
-    use crate::publish::homeassistant::{channel_entities, channel_spec};
+    use crate::publish::homeassistant::entities::{channel_entities, channel_spec};
+    use crate::publish::homeassistant::entity::{Module, Site};
     let c = config(&text);
     let site = Site::of(&c);
     let objects = |device: &str, channel: &str, kind| -> Vec<String> {

@@ -1,6 +1,6 @@
 //! The parts every Home Assistant discovery entity is made of: where discovery goes (`Site`),
 //! the module an entity belongs to, the entity itself, the state topic a template reads, and
-//! the common keys (origin, availability, device). `homeassistant.rs` builds the gateway's,
+//! the common keys (origin, availability, device). `entities.rs` builds the gateway's,
 //! devices' and channels' entities from them, `meter_entities.rs` the meter's. Pure.
 
 use serde_json::{Value, json};
@@ -27,7 +27,7 @@ pub struct Site {
 impl Site {
     pub fn of(config: &Config) -> Site {
         Site {
-            prefix: config.homeassistant.prefix.clone(),
+            prefix: config.outputs.homeassistant.prefix.clone(),
             gateway: config.gateway.id.clone(),
             topics: Topics::new(&config.mqtt.topic_root),
             payload: config.gateway.payload,

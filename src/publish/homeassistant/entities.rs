@@ -9,7 +9,7 @@ use std::collections::BTreeSet;
 
 use serde_json::json;
 
-use super::ha_entity::{Entity, Module, Site, State, common, merge, origin, sensor};
+use super::entity::{Entity, Module, Site, State, common, merge, origin, sensor};
 use crate::config::Config;
 use crate::config::units::ChannelUnits;
 use crate::config::units::rate_device_class;

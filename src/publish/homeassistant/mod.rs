@@ -1,4 +1,5 @@
-//! Home Assistant discovery, a [`Format`] chosen by `[homeassistant] discovery`: a state machine
+//! Home Assistant discovery, the format of an output of kind `homeassistant` (beside the JSON
+//! format, on the same connection): a state machine
 //! of what the gateway has announced, what the broker holds, and what to publish when readings,
 //! Home Assistant or a reload say so. Pure: events in, retained config messages out. It runs in
 //! the output stage before the payload format, so an entity is announced before its first
@@ -14,16 +15,20 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
+pub mod entities;
+pub mod entity;
+pub mod meter_entities;
+
 use super::format::{Format, Reaction};
-use super::ha_entity::{Entity, Module, Site};
-use super::homeassistant::{
+use crate::config::{Config, OutputConfig};
+use crate::outbox::{Content, Message};
+use crate::profile::ChannelKind;
+use crate::reading::{Output, Reading};
+use entities::{
     channel_entities, channel_spec, device_entities, gateway_entities, module_topics,
     possible_topics,
 };
-use crate::config::Config;
-use crate::outbox::Message;
-use crate::profile::ChannelKind;
-use crate::reading::{Output, Reading};
+use entity::{Entity, Module, Site};
 
 /// A retained config message (an empty payload removes the entity).
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -35,7 +40,7 @@ pub struct Announce {
 impl Announce {
     /// Retained, at least once; chatter (made again at will).
     fn message(self) -> Message {
-        Message::chatter(self.topic, self.payload, 1, true)
+        Message::new(self.topic, self.payload, 1, true).carrying(Content::Config)
     }
 }
 
@@ -72,12 +77,15 @@ pub struct Discovery {
 }
 
 impl Discovery {
-    pub fn new(config: &Config) -> Discovery {
-        let site = Site::of(config);
+    /// Discovery for `output`, whose topic root the entities read their states from.
+    pub fn new(config: &Config, output: &OutputConfig) -> Discovery {
+        let mut config = config.clone();
+        config.mqtt = output.mqtt.clone();
+        let site = Site::of(&config);
         Discovery {
-            possible: possible_topics(&site, config),
+            possible: possible_topics(&site, &config),
             site,
-            config: config.clone(),
+            config,
             announced: BTreeMap::new(),
             on_broker: BTreeSet::new(),
             learned: HashSet::new(),
@@ -86,10 +94,6 @@ impl Discovery {
             reannounced: None,
             reannounce_pending: false,
         }
-    }
-
-    pub fn site(&self) -> &Site {
-        &self.site
     }
 
     fn announce(&mut self, entities: Vec<Entity>) -> Vec<Announce> {
@@ -259,11 +263,11 @@ impl Discovery {
     /// A reloaded config: configs of removed devices and channels are cleared, the rest
     /// announced again as the new config describes them (a renamed device keeps its entities).
     pub fn reload(&mut self, config: &Config) -> Vec<Announce> {
-        // [gateway], [mqtt] and [homeassistant] stay as started (as for the buses).
+        // [gateway], the output's connection and the outputs stay as started (as for the buses).
         let mut config = config.clone();
         config.gateway = self.config.gateway.clone();
         config.mqtt = self.config.mqtt.clone();
-        config.homeassistant = self.config.homeassistant.clone();
+        config.outputs = self.config.outputs.clone();
         self.config = config;
         self.possible = possible_topics(&self.site, &self.config);
         let mut out = self.clear_where(|d, t| !d.possible.contains(t));
@@ -340,3 +344,6 @@ impl Format for Discovery {
         messages(Discovery::reload(self, config))
     }
 }
+
+#[cfg(test)]
+mod tests;
