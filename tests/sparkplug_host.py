@@ -5,7 +5,10 @@ JSON line per message, decoded the way a host decodes it (DDATA through the DBIR
 declared its aliases). Reads commands from stdin, one JSON line each:
   {"ncmd": "<group>/<node>", "rebirth": true}
   {"dcmd": "<group>/<node>/<device>", "metric": "a0/Clear", "type": "BOOLEAN", "value": true}
-  {"state": "<host>", "online": true}      (a primary host's retained STATE, spec 3.0)
+  {"state": "<host>", "online": true}      (a primary host's retained STATE, spec 3.0;
+                                            "timestamp": ms to send another than now)
+  {"state_raw": "<host>", "payload": "..."} (any STATE payload, retained)
+  {"...": ..., "count": N}                  (an ncmd or dcmd sent N times, back to back)
 Usage: sparkplug_host.py <port> [persistent]   (persistent: a session the broker keeps)
 """
 
@@ -83,11 +86,15 @@ def decode(topic, raw):
             for m, p in zip(data.metrics, pb.metrics)
         ]
     else:  # NDEATH, DDEATH, NDATA
-        line["metrics"] = [
-            {"name": m.name, "value": m.long_value if m.HasField("long_value") else None}
-            for m in pb.metrics
-        ]
+        line["metrics"] = [{"name": m.name, "value": raw_value(m)} for m in pb.metrics]
     return line
+
+
+def raw_value(m):
+    for field in ("long_value", "int_value", "string_value", "boolean_value", "double_value"):
+        if m.HasField(field):
+            return getattr(m, field)
+    return None
 
 
 def on_message(client, userdata, msg):
@@ -104,21 +111,27 @@ def on_connect(client, userdata, flags, rc):
 def command(client, line):
     cmd = json.loads(line)
     now = int(time.time() * 1000)
+    count = cmd.get("count", 1)
     if "ncmd" in cmd:
         group, node = cmd["ncmd"].split("/")
         metric = Metric(now, "Node Control/Rebirth", DataType.BOOLEAN, value=True)
         payload = NCmd(now, (metric,)).encode(include_dtypes=True)
-        client.publish(f"spBv1.0/{group}/NCMD/{node}", payload, qos=0)
+        for _ in range(count):
+            client.publish(f"spBv1.0/{group}/NCMD/{node}", payload, qos=0)
     elif "dcmd" in cmd:
         group, node, device = cmd["dcmd"].split("/")
         dt = DataType[cmd.get("type", "BOOLEAN")]
         metric = Metric(now, cmd["metric"], dt, value=cmd["value"])
         payload = DCmd(now, (metric,)).encode(include_dtypes=True)
-        client.publish(f"spBv1.0/{group}/DCMD/{node}/{device}", payload, qos=0)
+        for _ in range(count):
+            client.publish(f"spBv1.0/{group}/DCMD/{node}/{device}", payload, qos=0)
     elif "state" in cmd:
-        body = json.dumps({"online": cmd["online"], "timestamp": now})
+        stamp = cmd.get("timestamp", now)
+        body = json.dumps({"online": cmd["online"], "timestamp": stamp})
         client.publish(f"spBv1.0/STATE/{cmd['state']}", body, qos=1, retain=True)
-    emit({"type": "SENT", "command": cmd})
+    elif "state_raw" in cmd:
+        client.publish(f"spBv1.0/STATE/{cmd['state_raw']}", cmd["payload"], qos=1, retain=True)
+    emit({"type": "SENT", "command": cmd, "at": now})
 
 
 def main():

@@ -8,7 +8,6 @@ pub mod channel;
 mod check;
 mod connection;
 mod error;
-pub mod homeassistant;
 mod metering;
 mod metrics;
 mod model;
@@ -17,7 +16,6 @@ pub mod outputs;
 pub mod policy;
 pub mod publish;
 mod socket;
-pub mod sparkplug;
 pub mod tls;
 pub mod units;
 mod walk;
@@ -27,10 +25,8 @@ use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
-pub use homeassistant::HomeAssistant;
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{OutputConfig, OutputKind, Outputs};
-pub use sparkplug::Sparkplug;
 
 pub use model::*;
 

@@ -151,7 +151,7 @@ const MQTT_CONNECTED: Family = (
 );
 const MQTT_HELD: Family = (
     "pulsegate_mqtt_held",
-    "1 while the output holds what it would publish (Sparkplug: its primary host is offline).",
+    "1 while the output holds what it would publish (its protocol waits, e.g. for a primary host).",
 );
 const SPOOL_MESSAGES: Family = (
     "pulsegate_spool_messages",

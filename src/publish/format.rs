@@ -124,6 +124,10 @@ pub trait Format: Send + Sync {
     fn outgoing(&mut self, _topic: &str, _payload: &Bytes, _replay: bool) -> Option<Bytes> {
         None
     }
+
+    /// The client did not take the message [`Format::outgoing`] last looked at (its queue was
+    /// full): it is offered again later.
+    fn unsent(&mut self) {}
 }
 
 /// The formats in use, run one after the other on every event.
@@ -221,6 +225,13 @@ impl Stage {
     }
 
     /// Every format's messages from `f`, classified for delivery ([`super::delivery`]).
+    /// The last message offered to [`Stage::outgoing`] was not taken.
+    pub fn unsent(&mut self) {
+        for format in &mut self.formats {
+            format.unsent();
+        }
+    }
+
     fn each(&mut self, mut f: impl FnMut(&mut dyn Format) -> Vec<Message>) -> Vec<Message> {
         let mut out = Vec::new();
         for format in &mut self.formats {

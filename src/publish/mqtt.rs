@@ -104,6 +104,7 @@ impl Shell {
                         .is_err()
                     {
                         self.outbox.refused(); // more when it sends
+                        stage.unsent();
                         self.backlog = true;
                         break;
                     }

@@ -24,6 +24,17 @@ async fn metering_records_through_a_stop_an_outage_and_a_power_cycle() {
 
 /// Sparkplug B store and forward over a 30 s broker outage (body in `sparkplug`).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn outputs_a_minute_without_the_scada_broker() {
+    crate::outputs::a_minute_without_the_scada_broker_costs_json_nothing_and_sparkplug_no_pulse()
+        .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn outputs_a_primary_host_offline_holds_sparkplug_only() {
+    crate::outputs::a_primary_host_offline_holds_sparkplug_only().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sparkplug_historical_readings_after_a_30s_outage() {
     crate::sparkplug::after_a_30s_broker_outage_the_historical_readings_follow_the_rebirth_in_order().await;
 }

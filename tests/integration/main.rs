@@ -17,6 +17,7 @@ mod hostile;
 mod local_socket;
 mod metering;
 mod metrics;
+mod outputs;
 mod pipeline;
 mod plants;
 mod protocol;

@@ -30,7 +30,7 @@ const DEVICES: [(&str, &str, u8, &str, &str); 2] = [
 ];
 
 /// The Sparkplug host: a pysparkplug client in a child process.
-struct Host {
+pub(crate) struct Host {
     child: Child,
     stdin: ChildStdin,
     lines: Arc<Mutex<Vec<Value>>>,
@@ -39,7 +39,7 @@ struct Host {
 impl Host {
     /// Connects to the broker on `port` (with a session the broker keeps, when `persistent`)
     /// and waits until it is subscribed.
-    fn start(port: u16, persistent: bool) -> Host {
+    pub(crate) fn start(port: u16, persistent: bool) -> Host {
         let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/sparkplug_host.py");
         let mut cmd = Command::new("python3");
         cmd.arg(script).arg(port.to_string());
@@ -76,12 +76,17 @@ impl Host {
         host
     }
 
-    fn lines(&self) -> Vec<Value> {
+    pub(crate) fn lines(&self) -> Vec<Value> {
         self.lines.lock().unwrap().clone()
     }
 
     /// Waits until the lines satisfy `done`.
-    async fn wait(&self, timeout: Duration, what: &str, done: impl Fn(&[Value]) -> bool) {
+    pub(crate) async fn wait(
+        &self,
+        timeout: Duration,
+        what: &str,
+        done: impl Fn(&[Value]) -> bool,
+    ) {
         let deadline = Instant::now() + timeout;
         while !done(&self.lines()) {
             assert!(Instant::now() < deadline, "host: {what} within {timeout:?}");
@@ -89,7 +94,7 @@ impl Host {
         }
     }
 
-    fn send(&mut self, command: Value) {
+    pub(crate) fn send(&mut self, command: Value) {
         writeln!(self.stdin, "{command}").unwrap();
         self.stdin.flush().unwrap();
     }
@@ -126,11 +131,11 @@ fn config_with(
     write_config(dir, &text)
 }
 
-fn of_type<'a>(lines: &'a [Value], kind: &str) -> impl Iterator<Item = &'a Value> {
+pub(crate) fn of_type<'a>(lines: &'a [Value], kind: &str) -> impl Iterator<Item = &'a Value> {
     lines.iter().filter(move |l| l["type"] == kind)
 }
 
-fn metric<'a>(line: &'a Value, name: &str) -> Option<&'a Value> {
+pub(crate) fn metric<'a>(line: &'a Value, name: &str) -> Option<&'a Value> {
     line["metrics"]
         .as_array()?
         .iter()
@@ -152,7 +157,7 @@ fn bd_seq(line: &Value) -> i64 {
 
 /// Checks `seq` over the node's messages in arrival order: 0 at each NBIRTH, then one more
 /// each time, mod 256. Returns how many numbered messages there were and how often it wrapped.
-fn assert_seq_unbroken(lines: &[Value]) -> (usize, usize) {
+pub(crate) fn assert_seq_unbroken(lines: &[Value]) -> (usize, usize) {
     let numbered = ["NBIRTH", "DBIRTH", "DDATA", "DDEATH", "NDATA"];
     let mut last: Option<i64> = None;
     let (mut count, mut wraps) = (0, 0);
@@ -174,7 +179,7 @@ fn assert_seq_unbroken(lines: &[Value]) -> (usize, usize) {
     (count, wraps)
 }
 
-fn no_errors(lines: &[Value]) {
+pub(crate) fn no_errors(lines: &[Value]) {
     let errors: Vec<&Value> = lines.iter().filter(|l| l.get("error").is_some()).collect();
     assert!(errors.is_empty(), "the host could not read: {errors:?}");
 }

@@ -181,6 +181,10 @@ impl Format for Sparkplug {
     fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {
         self.node.outgoing(topic, payload, replay)
     }
+
+    fn unsent(&mut self) {
+        self.node.unsent();
+    }
 }
 
 #[cfg(test)]

@@ -90,8 +90,9 @@ pub struct Node {
     bd_seq: u8,
     /// Refused commands logged per minute.
     log_budget: crate::log_budget::LogBudget,
-    /// The last message numbered: its topic, stored and sent bytes.
-    last_out: Option<(String, Bytes, Bytes)>,
+    /// The `seq` before the last message [`Node::outgoing`] numbered, until the next: the
+    /// client may not take it ([`Node::unsent`]).
+    rewind: Option<u8>,
 }
 
 impl Node {
@@ -119,7 +120,7 @@ impl Node {
             seq: 0,
             bd_seq: 0,
             log_budget: crate::log_budget::LogBudget::new(20),
-            last_out: None,
+            rewind: None,
         }
     }
 
@@ -210,7 +211,7 @@ impl Node {
     pub fn disconnected(&mut self) {
         self.connected = false;
         self.born = false;
-        self.last_out = None;
+        self.rewind = None;
         for d in self.devices.values_mut() {
             d.declared = None;
         }
@@ -219,7 +220,7 @@ impl Node {
     /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0.
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
         self.born = true;
-        self.last_out = None;
+        self.rewind = None;
         let mut metrics = vec![
             Metric::new(
                 BD_SEQ,
@@ -422,23 +423,17 @@ impl Node {
         if !kind.numbered() {
             return None;
         }
-        // The client refused the last one (its queue was full) and it is offered again: the
-        // same number, or the host would see a gap.
-        if let Some((t, stored, sent)) = &self.last_out
-            && t == topic
-            && stored[..] == *payload
-        {
-            return Some(sent.clone());
+        self.rewind = Some(self.seq);
+        self.number_on_the_wire(kind, device, payload, replay)
+    }
+
+    /// The client did not take the message [`Node::outgoing`] last numbered (its queue was
+    /// full): it is offered again later and takes the same number, or the host would see a gap.
+    /// Told, never guessed from the bytes: two answers may be byte for byte the same.
+    pub fn unsent(&mut self) {
+        if let Some(seq) = self.rewind.take() {
+            self.seq = seq;
         }
-        let sent = self.number_on_the_wire(kind, device, payload, replay)?;
-        self.last_out = (kind != Kind::NBirth).then(|| {
-            (
-                topic.to_string(),
-                Bytes::copy_from_slice(payload),
-                sent.clone(),
-            )
-        });
-        Some(sent)
     }
 
     fn number_on_the_wire(

@@ -506,6 +506,7 @@ fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
     let first = node
         .outgoing(&data[0].topic, &data[0].payload, false)
         .unwrap();
+    node.unsent();
     let again = node
         .outgoing(&data[0].topic, &data[0].payload, false)
         .unwrap();
@@ -517,6 +518,23 @@ fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
         Some(4),
         "no gap: NBIRTH 0, DBIRTHs 1 and 2, then 3 and 4"
     );
+}
+
+/// Two answers can be byte for byte the same (same values, same millisecond): each is a
+/// message of its own and takes its own number.
+#[test]
+fn two_identical_messages_sent_one_after_the_other_take_two_numbers() {
+    let mut node = Node::new(setup(None));
+    session(&mut node, 0);
+    let data = node.event(&Output::Reading(reading("press", "a0", 1, 5)), 5);
+    let first = node
+        .outgoing(&data[0].topic, &data[0].payload, false)
+        .unwrap();
+    let second = node
+        .outgoing(&data[0].topic, &data[0].payload, false)
+        .unwrap();
+    let seq = |b: &Bytes| super::super::proto::Payload::decode(b).unwrap().seq;
+    assert_eq!((seq(&first), seq(&second)), (Some(3), Some(4)));
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! `spBv1.0/<group>/<NBIRTH|NDEATH|NDATA|NCMD>/<node>`,
 //! `spBv1.0/<group>/<DBIRTH|DDEATH|DDATA|DCMD>/<node>/<device>`, `spBv1.0/STATE/<host>`.
 
-use crate::config::sparkplug::NAMESPACE;
+use crate::config::outputs::sparkplug::NAMESPACE;
 
 /// A message type of the node.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

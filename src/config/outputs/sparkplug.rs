@@ -1,7 +1,7 @@
 //! `[sparkplug]`: the settings of the outputs of kind `sparkplug` (the gateway as a Sparkplug B
 //! edge node).
 
-use super::walk::{Errors, Table, join};
+use crate::config::walk::{Errors, Table, join};
 
 /// The topic namespace of Sparkplug B.
 pub const NAMESPACE: &str = "spBv1.0";

@@ -1,6 +1,6 @@
 //! `[homeassistant]`: the settings of the outputs of kind `homeassistant` (MQTT discovery).
 
-use super::walk::{Errors, Table, join};
+use crate::config::walk::{Errors, Table, join};
 
 /// `[homeassistant]`, checked.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -13,12 +13,15 @@
 use std::fmt;
 use std::str::FromStr;
 
+pub mod homeassistant;
+pub mod sparkplug;
+
 use config::ValueKind;
 
 use super::connection::Mqtt;
-use super::homeassistant::HomeAssistant;
-use super::sparkplug::Sparkplug;
 use super::walk::{Errors, Table, join};
+use homeassistant::HomeAssistant;
+use sparkplug::Sparkplug;
 
 /// What an output publishes: the one list of formats the config checks against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -136,7 +139,7 @@ impl Outputs {
                 "it is under the Home Assistant discovery prefix",
             ),
             (
-                super::sparkplug::NAMESPACE.to_string(),
+                sparkplug::NAMESPACE.to_string(),
                 "it is in the Sparkplug B namespace (births, data and deaths of nodes)",
             ),
         ]
@@ -153,10 +156,10 @@ pub(crate) fn read(
     errs: &mut Errors,
 ) -> Outputs {
     let ha_table = root.table("homeassistant", errs);
-    let (homeassistant, discovery) = super::homeassistant::read(ha_table, errs);
+    let (homeassistant, discovery) = homeassistant::read(ha_table, errs);
     let sp_table = root.table("sparkplug", errs);
     let sparkplug_set = sp_table.is_some();
-    let sparkplug = super::sparkplug::sparkplug(sp_table, gateway_id, errs);
+    let sparkplug = sparkplug::sparkplug(sp_table, gateway_id, errs);
     let entries = root.entries("outputs", errs);
     let origin = root.origin().map(str::to_string);
     let list = if entries.is_empty() {
