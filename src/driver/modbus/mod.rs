@@ -30,11 +30,12 @@ use crate::command::Request;
 use crate::config::Bus;
 use crate::plan::Wire;
 use crate::reading::Reading;
+use crate::scan::ScanRequest;
 use crate::state::BusState;
 pub use device::{ModbusDevice, ModbusError};
 use identity::Identity;
 use link::Link;
-use survey::{ScanRequest, Survey};
+use survey::Survey;
 
 /// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
 pub struct Modbus {
