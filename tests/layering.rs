@@ -62,7 +62,9 @@ const FLOORS: &[(&str, &[&str])] = &[
             "reading",
         ],
     ),
-    // The protocol-neutral bus core, then the protocols under it.
+    // What a driver hands the core: raw samples and the channels they belong to.
+    ("sample", &["counter", "profile", "reading"]),
+    // The protocol-neutral bus core (it counts), then the protocols under it (they never do).
     (
         "bus",
         &[
@@ -71,12 +73,14 @@ const FLOORS: &[(&str, &[&str])] = &[
             "config",
             "counter",
             "decimal",
+            "event",
             "health",
             "log_budget",
             "metering",
             "metrics",
             "profile",
             "reading",
+            "sample",
             "state",
         ],
     ),
@@ -87,13 +91,12 @@ const FLOORS: &[(&str, &[&str])] = &[
             "bus_health",
             "command",
             "config",
-            "counter",
             "decode",
-            "event",
             "outcome",
             "plan",
             "profile",
             "reading",
+            "sample",
             "scan",
             "state",
             "topics",

@@ -29,7 +29,7 @@ use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
 use crate::plan::Wire;
-use crate::reading::Reading;
+use crate::sample::Sample;
 use crate::scan::ScanRequest;
 use crate::state::BusState;
 pub use device::{ModbusDevice, ModbusError};
@@ -92,7 +92,7 @@ impl Driver for Modbus {
         &mut self,
         device: &mut DeviceRt<ModbusDevice>,
         preempt: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError<ModbusError>> {
+    ) -> Result<Vec<Sample>, PollError<ModbusError>> {
         device.poll(&mut self.link, preempt).await
     }
 
