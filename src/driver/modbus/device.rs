@@ -203,7 +203,7 @@ impl ModbusDevice {
         let mut samples = Vec::with_capacity(self.channels.len());
         let (mut stopped, mut paused) = (Vec::new(), Vec::new());
         for (i, mb) in self.channels.iter_mut().enumerate() {
-            // A channel is published whole or not at all: every register it polls arrived.
+            // A channel is sampled whole or not at all: every register it polls arrived.
             if !mb.spec.polled().all(|r| snapshot.get(&r).is_some()) {
                 continue;
             }

@@ -82,7 +82,7 @@ impl DeviceRt<ModbusDevice> {
     /// the count since power-up or the stop was cleared by the module). `None` when it is left
     /// stopped or the write failed (tried again next poll).
     pub(super) async fn start_stopped(&mut self, link: &mut Link, found: Sample) -> Option<Sample> {
-        let i = found.channel;
+        let (i, count) = (found.channel, found.value.count()?);
         let ch = &self.proto.channels[i];
         let code = start_code(&ch.spec, ch.run)?;
         let register = ch.spec.clear.register;
@@ -114,7 +114,6 @@ impl DeviceRt<ModbusDevice> {
         }
         let wrap = ch.wrap;
         self.proto.module_restarted();
-        let count = found.value.count()?;
         let started = Sample::count(i, found.at, count, wrap);
         Some(started.with_rates(found.freq_hz, found.rpm).starting_over())
     }
