@@ -268,7 +268,7 @@ async fn one_silent(figures: &mut Vec<Figure>) {
 
 /// CPU time of the pipeline stages for one transaction of 4 channels, in-process.
 fn pipeline_cpu(figures: &mut Vec<Figure>) {
-    use pulsegate::counter::{Counter, CounterSpec, Direction, Stamp};
+    use pulsegate::counter::{Counter, CounterSpec, Direction, Restart, Stamp};
     use pulsegate::decode::decode;
     use pulsegate::profile::{Profiles, ValueType};
     use pulsegate::reading::Reading;
@@ -278,6 +278,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
         modulus: 1 << 32,
         direction: Direction::Both,
         max_rate_hz: 50_000.0,
+        restart: Restart::FromZero,
     };
     let mut counters: Vec<Counter> = channels.iter().map(|_| Counter::new(spec)).collect();
     let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Reading>();

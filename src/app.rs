@@ -11,10 +11,10 @@ use tokio_util::sync::CancellationToken;
 use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
-use crate::driver::modbus::survey::ScanRequest;
 use crate::health::Health;
 use crate::metrics::Metrics;
 use crate::reading::Output;
+use crate::scan::ScanRequest;
 
 /// A bus task and what it takes to stop it or talk to it.
 struct Running {

@@ -55,6 +55,20 @@ pub struct CounterSpec {
     pub direction: Direction,
     /// Highest input rate the module can count, in pulses per second.
     pub max_rate_hz: f64,
+    /// Where the count stands after a reset the gateway did not make.
+    pub restart: Restart,
+}
+
+/// Where a count starts again after a reset the gateway did not make (a module that lost power,
+/// a clear by another master, a meter replaced).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Restart {
+    /// From zero: the count after the reset is the number of pulses since (a pulse input).
+    FromZero,
+    /// Anywhere: a meter replaced by another stands wherever the new one's register stood when
+    /// it was fitted; counting goes on from the first read of it, and what the register held
+    /// then is no delta (a meter register).
+    FromFirstRead,
 }
 
 /// For this long a channel may go from idle to the datasheet's maximum rate: a wrap within it is
@@ -243,8 +257,13 @@ impl Counter {
             let since = elapsed(at, suspect_at, self.suspect_mono);
             let (ds, _) = self.spec.movement(suspect, count);
             if ds.abs() <= self.spec.plausible(since) {
-                // The module was reset: it has counted `count` pulses since (from zero).
-                return Some(self.book(count, at, count, Some(Event::Reset), since));
+                // The module was reset: it has counted `count` pulses since (from zero); a
+                // meter register counts on from the first read of the new meter.
+                let delta = match self.spec.restart {
+                    Restart::FromZero => count,
+                    Restart::FromFirstRead => ds,
+                };
+                return Some(self.book(count, at, delta, Some(Event::Reset), since));
             }
         }
         self.state.suspect = Some((count, at.wall_ms));
@@ -340,6 +359,7 @@ mod tests {
             modulus: M,
             direction: Direction::Up,
             max_rate_hz: rate,
+            restart: Restart::FromZero,
         })
     }
 
@@ -348,6 +368,7 @@ mod tests {
             modulus: M,
             direction: Direction::Both,
             max_rate_hz: rate,
+            restart: Restart::FromZero,
         })
     }
 
@@ -644,6 +665,7 @@ mod tests {
             modulus: M,
             direction: Direction::Down,
             max_rate_hz: 1000.0,
+            restart: Restart::FromZero,
         });
         let u = booked(&mut c, &[(0, 0), (-300, 500)]);
         assert_eq!((u[1].delta, u[1].event), (-300, None));

@@ -16,10 +16,10 @@ use crate::bus::BusCommand;
 use crate::command::{self, CommandError, Reply, Request};
 use crate::config::Config;
 use crate::dedupe::{Dedupe, Seen};
-use crate::driver::modbus::survey::{self, ScanRequest};
 use crate::log_budget::LogBudget;
 use crate::outcome::{CommandOutcome, Outcome, ScanOutcome};
 use crate::reading::Output;
+use crate::scan::{self, ScanRequest};
 use crate::topics::ResponseRule;
 
 fn targets_of(
@@ -162,7 +162,7 @@ impl Router {
             reply.topics.push(rt.clone());
             reply.correlation = msg.correlation.clone();
         }
-        let (mut units, id) = match survey::parse_scan_payload(&msg.payload) {
+        let (mut units, id) = match scan::parse_scan_payload(&msg.payload) {
             Ok(p) => p,
             Err(e) => return refuse(&reply, "bad_payload", e),
         };

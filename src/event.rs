@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Event {
-    /// The count wrapped around its 32-bit range.
+    /// The count wrapped around its range (a 16/32-bit count; a meter register rolled over).
     Rollover,
     /// The module restarted or someone else cleared it; delta is the count since then.
     Reset,

@@ -38,6 +38,8 @@ pub mod profile;
 pub mod publish;
 pub mod reading;
 pub mod report;
+pub mod sample;
+pub mod scan;
 pub mod setreading;
 pub mod sim;
 pub mod state;

@@ -39,6 +39,7 @@ const FLOORS: &[(&str, &[&str])] = &[
     ("outcome", &["command"]),
     ("admission", &["command"]),
     ("dedupe", &["outcome"]),
+    ("scan", &["command"]),
     (
         "reading",
         &[
@@ -62,7 +63,9 @@ const FLOORS: &[(&str, &[&str])] = &[
             "reading",
         ],
     ),
-    // The protocol-neutral bus core, then the protocols under it.
+    // What a driver hands the core: raw samples and the channels they belong to.
+    ("sample", &["counter", "profile", "reading"]),
+    // The protocol-neutral bus core (it counts), then the protocols under it (they never do).
     (
         "bus",
         &[
@@ -71,12 +74,14 @@ const FLOORS: &[(&str, &[&str])] = &[
             "config",
             "counter",
             "decimal",
+            "event",
             "health",
             "log_budget",
             "metering",
             "metrics",
             "profile",
             "reading",
+            "sample",
             "state",
         ],
     ),
@@ -87,18 +92,18 @@ const FLOORS: &[(&str, &[&str])] = &[
             "bus_health",
             "command",
             "config",
-            "counter",
             "decode",
-            "event",
             "outcome",
             "plan",
             "profile",
             "reading",
+            "sample",
+            "scan",
             "state",
             "topics",
         ],
     ),
-    ("driver", &["bus", "config", "driver::modbus"]),
+    ("driver", &["bus", "config", "driver::modbus", "scan"]),
     // Commands in, messages out.
     (
         "dispatch",
@@ -108,10 +113,10 @@ const FLOORS: &[(&str, &[&str])] = &[
             "command",
             "config",
             "dedupe",
-            "driver::modbus",
             "log_budget",
             "outcome",
             "reading",
+            "scan",
             "topics",
         ],
     ),
@@ -156,18 +161,8 @@ const FLOORS: &[(&str, &[&str])] = &[
     (
         "app",
         &[
-            "boot",
-            "bus",
-            "config",
-            "dispatch",
-            "driver",
-            "driver::modbus",
-            "health",
-            "metrics",
-            "publish",
-            "reading",
-            "state",
-            "systemd",
+            "boot", "bus", "config", "dispatch", "driver", "health", "metrics", "publish",
+            "reading", "scan", "state", "systemd",
         ],
     ),
     ("demo", &["app", "config", "report", "sim"]),

@@ -9,23 +9,42 @@ use std::sync::{Arc, Mutex};
 use tokio::sync::mpsc::unbounded_channel;
 
 use super::device::ProtocolError;
-use super::driver::{DeviceState, Driver, Executed, Preempt};
+use super::driver::{DeviceState, Driver, Executed, Preempt, Written, Wrote};
 use super::*;
+use crate::profile::ChannelKind;
 use crate::reading::Reading;
+use crate::sample::{At, Channel, Counting, Direction, Sample, Wrap};
 
 /// A driver whose device answers except during `outage` (time since the start); it logs what
-/// the bus asked of it, and each transaction takes 50 ms.
+/// the bus asked of it, and each transaction takes 50 ms. Its device has one encoder channel,
+/// `enc0`, declared at the first answer; each poll reads it `pulses` further on (`None`: the
+/// poll reads nothing), and a clear reads back 0.
 struct Scripted {
     start: Instant,
     outage: Range<Duration>,
     log: Arc<Mutex<Vec<(Duration, &'static str)>>>,
+    pulses: Option<i64>,
 }
+
+const ENCODER: Wrap = Wrap {
+    bits: 32,
+    direction: Direction::Both,
+};
 
 impl Scripted {
     fn note(&self, what: &'static str) -> Duration {
         let at = self.start.elapsed();
         self.log.lock().unwrap().push((at, what));
         at
+    }
+
+    /// Now on the paused clock, as the counter sees it.
+    fn at(&self) -> At {
+        let ms = self.start.elapsed().as_millis() as u64;
+        At {
+            wall: std::time::SystemTime::UNIX_EPOCH + Duration::from_millis(ms),
+            stamp: crate::counter::Stamp::at(ms),
+        }
     }
 }
 
@@ -35,6 +54,8 @@ impl Scripted {
 struct Heard {
     failed: u16,
     offline: u16,
+    declared: bool,
+    count: i64,
 }
 
 /// The scripted protocol's one failure.
@@ -83,22 +104,42 @@ impl Driver for Scripted {
 
     async fn poll(
         &mut self,
-        _: &mut DeviceRt<Heard>,
+        d: &mut DeviceRt<Heard>,
         _: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError<NoAnswer>> {
+    ) -> Result<Vec<Sample>, PollError<NoAnswer>> {
         tokio::time::sleep(Duration::from_millis(50)).await;
         if self.outage.contains(&self.note("poll")) {
             return Err(PollError::Protocol(NoAnswer));
         }
-        Ok(Vec::new())
+        if !std::mem::replace(&mut d.proto.declared, true) {
+            d.declare(vec![Channel {
+                name: "enc0".into(),
+                kind: ChannelKind::Encoder,
+                counting: Counting::Count {
+                    wrap: ENCODER,
+                    max_rate_hz: 1000.0,
+                },
+            }]);
+        }
+        let Some(pulses) = self.pulses else {
+            return Ok(Vec::new());
+        };
+        d.proto.count += pulses;
+        Ok(vec![Sample::count(0, self.at(), d.proto.count, ENCODER)])
     }
 
-    async fn execute(&mut self, _: &mut DeviceRt<Heard>, _: &Request) -> Executed {
+    async fn execute(&mut self, d: &mut DeviceRt<Heard>, _: &Request) -> Executed {
         tokio::time::sleep(Duration::from_millis(50)).await;
         self.note("execute");
+        d.proto.count = 0;
         Executed {
-            readings: Vec::new(),
-            result: Ok(Some(0)),
+            written: vec![Written {
+                channel: 0,
+                wrote: Wrote::Cleared,
+                read_back: Some(Sample::count(0, self.at(), 0, ENCODER)),
+                elapsed_ms: 0,
+            }],
+            ..Executed::default()
         }
     }
 
@@ -189,6 +230,15 @@ fn start_answering(
     outage: Range<Duration>,
     answer: bool,
 ) -> Running {
+    start_counting(config, outage, answer, None)
+}
+
+fn start_counting(
+    config: crate::config::Config,
+    outage: Range<Duration>,
+    answer: bool,
+    pulses: Option<i64>,
+) -> Running {
     let (out_tx, out) = unbounded_channel();
     let out = answering_checkpoints(out, answer);
     let (commands, rx) = unbounded_channel();
@@ -199,6 +249,7 @@ fn start_answering(
         start: Instant::now(),
         outage,
         log: log.clone(),
+        pulses,
     };
     let stop = CancellationToken::new();
     let task = tokio::spawn(task.run(driver, stop.clone()));
@@ -241,6 +292,36 @@ async fn a_sixty_second_outage_takes_the_device_offline_and_back_with_few_probes
     assert!(probes <= 13, "{probes} transactions in the 60 s outage");
     let back = log.iter().find(|(at, _)| *at >= secs(65)).unwrap().0;
     assert!(back <= secs(65 + 8), "asked again {back:?} after the start");
+}
+
+/// The core counts for every driver: a scripted one's samples become readings (deltas, totals,
+/// seq) booked by the bus core and saved with the bus's state; the driver never counts.
+#[tokio::test(start_paused = true)]
+async fn the_core_books_a_scripted_drivers_samples_into_readings_and_saves_the_total() {
+    let config = config("counts");
+    let path = crate::state::bus_path(&config.gateway.state_dir, "l");
+    let mut bus = start_counting(config, Duration::ZERO..Duration::ZERO, true, Some(5));
+    tokio::time::sleep(Duration::from_millis(3500)).await;
+    bus.stop.cancel();
+    bus.task.await.unwrap();
+    let mut readings = Vec::new();
+    while let Ok(o) = bus.out.try_recv() {
+        match o {
+            Output::DeviceReadings { readings: r, .. } => readings.extend(r),
+            Output::Reading(r) => readings.push(r),
+            _ => {}
+        }
+    }
+    let got: Vec<(i64, i64, i64, u64)> = readings
+        .iter()
+        .map(|r| (r.count, r.update.delta, r.update.total, r.update.seq))
+        .collect();
+    assert_eq!(
+        got,
+        [(5, 0, 0, 1), (10, 5, 5, 2), (15, 5, 10, 3), (20, 5, 15, 4)]
+    );
+    let saved = BusState::load(&path).unwrap();
+    assert_eq!(saved.channels["1/yl67/enc0"].total, 15);
 }
 
 #[tokio::test(start_paused = true)]

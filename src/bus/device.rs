@@ -1,17 +1,18 @@
 //! One device on a bus as the protocol-neutral bus core keeps it: channels and counters,
-//! availability, latencies, status; the protocol's own state rides along in `proto`.
+//! availability, latencies, status; the protocol's own state rides along in `proto`. What a
+//! driver read is booked into the counters in `book.rs`.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::time::SystemTime;
 
 use tokio::time::Instant;
 
 use crate::config::{Bus, Device};
-use crate::counter::{Counter, CounterState, Stamp};
+use crate::counter::{Counter, CounterState, Update};
 use crate::metrics::DeviceMetrics;
-use crate::profile::{ChannelSpec, Profile};
+use crate::profile::{ChannelKind, Profile};
 use crate::reading::Reading;
+use crate::sample::Sample;
 use crate::state::{channel_key, is_channel_of};
 
 /// Why a poll produced no readings: the protocol's own failure `E` (Modbus:
@@ -62,54 +63,35 @@ impl<E: ProtocolError> PollError<E> {
     }
 }
 
-/// A channel being polled.
+/// A channel being polled, as its driver declared it (`sample::Channel`), with its counter.
 pub(crate) struct ChannelRt {
-    pub(crate) spec: ChannelSpec,
     pub(crate) name: Arc<str>,
-    pub(crate) counter: Counter,
-    pub(crate) ppr: Option<f64>,
+    pub(crate) kind: ChannelKind,
+    /// `None` for a gauge: nothing to count.
+    pub(crate) counter: Option<Counter>,
 }
 
 impl ChannelRt {
-    /// This channel's reading of a count that arrived at `at`.
+    /// This channel's reading of `count`, booked as `update`, from `sample`.
     pub(crate) fn reading(
         &self,
         device: &Arc<str>,
-        at: SystemTime,
+        sample: &Sample,
         count: i64,
-        freq_hz: Option<f64>,
-        rpm: Option<f64>,
-        update: crate::counter::Update,
+        update: Update,
     ) -> Reading {
         Reading {
             device: device.clone(),
             channel: self.name.clone(),
-            ts: at,
+            ts: sample.at.wall,
             count,
-            freq_hz,
-            rpm,
+            freq_hz: sample.freq_hz,
+            rpm: sample.rpm,
             update,
-            kind: self.spec.kind,
+            kind: self.kind,
             units: None,
             after_seq: None,
             meter: None,
-        }
-    }
-}
-
-/// When an answer arrived: the wall clock for `ts`, both clocks for the counter.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct At {
-    pub(crate) wall: SystemTime,
-    pub(crate) stamp: Stamp,
-}
-
-impl At {
-    pub(crate) fn now() -> At {
-        let (wall, mono) = crate::reading::now();
-        At {
-            wall,
-            stamp: crate::reading::stamp(wall, mono),
         }
     }
 }
@@ -124,8 +106,11 @@ pub struct DeviceRt<P> {
     pub name: Arc<str>,
     pub config: Device,
     pub(crate) profile: Arc<Profile>,
-    pub(crate) channels: Vec<ChannelRt>,
-    pub(crate) saved: BTreeMap<String, CounterState>,
+    /// The channels the driver declared, with their counters: the core's alone (a driver
+    /// hands samples in and never counts).
+    pub(super) channels: Vec<ChannelRt>,
+    /// Saved counter states of channels not declared (yet, or any more).
+    pub(super) saved: BTreeMap<String, CounterState>,
     /// Online, offline, not yet seen; failures and backoff (a state machine of its own).
     pub availability: super::availability::Availability,
     /// Poll latencies (seconds), most recent last, for p50/p99.
@@ -145,8 +130,9 @@ impl<P> DeviceRt<P> {
     /// A reading of `channel` was not published: its sequence number goes back, so `seq`
     /// counts published readings only.
     pub(crate) fn withdraw_seq(&mut self, channel: &str) {
-        if let Some(c) = self.channels.iter_mut().find(|c| &*c.name == channel) {
-            c.counter.state.seq = c.counter.state.seq.saturating_sub(1);
+        let channel = self.channels.iter_mut().find(|c| &*c.name == channel);
+        if let Some(c) = channel.and_then(|c| c.counter.as_mut()) {
+            c.state.seq = c.state.seq.saturating_sub(1);
         }
     }
 
@@ -198,7 +184,9 @@ impl<P> DeviceRt<P> {
     pub fn counter_states(&self) -> BTreeMap<String, CounterState> {
         let mut out = self.saved.clone();
         for ch in &self.channels {
-            out.insert(self.state_key(&ch.name), ch.counter.state.clone());
+            if let Some(c) = &ch.counter {
+                out.insert(self.state_key(&ch.name), c.state.clone());
+            }
         }
         out
     }
@@ -210,8 +198,8 @@ impl<P> DeviceRt<P> {
 
     /// The device was away: every channel's next delta covers the gap.
     pub fn mark_gap(&mut self) {
-        for ch in &mut self.channels {
-            ch.counter.mark_gap();
+        for c in self.channels.iter_mut().filter_map(|c| c.counter.as_mut()) {
+            c.mark_gap();
         }
     }
 

@@ -1,8 +1,11 @@
 //! The protocol seam: what the bus task asks of a protocol. The bus task keeps the schedule,
-//! availability, command priority, stats and state flushing; a driver polls a device
-//! (discovering it first when due), carries out clear/preset on it, and reports what the wire
-//! did. Modbus RTU/TCP (`crate::driver::modbus`) is the one driver today; a new protocol is a
-//! folder under `src/driver/` with an implementation of [`Driver`].
+//! availability, command priority, stats and state flushing, and it counts: the counters,
+//! readings, plausibility, events, publish policy, metering and metrics are the core's, the same
+//! for every protocol. A driver polls a device (discovering it first when due, and declaring its
+//! channels to the core), carries out clear/preset on it, and returns what it read in raw terms
+//! ([`crate::sample`]); it never counts. Modbus RTU/TCP (`crate::driver::modbus`) is the one
+//! driver today; a new protocol is a folder under `src/driver/` with an implementation of
+//! [`Driver`].
 
 use std::time::Duration;
 
@@ -12,16 +15,61 @@ use tokio_util::sync::CancellationToken;
 
 use super::device::{DeviceRt, PollError, ProtocolError};
 use crate::bus_health::WireCounters;
-use crate::command::Request;
+use crate::command::{CommandError, Request};
 use crate::config::Bus;
-use crate::reading::{Output, Reading};
+use crate::event::Event;
+use crate::reading::Output;
+use crate::sample::Sample;
 use crate::state::BusState;
 
-/// The outcome of a command: readings to publish (booked counts and the event readings) and the
-/// result (the count read back for a single channel).
+/// What a driver did for a clear or preset, in raw terms; the core books it
+/// ([`DeviceRt::book_command`]): the counts read before the write like a poll's, then each
+/// channel written rebased on its read-back (`cleared`, `preset`), and the command's result.
+#[derive(Debug, Default)]
 pub struct Executed {
-    pub readings: Vec<Reading>,
-    pub result: Result<Option<i64>, crate::command::CommandError>,
+    /// Counts read before the write, so nothing counted up to it is lost.
+    pub before: Vec<Sample>,
+    /// One entry per channel the command acts on (empty when it failed).
+    pub written: Vec<Written>,
+    /// Why the command failed, if it did (what was read before is booked all the same).
+    pub failed: Option<CommandError>,
+}
+
+/// One channel a clear or preset wrote.
+#[derive(Debug, Clone, Copy)]
+pub struct Written {
+    /// The channel's place in the list its device's discovery declared.
+    pub channel: usize,
+    pub wrote: Wrote,
+    /// The count read back after the write (`None`: not read back).
+    pub read_back: Option<Sample>,
+    /// From the write to the read-back: pulses the input may count meanwhile.
+    pub elapsed_ms: u64,
+}
+
+/// What a command wrote to a channel's count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Wrote {
+    Cleared,
+    Preset(i64),
+}
+
+impl Wrote {
+    /// The count the channel should read right after the write.
+    pub fn value(self) -> i64 {
+        match self {
+            Wrote::Cleared => 0,
+            Wrote::Preset(v) => v,
+        }
+    }
+
+    /// The event its reading carries.
+    pub fn event(self) -> Event {
+        match self {
+            Wrote::Cleared => Event::Cleared,
+            Wrote::Preset(_) => Event::Preset,
+        }
+    }
 }
 
 /// A poll failure of driver `D`: its protocol's own, or one the core understands.
@@ -38,13 +86,17 @@ pub trait Driver {
     type Device: DeviceState;
     /// The protocol's state for a configured device, from the bus's saved state.
     fn device(&self, bus: &Bus, config: &crate::config::Device, saved: &BusState) -> Self::Device;
-    /// One poll of a device (discovering it first when due): its readings.
+    /// One poll of a device: what it read, one sample per channel that answered. Discovery
+    /// first when due: the channels it finds, and how each counts, are declared to the core
+    /// with [`DeviceRt::declare`] (which creates or resumes their counters); a sample names its
+    /// channel by its place in that list.
     async fn poll(
         &mut self,
         device: &mut DeviceRt<Self::Device>,
         preempt: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError<<Self::Device as DeviceState>::Error>>;
-    /// Carries out a clear or preset (the device is discovered and online).
+    ) -> Result<Vec<Sample>, PollError<<Self::Device as DeviceState>::Error>>;
+    /// Carries out a clear or preset (the device is discovered and online): what it read
+    /// before, wrote and read back.
     async fn execute(&mut self, device: &mut DeviceRt<Self::Device>, request: &Request)
     -> Executed;
     /// What the wire did so far: transactions, timeouts, errors, and the time it was busy.
@@ -77,6 +129,9 @@ pub trait DeviceState {
     }
     /// The device went offline: whatever answers next may be another device.
     fn went_offline(&mut self) {}
+    /// The core found a count reset the gateway did not make (a module restart, a clear by
+    /// someone else, a meter replaced): what the protocol learnt of the device may be stale.
+    fn reset_found(&mut self) {}
     /// The device's measured turnaround, in seconds, for the bus stats.
     fn turnaround(&self) -> Option<f64> {
         None

@@ -49,6 +49,7 @@ impl Emitter {
         let mut periods: Vec<&Period> = d
             .channels
             .iter()
+            .filter(|c| c.counter.is_some())
             .flat_map(|c| d.config.intervals_of(gateway, &c.name))
             .collect();
         // Channels mostly share their periods: each is reckoned once.
@@ -68,7 +69,8 @@ impl Emitter {
             }
             let (periods, units) = (c.periods.clone(), c.units.clone());
             let device = d.name.clone();
-            let Some(ch) = d.channels.iter_mut().find(|c| c.name == r.channel) else {
+            let channel = d.channels.iter_mut().find(|c| c.name == r.channel);
+            let Some(counter) = channel.and_then(|c| c.counter.as_mut()) else {
                 continue;
             };
             let read = Read {
@@ -77,7 +79,7 @@ impl Emitter {
                 event: r.update.event,
             };
             for (period, text) in periods {
-                let state = ch.counter.state.intervals.entry(text.to_string());
+                let state = counter.state.intervals.entry(text.to_string());
                 let Some(record) = state.or_default().observe(&self.clock, &period, read) else {
                     continue;
                 };
@@ -160,7 +162,7 @@ impl Emitter {
                     .channels
                     .iter()
                     .find(|ch| ch.name == r.channel)
-                    .and_then(|ch| ch.counter.state.meter.clone());
+                    .and_then(|ch| ch.counter.as_ref()?.state.meter.clone());
                 published.push(r);
             } else {
                 c.gate.skip(&r.update);

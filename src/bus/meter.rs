@@ -29,8 +29,13 @@ pub(super) fn set_reading<P>(
             why: "its channels have not been read yet",
         });
     };
+    let Some(counter) = ch.counter.as_mut() else {
+        return Err(CommandError::NoScale {
+            channel: name.to_string(),
+        });
+    };
     let now_ms = crate::reading::unix_ms(std::time::SystemTime::now()) as i64;
-    let state = &mut ch.counter.state;
+    let state = &mut counter.state;
     let offset = MeterOffset::to_show(shown, &scale, state.total, now_ms).ok_or_else(|| {
         CommandError::NotDecimal(format!(
             "{shown} has too many digits to add exactly to the scaled total"

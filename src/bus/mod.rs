@@ -2,6 +2,7 @@
 //! devices probed with backoff so a silent one costs the others at most one timeout per probe.
 
 mod availability;
+mod book;
 pub mod device;
 pub mod driver;
 mod emit;
@@ -109,6 +110,8 @@ impl BusTask {
             let before = core.driver.wire().0;
             let d = &mut core.devices[i];
             let result = core.driver.poll(d, &|| !owed && !commands.is_empty()).await;
+            // The core counts: the samples become readings here, for every protocol alike.
+            let result = result.map(|samples| d.book_poll(samples));
             let (counters, busy) = core.driver.wire();
             d.metrics.wire(&before, &counters);
             self.metrics.wire(&counters, busy);
@@ -516,13 +519,14 @@ async fn run_one_command<D: driver::Driver>(
             let before = driver.wire().0;
             let executed = driver.execute(d, &c.request).await;
             d.metrics.wire(&before, &driver.wire().0);
-            ran = Some((i, executed.readings));
-            if let Err(e) = &executed.result {
+            let (readings, result) = d.book_command(executed);
+            ran = Some((i, readings));
+            if let Err(e) = &result {
                 tracing::warn!(device = %d.name, op = c.request.op.name(), "command failed: {e}");
             } else {
                 tracing::info!(device = %d.name, channel = ?c.request.channel, op = c.request.op.name(), "command carried out");
             }
-            let _ = c.done.send(executed.result);
+            let _ = c.done.send(result);
         } else if now >= c.request.expires {
             let _ = c
                 .done

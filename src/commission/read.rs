@@ -141,10 +141,12 @@ pub(super) async fn read_once(
     baud: u32,
 ) -> Result<Value, CommissionError> {
     let unit = rt.proto.unit;
-    let readings = rt.poll(link, &|| false).await.map_err(|e| match e {
+    let samples = rt.poll(link, &|| false).await.map_err(|e| match e {
         crate::bus::device::PollError::Protocol(ModbusError::Link(l)) => target.error(unit, l),
         other => CommissionError::Failed(format!("unit {unit}: {other}")),
     })?;
+    // Counted by the bus core, as the gateway counts them.
+    let readings = rt.book_poll(samples);
     let timeout = link.timeout_for(profile.answer_timeout, 1);
     let modes = crate::driver::modbus::probe::read_modes(link, unit, profile, timeout)
         .await
@@ -234,13 +236,15 @@ pub(super) async fn write_count(
     channel: &str,
     op: Op,
 ) -> Result<Option<i64>, CommissionError> {
-    // The poll discovers the channels (work modes) first, as the gateway does.
-    rt.poll(link, &|| false).await.map_err(|e| match e {
+    // The poll discovers the channels (work modes) first, as the gateway does, and its counts
+    // are booked before the write.
+    let samples = rt.poll(link, &|| false).await.map_err(|e| match e {
         crate::bus::device::PollError::Protocol(ModbusError::Link(l)) => {
             target.error(rt.proto.unit, l)
         }
         other => CommissionError::Failed(format!("unit {}: {other}", rt.proto.unit)),
     })?;
+    rt.book_poll(samples);
     let now = tokio::time::Instant::now();
     let req = Request {
         device: rt.name.to_string(),
@@ -252,7 +256,8 @@ pub(super) async fn write_count(
         expires: now + Duration::from_secs(10),
     };
     let executed = rt.execute(link, &req).await;
-    executed.result.map_err(|e| match e {
+    let (_, result) = rt.book_command(executed);
+    result.map_err(|e| match e {
         crate::command::CommandError::UnknownChannel { .. }
         | crate::command::CommandError::OutOfRange { .. } => {
             CommissionError::BadInput(e.to_string())

@@ -10,7 +10,7 @@ use tokio_util::sync::CancellationToken;
 
 use crate::bus::BusTask;
 use crate::config::{Bus, Link};
-use modbus::survey::ScanRequest;
+use crate::scan::ScanRequest;
 
 /// Runs `task` over the driver of `bus`'s link until `shutdown`. A new protocol is a folder
 /// beside `modbus/`, a `config::Link` variant and one arm here.

@@ -14,14 +14,14 @@ use super::link::{Link, LinkError};
 use super::retry::{Lost, NOISE_RETRIES, Next, Tries};
 use super::run_state::RunState;
 use super::sizing::{Change, Prices, Sizing};
-use crate::bus::device::{At, DeviceRt, ProtocolError};
+use crate::bus::device::{DeviceRt, ProtocolError};
 use crate::bus::driver::DeviceState;
 use crate::bus_health::RequestSize;
 use crate::config::{Bus, Device, Run};
 use crate::decode::decode;
 use crate::plan::{Block, PollPlan, Wire, plan_reads_within};
-use crate::profile::Register;
-use crate::reading::Reading;
+use crate::profile::{ChannelSpec, Register, WordOrder};
+use crate::sample::{At, Sample, Wrap};
 use crate::state::device_key;
 
 /// What goes wrong in a Modbus poll, besides what the bus core understands.
@@ -82,9 +82,17 @@ impl Snapshot {
     }
 }
 
-/// What a Modbus driver keeps of one channel (beside the core's `ChannelRt`, same index).
-#[derive(Default)]
+/// What a Modbus driver keeps of one channel, in the order it declared them to the core (a
+/// sample's `channel` is its index here).
 pub(super) struct ModbusChannel {
+    pub(super) name: Arc<str>,
+    /// Its registers in the current work mode.
+    pub(super) spec: ChannelSpec,
+    /// The range its count wraps in now: a ZH-YX1600 counter's direction follows its command
+    /// word.
+    pub(super) wrap: Wrap,
+    /// Pulses per revolution: configured, or read from the module.
+    pub(super) ppr: Option<f64>,
     /// The command register, where the module starts and stops counters by register.
     pub(super) command: Option<Register>,
     /// The counting window of a frequency register that holds pulses per window, in seconds;
@@ -184,6 +192,60 @@ impl ModbusDevice {
         self.last_slow = None;
     }
 
+    /// What `snapshot` says of each channel whose registers all arrived: the samples, the
+    /// samples of counters found stopped (to start, see `run_control.rs`), and the channels
+    /// found paused (to resume where configured).
+    fn samples(
+        &mut self,
+        snapshot: &Snapshot,
+        order: WordOrder,
+    ) -> (Vec<Sample>, Vec<Sample>, Vec<usize>) {
+        let mut samples = Vec::with_capacity(self.channels.len());
+        let (mut stopped, mut paused) = (Vec::new(), Vec::new());
+        for (i, mb) in self.channels.iter_mut().enumerate() {
+            // A channel is sampled whole or not at all: every register it polls arrived.
+            if !mb.spec.polled().all(|r| snapshot.get(&r).is_some()) {
+                continue;
+            }
+            let Some((words, at)) = snapshot.get(&mb.spec.count) else {
+                continue;
+            };
+            let count = decode(words, mb.spec.count.ty, order).as_i64();
+            let freq_hz = mb
+                .spec
+                .freq
+                .and_then(|r| Some(decode(snapshot.get(&r)?.0, r.ty, order).as_f64()))
+                .filter(|f| f.is_finite())
+                .and_then(|f| match mb.spec.freq_window {
+                    // Pulses in the module's counting window → Hz.
+                    Some(_) => mb.window_s.map(|s| f / s),
+                    None => Some(f),
+                });
+            let rpm = match (freq_hz, mb.ppr) {
+                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
+                _ => None,
+            };
+            let state = mb
+                .command
+                .and_then(|r| snapshot.get(&r))
+                .map(|(w, _)| super::run_state::run_state(&mb.spec, w[0]));
+            if let Some(RunState::Running(d)) = state {
+                mb.wrap.direction = d;
+            }
+            let sample = Sample::count(i, at, count, mb.wrap).with_rates(freq_hz, rpm);
+            match state {
+                // The module cleared it; the gateway starts it after this read.
+                Some(RunState::Stopped) if mb.run != Run::Leave => stopped.push(sample),
+                Some(RunState::Paused) if mb.resume_paused => {
+                    paused.push(i);
+                    samples.push(sample);
+                }
+                _ => samples.push(sample),
+            }
+        }
+        (samples, stopped, paused)
+    }
+
     /// Records the mode-word mismatch of device `name` found now (logged once per change).
     pub(super) fn set_mismatch(&mut self, name: &str, now: Option<String>) {
         if self.mode_mismatch == now {
@@ -222,6 +284,10 @@ impl DeviceState for ModbusDevice {
         self.identify_due = true;
     }
 
+    fn reset_found(&mut self) {
+        self.module_restarted();
+    }
+
     fn turnaround(&self) -> Option<f64> {
         self.turnaround
     }
@@ -253,90 +319,30 @@ impl DeviceRt<ModbusDevice> {
             && self.availability.worth_retrying(e.device_answered())
     }
 
-    /// One poll: discovery and slow registers when due, then counts and frequencies.
-    /// `preempt` is asked between transactions: when it says yes, the poll gives way.
+    /// One poll: discovery and slow registers when due, then counts and frequencies, one
+    /// sample per channel whose registers all arrived. `preempt` is asked between transactions:
+    /// when it says yes, the poll gives way.
     pub async fn poll(
         &mut self,
         link: &mut Link,
         preempt: &(dyn Fn() -> bool + Sync),
-    ) -> Result<Vec<Reading>, PollError> {
+    ) -> Result<Vec<Sample>, PollError> {
         self.discover(link, preempt).await?;
         let fast = std::mem::take(&mut self.proto.fast);
         let snapshot = self.read_blocks(link, &fast, Lost::LeftOut, preempt).await;
         self.note_poll_shape(&fast);
         self.proto.fast = fast;
         let snapshot = snapshot?;
-        let order = self.profile.word_order;
-        let mut readings = Vec::with_capacity(self.channels.len());
-        let mut stopped = Vec::new();
-        let mut paused = Vec::new();
-        let mut restarted = false;
-        for (i, (ch, mb)) in self
-            .channels
-            .iter_mut()
-            .zip(&self.proto.channels)
-            .enumerate()
-        {
-            // A channel is published whole or not at all: every register it polls arrived.
-            if !ch.spec.polled().all(|r| snapshot.get(&r).is_some()) {
-                continue;
-            }
-            let Some((words, at)) = snapshot.get(&ch.spec.count) else {
-                continue;
-            };
-            let count = decode(words, ch.spec.count.ty, order).as_i64();
-            let freq_hz = ch
-                .spec
-                .freq
-                .and_then(|r| snapshot.get(&r))
-                .map(|(w, _)| decode(w, ch.spec.freq.expect("checked").ty, order).as_f64())
-                .filter(|f| f.is_finite())
-                .and_then(|f| match ch.spec.freq_window {
-                    // Pulses in the module's counting window → Hz.
-                    Some(_) => mb.window_s.map(|s| f / s),
-                    None => Some(f),
-                });
-            let rpm = match (freq_hz, ch.ppr) {
-                (Some(f), Some(ppr)) if ppr > 0.0 => Some(f * 60.0 / ppr),
-                _ => None,
-            };
-            if let Some((w, _)) = mb.command.and_then(|r| snapshot.get(&r)) {
-                match super::run_state::run_state(&ch.spec, w[0]) {
-                    // The module cleared it; the gateway starts it after this read.
-                    RunState::Stopped if mb.run != Run::Leave => {
-                        stopped.push((i, count, at, freq_hz, rpm));
-                        continue;
-                    }
-                    RunState::Running(d) => ch.counter.spec.direction = d,
-                    RunState::Paused if mb.resume_paused => paused.push(i),
-                    _ => {}
-                }
-            }
-            // A read the counter holds as suspect is not published.
-            let Some(update) = ch.counter.update(count, at.stamp) else {
-                tracing::debug!(device = %self.name, channel = %ch.name, count, "implausible count held until the next read");
-                continue;
-            };
-            if update.event == Some(crate::event::Event::Reset) {
-                restarted = true;
-            }
-            let reading = ch.reading(&self.name, at.wall, count, freq_hz, rpm, update);
-            self.metrics.reading(&reading);
-            readings.push(reading);
-        }
-        for (i, count, at, freq_hz, rpm) in stopped {
-            if let Some(reading) = self.start_stopped(link, i, count, at, freq_hz, rpm).await {
-                self.metrics.reading(&reading);
-                readings.push(reading);
+        let (mut samples, stopped, paused) = self.proto.samples(&snapshot, self.profile.word_order);
+        for s in stopped {
+            if let Some(started) = self.start_stopped(link, s).await {
+                samples.push(started);
             }
         }
         for i in paused {
             self.resume_paused(link, i).await;
         }
-        if restarted {
-            self.proto.module_restarted();
-        }
-        Ok(readings)
+        Ok(samples)
     }
 
     /// Reads `regs` in planned blocks, all of them or none. A bridged block refused with

@@ -1,7 +1,7 @@
 //! Discovery of a Modbus device: its identity (checked at discovery and after a reset), the
-//! work modes and slow registers that give its channels, and the channels built from them.
+//! work modes and slow registers that give its channels, and the channels built from them (and
+//! declared to the bus core, which counts them).
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use tokio::time::Instant;
@@ -10,11 +10,11 @@ use tokio_modbus::ExceptionCode;
 use super::device::{ModbusChannel, ModbusDevice, ModbusError, PollError};
 use super::identity::{Verdict, judge};
 use super::link::Link;
-use crate::bus::device::{ChannelRt, DeviceRt};
+use crate::bus::device::DeviceRt;
 use crate::config::{ChannelConfig, Run};
-use crate::counter::{Counter, CounterSpec, Direction};
 use crate::decode::decode;
 use crate::profile::{ChannelKind, ChannelSpec, Register, ValueType};
+use crate::sample::{Channel, Counting, Direction, Wrap};
 
 impl DeviceRt<ModbusDevice> {
     /// Discovery when due (identity, then the work modes and slow registers that give the
@@ -132,11 +132,16 @@ impl DeviceRt<ModbusDevice> {
             self.build_channels(specs);
             self.proto.modes = Some(modes);
         }
-        let ppr_regs: Vec<Register> = self.channels.iter().filter_map(|c| c.spec.ppr).collect();
+        let ppr_regs: Vec<Register> = self
+            .proto
+            .channels
+            .iter()
+            .filter_map(|c| c.spec.ppr)
+            .collect();
         if !ppr_regs.is_empty() {
             let snap = self.read_registers(link, &ppr_regs, preempt).await?;
             let order = self.profile.word_order;
-            for ch in &mut self.channels {
+            for ch in &mut self.proto.channels {
                 let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
                 let read = ch
                     .spec
@@ -160,6 +165,7 @@ impl DeviceRt<ModbusDevice> {
         preempt: &(dyn Fn() -> bool + Sync),
     ) -> Result<(), PollError> {
         let regs: Vec<Register> = self
+            .proto
             .channels
             .iter()
             .filter_map(|c| c.spec.freq_window.map(|w| w.register))
@@ -169,8 +175,8 @@ impl DeviceRt<ModbusDevice> {
         }
         let snap = self.read_registers(link, &regs, preempt).await?;
         let order = self.profile.word_order;
-        for (ch, mb) in self.channels.iter().zip(&mut self.proto.channels) {
-            let Some(w) = ch.spec.freq_window else {
+        for mb in &mut self.proto.channels {
+            let Some(w) = mb.spec.freq_window else {
                 continue;
             };
             let Some((words, _)) = snap.get(&w.register) else {
@@ -179,7 +185,7 @@ impl DeviceRt<ModbusDevice> {
             let raw = decode(words, w.register.ty, order).as_i64() as u64;
             let seconds = w.seconds(raw);
             if seconds.is_none() && !std::mem::replace(&mut mb.window_bad, true) {
-                tracing::warn!(device = %self.name, channel = %ch.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
+                tracing::warn!(device = %self.name, channel = %mb.name, register = w.register.address, raw, "the counting window register reads a value that is no window; frequency not published");
             }
             mb.window_bad = seconds.is_none();
             mb.window_s = seconds;
@@ -187,15 +193,11 @@ impl DeviceRt<ModbusDevice> {
         Ok(())
     }
 
-    /// Builds the channels of the current work mode. A channel keeps its counter across the
-    /// rebuild; a channel the new mode does not have (or a disabled one) keeps its state for
-    /// when it comes back, resumed with a gap.
+    /// Builds the channels of the current work mode and declares them to the bus core, which
+    /// keeps each counter across the rebuild, and keeps the state of a channel the new mode does
+    /// not have (or a disabled one) for when it comes back.
     fn build_channels(&mut self, specs: Vec<ChannelSpec>) {
-        let mut old: BTreeMap<String, Counter> = self
-            .channels
-            .drain(..)
-            .map(|c| (c.name.to_string(), c.counter))
-            .collect();
+        let mut declared = Vec::with_capacity(specs.len());
         self.proto.channels.clear();
         for spec in specs {
             let overrides = self
@@ -207,32 +209,36 @@ impl DeviceRt<ModbusDevice> {
             if !overrides.enabled {
                 continue;
             }
-            let counter_spec = counter_spec(&spec, &overrides);
-            let key = self.state_key(&spec.name);
-            let counter = match (old.remove(&spec.name), self.saved.remove(&key)) {
-                (Some(c), _) => c.with_spec(counter_spec),
-                (None, Some(saved)) => Counter::resume(counter_spec, saved),
-                (None, None) => Counter::new(counter_spec),
-            };
-            self.proto.channels.push(ModbusChannel {
-                command: super::run_state::command_register(&spec),
-                run: overrides.run,
-                resume_paused: overrides.resume_paused,
-                ..ModbusChannel::default()
+            let name: Arc<str> = Arc::from(spec.name.as_str());
+            let wrap = wrap_of(&spec, &overrides);
+            declared.push(Channel {
+                name: name.clone(),
+                kind: spec.kind,
+                counting: Counting::Count {
+                    wrap,
+                    max_rate_hz: overrides.max_rate_hz.unwrap_or(spec.max_rate_hz),
+                },
             });
-            self.channels.push(ChannelRt {
-                name: Arc::from(spec.name.as_str()),
+            self.proto.channels.push(ModbusChannel {
+                name,
+                command: super::run_state::command_register(&spec),
+                wrap,
                 ppr: overrides.ppr,
                 spec,
-                counter,
+                window_s: None,
+                window_bad: false,
+                power_on_done: false,
+                run: overrides.run,
+                resume_paused: overrides.resume_paused,
             });
         }
-        for (name, gone) in old {
-            let key = self.state_key(&name);
-            tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel gone with the work mode; its state is kept");
-            self.saved.insert(key, gone.state);
-        }
-        self.proto.fast = self.channels.iter().flat_map(|c| c.spec.polled()).collect();
+        self.declare(declared);
+        self.proto.fast = self
+            .proto
+            .channels
+            .iter()
+            .flat_map(|c| c.spec.polled())
+            .collect();
     }
 
     /// Reads the identification registers and judges them. Link failures (no answer) are
@@ -284,9 +290,10 @@ impl DeviceRt<ModbusDevice> {
     }
 }
 
-/// How a channel's count moves: encoders both ways; inputs counting on their own only up, or
-/// in the direction the gateway runs them (ZH-YX1600 counters are signed and can count down).
-fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
+/// How a channel's count wraps: at its register's width; encoders both ways; inputs counting
+/// on their own only up, or in the direction the gateway runs them (ZH-YX1600 counters are
+/// signed and can count down).
+fn wrap_of(spec: &ChannelSpec, config: &ChannelConfig) -> Wrap {
     let signed = matches!(spec.count.ty, ValueType::I32 | ValueType::I16);
     let direction = match (spec.kind, signed, config.run) {
         (ChannelKind::Encoder, ..) => Direction::Both,
@@ -296,9 +303,8 @@ fn counter_spec(spec: &ChannelSpec, config: &ChannelConfig) -> CounterSpec {
         (ChannelKind::Counter, true, Run::Down) => Direction::Down,
         (ChannelKind::Counter, true, Run::Leave) => Direction::Both,
     };
-    CounterSpec {
-        modulus: 1i64 << (16 * u32::from(spec.count.ty.words())),
+    Wrap {
+        bits: 16 * u32::from(spec.count.ty.words()),
         direction,
-        max_rate_hz: config.max_rate_hz.unwrap_or(spec.max_rate_hz),
     }
 }

@@ -1,5 +1,6 @@
-//! Carrying out a clear or preset on a device: book what was counted before, write, read back,
-//! and rebase the counters so the write itself never moves a total.
+//! Carrying out a clear or preset on a device: read the counts before, write, read back. The
+//! bus core books it (`bus/book.rs`): what was counted before, then the counters rebased on the
+//! read-back, so the write itself never moves a total.
 
 use std::collections::BTreeSet;
 
@@ -9,12 +10,11 @@ use tokio_modbus::ExceptionCode;
 use super::device::{ModbusDevice, Snapshot};
 use super::link::Link;
 use crate::bus::device::DeviceRt;
-use crate::bus::driver::Executed;
+use crate::bus::driver::{Executed, Written, Wrote};
 use crate::command::{CommandError, Op, Request};
 use crate::decode::{decode, encode_int};
-use crate::event::Event;
 use crate::profile::Register;
-use crate::reading::Reading;
+use crate::sample::Sample;
 
 fn write_failed(e: impl std::fmt::Display) -> CommandError {
     CommandError::WriteFailed(e.to_string())
@@ -25,50 +25,60 @@ fn exception(e: ExceptionCode) -> CommandError {
 }
 
 impl DeviceRt<ModbusDevice> {
-    /// Carries out `req` on this (discovered) device.
+    /// Carries out `req` on this (discovered) device: what it read before, wrote and read back.
     pub async fn execute(&mut self, link: &mut Link, req: &Request) -> Executed {
-        let mut readings = Vec::new();
-        let result = self.execute_inner(link, req, &mut readings).await;
-        Executed { readings, result }
+        let mut executed = Executed::default();
+        executed.failed = self.execute_inner(link, req, &mut executed).await.err();
+        executed
     }
 
     async fn execute_inner(
         &mut self,
         link: &mut Link,
         req: &Request,
-        readings: &mut Vec<Reading>,
-    ) -> Result<Option<i64>, CommandError> {
+        out: &mut Executed,
+    ) -> Result<(), CommandError> {
         let targets = self.targets_of(req)?;
-        // 1. Book what was counted up to now.
+        // 1. Read what was counted up to now (the core books it).
         let counts: Vec<Register> = targets
             .iter()
-            .map(|&i| self.channels[i].spec.count)
+            .map(|&i| self.proto.channels[i].spec.count)
             .collect();
         let before = self
             .read_registers(link, &counts, &|| false)
             .await
             .map_err(|e| write_failed(format!("reading before the write: {e}")))?;
-        for &i in &targets {
-            let order = self.profile.word_order;
-            let ch = &mut self.channels[i];
-            if let Some((w, at)) = before.get(&ch.spec.count) {
-                let count = decode(w, ch.spec.count.ty, order).as_i64();
-                let Some(update) = ch.counter.update(count, at.stamp) else {
-                    continue;
-                };
-                readings.push(ch.reading(&self.name, at.wall, count, None, None, update));
-            }
-        }
+        out.before = targets
+            .iter()
+            .filter_map(|&i| self.sample_of(&before, i))
+            .collect();
         // 2. Write.
         let written = Instant::now();
-        let expected = self.write(link, req, &targets).await?;
-        // 3. Read back and rebase.
+        let wrote = self.write(link, req, &targets).await?;
+        // 3. Read back (the core rebases the counters on it).
         let after = self
             .read_registers(link, &counts, &|| false)
             .await
             .map_err(|e| write_failed(format!("reading back: {e}")))?;
         let elapsed_ms = written.elapsed().as_millis() as u64;
-        self.rebase(req, &targets, &after, expected, elapsed_ms, readings)
+        out.written = targets
+            .iter()
+            .map(|&i| Written {
+                channel: i,
+                wrote,
+                read_back: self.sample_of(&after, i),
+                elapsed_ms,
+            })
+            .collect();
+        Ok(())
+    }
+
+    /// Channel `i`'s count in `snapshot`, if it was read.
+    fn sample_of(&self, snapshot: &Snapshot, i: usize) -> Option<Sample> {
+        let ch = &self.proto.channels[i];
+        let (words, at) = snapshot.get(&ch.spec.count)?;
+        let count = decode(words, ch.spec.count.ty, self.profile.word_order).as_i64();
+        Some(Sample::count(i, at, count, ch.wrap))
     }
 
     /// The channels `req` acts on; a preset out of the channel's range is refused here.
@@ -76,6 +86,7 @@ impl DeviceRt<ModbusDevice> {
         let targets: Vec<usize> = match &req.channel {
             Some(name) => {
                 let i = self
+                    .proto
                     .channels
                     .iter()
                     .position(|c| &*c.name == name)
@@ -85,10 +96,10 @@ impl DeviceRt<ModbusDevice> {
                     })?;
                 vec![i]
             }
-            None => (0..self.channels.len()).collect(),
+            None => (0..self.proto.channels.len()).collect(),
         };
         if let Op::Preset(v) = req.op {
-            let ch = &self.channels[targets[0]];
+            let ch = &self.proto.channels[targets[0]];
             if !ch.spec.accepts_preset(v) {
                 return Err(CommandError::OutOfRange {
                     channel: ch.name.to_string(),
@@ -99,16 +110,16 @@ impl DeviceRt<ModbusDevice> {
         Ok(targets)
     }
 
-    /// Writes the preset or the clears; returns the count expected afterwards.
+    /// Writes the preset or the clears; returns what was written.
     async fn write(
         &mut self,
         link: &mut Link,
         req: &Request,
         targets: &[usize],
-    ) -> Result<i64, CommandError> {
+    ) -> Result<Wrote, CommandError> {
         match req.op {
             Op::Preset(v) => {
-                let ch = &self.channels[targets[0]];
+                let ch = &self.proto.channels[targets[0]];
                 let words =
                     encode_int(v, ch.spec.count.ty, self.profile.word_order).ok_or_else(|| {
                         CommandError::OutOfRange {
@@ -121,61 +132,17 @@ impl DeviceRt<ModbusDevice> {
                     .await
                     .map_err(write_failed)?
                     .map_err(exception)?;
-                Ok(v)
+                Ok(Wrote::Preset(v))
             }
             Op::Clear | Op::ClearAll => {
                 self.write_clears(link, targets, req.op == Op::ClearAll)
                     .await?;
-                Ok(0)
+                Ok(Wrote::Cleared)
             }
             // The bus core sets meter readings itself; nothing of it is ever written.
             Op::SetReading(_) => Err(CommandError::WriteFailed(
                 "set_reading writes nothing to a module".into(),
             )),
-        }
-    }
-
-    /// Rebases the counters on what was read back (`after`), booking the pulses counted
-    /// between the write and the read-back; a count that is not what was written is an error.
-    fn rebase(
-        &mut self,
-        req: &Request,
-        targets: &[usize],
-        after: &Snapshot,
-        expected: i64,
-        elapsed_ms: u64,
-        readings: &mut Vec<Reading>,
-    ) -> Result<Option<i64>, CommandError> {
-        let event = if matches!(req.op, Op::Preset(_)) {
-            Event::Preset
-        } else {
-            Event::Cleared
-        };
-        let mut mismatch = None;
-        let mut single = None;
-        for &i in targets {
-            let order = self.profile.word_order;
-            let ch = &mut self.channels[i];
-            let Some((w, at)) = after.get(&ch.spec.count) else {
-                continue;
-            };
-            let got = decode(w, ch.spec.count.ty, order).as_i64();
-            // Pulses keep coming while we write: allow what the input can count meanwhile.
-            let slack = ch.counter.spec.plausible(elapsed_ms);
-            let update = if (got - expected).abs() > slack {
-                // The write did not take as asked: book nothing, go on from what is there.
-                mismatch.get_or_insert(CommandError::ReadBack { expected, got });
-                ch.counter.rebase(got, at.stamp, event)
-            } else {
-                // Pulses counted between the write and the read-back are booked.
-                ch.counter.rebase_from(expected, got, at.stamp, event)
-            };
-            readings.push(ch.reading(&self.name, at.wall, got, None, None, update));
-            single = Some(got);
-        }
-        match mismatch {
-            Some(e) => Err(e),
-            None => Ok(if targets.len() == 1 { single } else { None }),
         }
     }
 
@@ -192,7 +159,7 @@ impl DeviceRt<ModbusDevice> {
         if all {
             let codes: BTreeSet<_> = targets
                 .iter()
-                .filter_map(|&i| self.channels[i].spec.clear_all)
+                .filter_map(|&i| self.proto.channels[i].spec.clear_all)
                 .collect();
             for code in codes {
                 link.write_register(self.proto.unit, code.register, code.code, timeout)
@@ -202,12 +169,12 @@ impl DeviceRt<ModbusDevice> {
                 done.extend(
                     targets
                         .iter()
-                        .filter(|&&i| self.channels[i].spec.clear_all == Some(code)),
+                        .filter(|&&i| self.proto.channels[i].spec.clear_all == Some(code)),
                 );
             }
         }
         for &i in targets.iter().filter(|i| !done.contains(i)) {
-            let clear = self.channels[i].spec.clear.clone();
+            let clear = self.proto.channels[i].spec.clear.clone();
             if clear.restart.is_empty() {
                 link.write_register(self.proto.unit, clear.register, clear.code, timeout)
                     .await

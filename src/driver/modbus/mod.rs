@@ -29,12 +29,13 @@ use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
 use crate::plan::Wire;
-use crate::reading::Reading;
+use crate::sample::Sample;
+use crate::scan::ScanRequest;
 use crate::state::BusState;
 pub use device::{ModbusDevice, ModbusError};
 use identity::Identity;
 use link::Link;
-use survey::{ScanRequest, Survey};
+use survey::Survey;
 
 /// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
 pub struct Modbus {
@@ -91,7 +92,7 @@ impl Driver for Modbus {
         &mut self,
         device: &mut DeviceRt<ModbusDevice>,
         preempt: Preempt<'_>,
-    ) -> Result<Vec<Reading>, PollError<ModbusError>> {
+    ) -> Result<Vec<Sample>, PollError<ModbusError>> {
         device.poll(&mut self.link, preempt).await
     }
 

@@ -99,31 +99,8 @@ pub(crate) async fn identify(
     Ok(answered.then_some(Identified::Unknown(seen)))
 }
 
-/// Unit ids from "1-247", "5" or "1,3,10-20"; 0 and 248.. are refused.
-pub fn parse_units(text: &str) -> Result<Vec<u8>, String> {
-    let bad = |why: String| format!("--units {text:?}: {why}");
-    let mut out = Vec::new();
-    for part in text.split(',') {
-        let part = part.trim();
-        let (lo, hi) = part.split_once('-').unwrap_or((part, part));
-        let parse = |s: &str| {
-            s.trim()
-                .parse::<u16>()
-                .map_err(|_| bad(format!("{s:?} is not a unit id")))
-        };
-        let (lo, hi) = (parse(lo)?, parse(hi)?);
-        if lo == 0 || hi > 247 {
-            return Err(bad("unit ids are 1..=247".into()));
-        }
-        if lo > hi {
-            return Err(bad(format!("{lo}-{hi} runs backwards")));
-        }
-        out.extend((lo..=hi).map(|u| u as u8));
-    }
-    out.sort_unstable();
-    out.dedup();
-    Ok(out)
-}
+/// Unit ids of a scan (`--units`): the scan request's rule, shared with the MQTT scan.
+pub use crate::scan::parse_units;
 
 /// The answer time to wait for on a scan: the slowest model's.
 pub fn answer_time(profiles: &Profiles) -> Duration {
@@ -221,14 +198,5 @@ mod tests {
         let zh = identify_words(&p, 0x55, &[0x5958, 0x3136, 0x3030]).unwrap();
         assert_eq!(zh.model, "zh-yx1600");
         assert!(identify_words(&p, 210, &[0x0157]).is_none());
-    }
-
-    #[test]
-    fn unit_lists_and_ranges_are_read_and_bad_ones_refused() {
-        assert_eq!(parse_units("1-3,7,2").unwrap(), [1, 2, 3, 7]);
-        assert_eq!(parse_units("1-247").unwrap().len(), 247);
-        for bad in ["0-5", "1-248", "5-1", "x", ""] {
-            assert!(parse_units(bad).is_err(), "{bad}");
-        }
     }
 }

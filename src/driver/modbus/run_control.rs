@@ -5,18 +5,17 @@
 use super::device::ModbusDevice;
 use super::link::Link;
 use super::run_state::{RunState, run_state, start_code};
-use crate::bus::device::{At, DeviceRt};
+use crate::bus::device::DeviceRt;
 use crate::config::Run;
-use crate::event::Event;
 use crate::profile::ChannelKind;
-use crate::reading::Reading;
+use crate::sample::Sample;
 
 impl DeviceRt<ModbusDevice> {
     /// Resumes channel `i`, found paused, where configured (`resume_paused`): the count was
     /// kept, so nothing is rebased; the next reads count on.
     pub(super) async fn resume_paused(&mut self, link: &mut Link, i: usize) {
-        let ch = &self.channels[i];
-        let Some(code) = start_code(&ch.spec, self.proto.channels[i].run) else {
+        let ch = &self.proto.channels[i];
+        let Some(code) = start_code(&ch.spec, ch.run) else {
             return;
         };
         let (name, register) = (ch.name.clone(), ch.spec.clear.register);
@@ -40,19 +39,17 @@ impl DeviceRt<ModbusDevice> {
     /// the gateway. Failures are logged and tried again at the next slow poll.
     pub(super) async fn set_power_on(&mut self, link: &mut Link) {
         let timeout = self.timeout_for(link, 1);
-        for i in 0..self.channels.len() {
-            let ch = &self.channels[i];
+        for i in 0..self.proto.channels.len() {
+            let ch = &self.proto.channels[i];
             let configured = self
                 .config
                 .channels
                 .get(&*ch.name)
                 .is_some_and(|c| c.power_on);
-            let done = self.proto.channels[i].power_on_done;
-            let (Some(p), true, false) = (ch.spec.power_on, configured, done) else {
+            let (Some(p), true, false) = (ch.spec.power_on, configured, ch.power_on_done) else {
                 continue;
             };
-            let down =
-                self.proto.channels[i].run == Run::Down && ch.spec.kind == ChannelKind::Counter;
+            let down = ch.run == Run::Down && ch.spec.kind == ChannelKind::Counter;
             let name = ch.name.clone();
             let word = match link.read(self.proto.unit, p.address, 1, timeout).await {
                 Ok(Ok(w)) => w[0],
@@ -80,20 +77,14 @@ impl DeviceRt<ModbusDevice> {
         }
     }
 
-    /// Starts channel `i`, found stopped with `count` at `at`: writes the start code, then books
-    /// the restart (the total stays; the count since power-up or the stop was cleared by the
-    /// module). `None` when it is left stopped or the write failed (tried again next poll).
-    pub(super) async fn start_stopped(
-        &mut self,
-        link: &mut Link,
-        i: usize,
-        count: i64,
-        at: At,
-        freq_hz: Option<f64>,
-        rpm: Option<f64>,
-    ) -> Option<Reading> {
-        let ch = &self.channels[i];
-        let code = start_code(&ch.spec, self.proto.channels[i].run)?;
+    /// Starts the channel of `found`, a sample of it found stopped: writes the start code, and
+    /// returns the sample as one that starts over (the core books the restart: the total stays;
+    /// the count since power-up or the stop was cleared by the module). `None` when it is left
+    /// stopped or the write failed (tried again next poll).
+    pub(super) async fn start_stopped(&mut self, link: &mut Link, found: Sample) -> Option<Sample> {
+        let (i, count) = (found.channel, found.value.count()?);
+        let ch = &self.proto.channels[i];
+        let code = start_code(&ch.spec, ch.run)?;
         let register = ch.spec.clear.register;
         let timeout = self.timeout_for(link, 1);
         match link
@@ -107,11 +98,11 @@ impl DeviceRt<ModbusDevice> {
                     Err(e) => e.to_string(),
                     Ok(Ok(())) => unreachable!(),
                 };
-                tracing::warn!(device = %self.name, channel = %self.channels[i].name, "counter is stopped and could not be started: {why}");
+                tracing::warn!(device = %self.name, channel = %self.proto.channels[i].name, "counter is stopped and could not be started: {why}");
                 return None;
             }
         }
-        let ch = &mut self.channels[i];
+        let ch = &mut self.proto.channels[i];
         tracing::warn!(
             device = %self.name,
             channel = %ch.name,
@@ -119,11 +110,11 @@ impl DeviceRt<ModbusDevice> {
             ch.spec.clear.code
         );
         if let RunState::Running(d) = run_state(&ch.spec, code) {
-            ch.counter.spec.direction = d;
+            ch.wrap.direction = d;
         }
-        let update = ch.counter.rebase(count, at.stamp, Event::Reset);
+        let wrap = ch.wrap;
         self.proto.module_restarted();
-        let ch = &self.channels[i];
-        Some(ch.reading(&self.name, at.wall, count, freq_hz, rpm, update))
+        let started = Sample::count(i, found.at, count, wrap);
+        Some(started.with_rates(found.freq_hz, found.rpm).starting_over())
     }
 }

@@ -5,8 +5,8 @@
 //! counter is left paused. This file reads the command word (pure); `run_control.rs` writes it.
 
 use crate::config::Run;
-use crate::counter::Direction;
 use crate::profile::{ChannelKind, ChannelSpec, Register};
+use crate::sample::Direction;
 
 /// The command register of a channel that has one.
 pub(super) fn command_register(spec: &ChannelSpec) -> Option<Register> {

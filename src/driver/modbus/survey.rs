@@ -7,57 +7,21 @@
 
 use std::time::Duration;
 
-use serde_json::Value;
 use tokio::sync::mpsc::Receiver;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::link::Link;
-use super::probe::{describe, parse_units};
+use super::probe::describe;
 use crate::command::Reply;
 use crate::outcome::{Found, ScanProgress};
 use crate::outcome::{Outcome, ScanOutcome, ScanReport};
 use crate::profile::Profiles;
 use crate::reading::Output;
+use crate::scan::ScanRequest;
 
 /// How long a scan may take before it reports what it has (a line with no idle time).
 pub const SCAN_LIMIT: Duration = Duration::from_secs(600);
-
-/// A checked scan request, on its way to a bus.
-#[derive(Debug, Clone)]
-pub struct ScanRequest {
-    pub units: Vec<u8>,
-    pub id: Option<String>,
-    pub reply: Reply,
-    /// Where each module found is reported as it answers (`<request topic>/progress`).
-    pub progress: String,
-}
-
-/// The payload: empty, or `{"units": "1-247", "id": "..."}` and nothing else.
-pub fn parse_scan_payload(payload: &[u8]) -> Result<(Vec<u8>, Option<String>), String> {
-    if payload.iter().all(u8::is_ascii_whitespace) {
-        return Ok((parse_units("1-247").map_err(|e| e.to_string())?, None));
-    }
-    if payload.len() > 1024 {
-        return Err("payload longer than 1024 bytes".into());
-    }
-    let v: Value = serde_json::from_slice(payload).map_err(|e| format!("not JSON: {e}"))?;
-    let obj = v.as_object().ok_or("payload is not a JSON object")?;
-    if let Some(k) = obj.keys().find(|k| !matches!(k.as_str(), "units" | "id")) {
-        return Err(format!("unknown key {k:?}: use \"units\" and \"id\""));
-    }
-    let id = match obj.get("id") {
-        None => None,
-        Some(Value::String(s)) if s.len() <= 64 => Some(s.clone()),
-        Some(_) => return Err("\"id\" must be a string of at most 64 characters".into()),
-    };
-    let units = match obj.get("units") {
-        None => "1-247",
-        Some(Value::String(s)) => s.as_str(),
-        Some(_) => return Err("\"units\" must be a string such as \"1-247\"".into()),
-    };
-    Ok((parse_units(units).map_err(|e| e.to_string())?, id))
-}
 
 /// A scan under way. Pure: the bus asks it for the next unit and records the answer.
 #[derive(Debug)]
@@ -234,26 +198,6 @@ fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_payload_gives_units_and_id_and_nothing_else() {
-        assert_eq!(parse_scan_payload(b"").unwrap().0.len(), 247);
-        let (units, id) = parse_scan_payload(br#"{"units":"5-7","id":"a"}"#).unwrap();
-        assert_eq!((units, id.as_deref()), (vec![5, 6, 7], Some("a")));
-        for bad in [
-            &br#"{"units":"0-7"}"#[..],
-            br#"{"unit":"5"}"#,
-            br#"[1]"#,
-            b"scan",
-            br#"{"units":5}"#,
-        ] {
-            assert!(
-                parse_scan_payload(bad).is_err(),
-                "{}",
-                String::from_utf8_lossy(bad)
-            );
-        }
-    }
 
     #[test]
     fn configured_units_are_not_asked_and_the_result_lists_them() {
