@@ -80,10 +80,12 @@ pub enum CommandError {
         "unknown op {0:?}: use clear, preset or set_reading on a channel, clear_all on a device"
     )]
     UnknownOp(String),
-    #[error("preset needs \"value\"")]
-    MissingValue,
+    #[error("{0} needs \"value\"")]
+    MissingValue(&'static str),
     #[error("\"value\" must be an integer, got {0}")]
     NotInteger(String),
+    #[error("\"value\" {0} is outside the range of any counter (a 64-bit integer)")]
+    ValueOutOfRange(String),
     #[error("\"value\" must be a decimal number such as \"12345.678\": {0}")]
     NotDecimal(String),
     #[error("channel {channel} has no scale: a meter reading is in its unit (set `scale`)")]
@@ -129,8 +131,9 @@ impl CommandError {
             CommandError::NotJson(_) => "bad_json",
             CommandError::MissingOp => "missing_op",
             CommandError::UnknownOp(_) => "unknown_op",
-            CommandError::MissingValue => "missing_value",
+            CommandError::MissingValue(_) => "missing_value",
             CommandError::NotInteger(_) => "bad_value",
+            CommandError::ValueOutOfRange(_) => "out_of_range",
             CommandError::NotDecimal(_) => "bad_value",
             CommandError::NoScale { .. } => "no_scale",
             CommandError::OutOfRange { .. } => "out_of_range",
@@ -236,7 +239,9 @@ pub fn parse_payload(
         None => return fail(CommandError::MissingOp),
         Some(Value::String(op)) => match (op.as_str(), channel) {
             ("clear", true) => Op::Clear,
-            ("preset", true) => Op::Preset(preset_value(&map).map_err(|e| (id.clone(), e))?),
+            ("preset", true) => {
+                Op::Preset(preset_value(&map, payload).map_err(|e| (id.clone(), e))?)
+            }
             ("clear_all", false) => Op::ClearAll,
             ("set_reading", true) => {
                 Op::SetReading(reading_value(&map).map_err(|e| (id.clone(), e))?)
@@ -248,20 +253,37 @@ pub fn parse_payload(
     Ok(Parsed { op, id })
 }
 
-fn preset_value(map: &Map<String, Value>) -> Result<i64, CommandError> {
+fn preset_value(map: &Map<String, Value>, payload: &[u8]) -> Result<i64, CommandError> {
     match map.get("value") {
-        None | Some(Value::Null) => Err(CommandError::MissingValue),
-        Some(Value::Number(n)) => n
-            .as_i64()
-            .ok_or_else(|| CommandError::NotInteger(n.to_string())),
+        None | Some(Value::Null) => Err(CommandError::MissingValue("preset")),
+        Some(Value::Number(n)) => n.as_i64().ok_or_else(|| not_an_i64(n, payload)),
         Some(other) => Err(CommandError::NotInteger(other.to_string())),
+    }
+}
+
+/// Why a JSON number is no count: an integer written out in digits that 64 bits cannot hold
+/// (JSON keeps it only as a float, `1e+23`) is out of range; `1.5` or `1e30` is not an integer.
+fn not_an_i64(n: &serde_json::Number, payload: &[u8]) -> CommandError {
+    let raw: Option<std::collections::BTreeMap<String, Box<serde_json::value::RawValue>>> =
+        serde_json::from_slice(payload).ok();
+    let written = raw
+        .as_ref()
+        .and_then(|m| m.get("value"))
+        .map(|v| v.get().trim().to_string());
+    let digits = written.as_deref().is_some_and(|w| {
+        let w = w.strip_prefix('-').unwrap_or(w);
+        !w.is_empty() && w.bytes().all(|b| b.is_ascii_digit())
+    });
+    match written {
+        Some(w) if digits => CommandError::ValueOutOfRange(w),
+        _ => CommandError::NotInteger(n.to_string()),
     }
 }
 
 /// `value` of a set_reading: decimal text or a JSON number, taken exactly as written.
 fn reading_value(map: &Map<String, Value>) -> Result<crate::decimal::Decimal, CommandError> {
     let text = match map.get("value") {
-        None | Some(Value::Null) => return Err(CommandError::MissingValue),
+        None | Some(Value::Null) => return Err(CommandError::MissingValue("set_reading")),
         Some(Value::String(s)) => s.clone(),
         Some(Value::Number(n)) => n.to_string(),
         Some(other) => return Err(CommandError::NotDecimal(other.to_string())),
@@ -380,8 +402,28 @@ mod tests {
         assert_eq!(err(r#"{"op":"preset","value":1.5}"#, true), "bad_value");
         assert_eq!(err(r#"{"op":"preset","value":"3000"}"#, true), "bad_value");
         assert_eq!(err(r#"{"op":"preset","value":1e30}"#, true), "bad_value");
+        assert_eq!(
+            err(r#"{"op":"preset","value":99999999999999999999999}"#, true),
+            "out_of_range"
+        );
+        assert_eq!(
+            err(r#"{"op":"preset","value":-9223372036854775809}"#, true),
+            "out_of_range"
+        );
+        assert_eq!(
+            err(r#"{"op":"set_reading","value":null}"#, true),
+            "missing_value"
+        );
         assert_eq!(err(r#"{"op":"clear","value":5}"#, true), "unexpected_field");
         assert_eq!(err(r#"{"op":"clear","id":5}"#, true), "bad_id");
+    }
+
+    #[test]
+    fn a_missing_value_names_the_op_that_needs_it() {
+        let (_, e) = parse_payload(br#"{"op":"set_reading","value":null}"#, true).unwrap_err();
+        assert_eq!(e.to_string(), "set_reading needs \"value\"");
+        let (_, e) = parse_payload(br#"{"op":"preset"}"#, true).unwrap_err();
+        assert_eq!(e.to_string(), "preset needs \"value\"");
     }
 
     #[test]

@@ -39,6 +39,7 @@ pub(super) struct Families {
     pub bus_utilisation: GaugeVec,
     pub mqtt_connected: IntGaugeVec,
     pub mqtt_held: IntGaugeVec,
+    pub output_events: IntCounterVec,
     pub spool_messages: IntGaugeVec,
     pub spool_bytes: IntGaugeVec,
     pub spool_dropped: IntCounterVec,
@@ -152,6 +153,10 @@ const MQTT_CONNECTED: Family = (
 const MQTT_HELD: Family = (
     "pulsegate_mqtt_held",
     "1 while the output holds what it would publish (its protocol waits, e.g. for a primary host).",
+);
+const OUTPUT_EVENTS: Family = (
+    "pulsegate_output_protocol_events_total",
+    "Events of an output's protocol, by name: STATE messages of a host ignored (stale or malformed), rebirths asked for and done.",
 );
 const SPOOL_MESSAGES: Family = (
     "pulsegate_spool_messages",
@@ -267,6 +272,7 @@ impl Families {
             bus_utilisation: family!(r, GaugeVec, BUS_UTILISATION, BUS),
             mqtt_connected: family!(r, IntGaugeVec, MQTT_CONNECTED, OUTPUT),
             mqtt_held: family!(r, IntGaugeVec, MQTT_HELD, OUTPUT),
+            output_events: family!(r, IntCounterVec, OUTPUT_EVENTS, &["output", "event"]),
             spool_messages: family!(r, IntGaugeVec, SPOOL_MESSAGES, OUTPUT),
             spool_bytes: family!(r, IntGaugeVec, SPOOL_BYTES, OUTPUT),
             spool_dropped: family!(r, IntCounterVec, SPOOL_DROPPED, OUTPUT),

@@ -444,6 +444,18 @@ impl OutputMetrics {
         }
     }
 
+    /// The output's protocol events counted since start (see `Format::tallies`).
+    pub fn tallies(&self, tallies: &[(&'static str, u64)]) {
+        let Some((f, name)) = &self.inner else { return };
+        for (event, now) in tallies {
+            let c = f.output_events.with_label_values(&[name.as_str(), event]);
+            let seen = c.get();
+            if *now > seen {
+                c.inc_by(now - seen);
+            }
+        }
+    }
+
     /// Whether the spool fell back to a private temporary directory (see
     /// `publish::spool_place`).
     pub fn spool_fallback(&self, fallback: bool) {

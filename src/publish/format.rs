@@ -128,6 +128,12 @@ pub trait Format: Send + Sync {
     /// The client did not take the message [`Format::outgoing`] last looked at (its queue was
     /// full): it is offered again later.
     fn unsent(&mut self) {}
+
+    /// Events of its protocol it counted since start, by name (Sparkplug: STATE messages
+    /// ignored, rebirths asked for and done), for the metrics.
+    fn tallies(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
 }
 
 /// The formats in use, run one after the other on every event.
@@ -225,6 +231,11 @@ impl Stage {
     }
 
     /// Every format's messages from `f`, classified for delivery ([`super::delivery`]).
+    /// Every format's tallies.
+    pub fn tallies(&self) -> Vec<(&'static str, u64)> {
+        self.formats.iter().flat_map(|f| f.tallies()).collect()
+    }
+
     /// The last message offered to [`Stage::outgoing`] was not taken.
     pub fn unsent(&mut self) {
         for format in &mut self.formats {

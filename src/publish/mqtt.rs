@@ -652,6 +652,7 @@ impl Publisher<'_> {
             chatter_waiting: chatter.len(),
             chatter_dropped: chatter.dropped,
         });
+        self.task.metrics.tallies(&self.stage.tallies());
         self.watch.chatter_dropped(chatter.dropped, now);
     }
 

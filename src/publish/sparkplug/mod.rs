@@ -9,6 +9,7 @@
 
 pub mod bdseq;
 pub mod command;
+pub mod host;
 pub mod metrics;
 pub mod node;
 pub mod proto;
@@ -184,6 +185,15 @@ impl Format for Sparkplug {
 
     fn unsent(&mut self) {
         self.node.unsent();
+    }
+
+    /// A rebirth the host's requests left owed.
+    fn tick(&mut self, _now: tokio::time::Instant) -> Vec<Message> {
+        self.node.tick(now_ms())
+    }
+
+    fn tallies(&self) -> Vec<(&'static str, u64)> {
+        self.node.tallies()
     }
 }
 

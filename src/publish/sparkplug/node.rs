@@ -13,6 +13,7 @@ use std::collections::{BTreeMap, HashSet};
 use bytes::Bytes;
 
 use super::command::{HostCommandError, Write};
+use super::host::{HostWatch, Rebirths, State};
 use super::metrics::{self, Aliases, ChannelShape};
 use super::proto::{Metric, Payload, Value, datatype};
 use super::topic::{Kind, Topics};
@@ -90,6 +91,10 @@ pub struct Node {
     bd_seq: u8,
     /// Refused commands logged per minute.
     log_budget: crate::log_budget::LogBudget,
+    /// The primary host's STATE as last taken.
+    host: HostWatch,
+    /// The host's rebirth requests, coalesced.
+    rebirths: Rebirths,
     /// The `seq` before the last message [`Node::outgoing`] numbered, until the next: the
     /// client may not take it ([`Node::unsent`]).
     rewind: Option<u8>,
@@ -120,6 +125,8 @@ impl Node {
             seq: 0,
             bd_seq: 0,
             log_budget: crate::log_budget::LogBudget::new(20),
+            host: HostWatch::default(),
+            rebirths: Rebirths::default(),
             rewind: None,
         }
     }
@@ -492,6 +499,27 @@ impl Node {
         self.connected && !self.born
     }
 
+    /// A rebirth the host asked for within the gap, now that it is over.
+    pub fn tick(&mut self, now_ms: u64) -> Vec<Message> {
+        if self.connected && self.born && self.rebirths.due(now_ms) {
+            tracing::info!(
+                requests = self.rebirths.requested,
+                "Sparkplug rebirth for the host's requests of the last seconds"
+            );
+            return self.births(now_ms);
+        }
+        Vec::new()
+    }
+
+    /// What the node counted of its host: STATE messages ignored, rebirths asked and done.
+    pub fn tallies(&self) -> Vec<(&'static str, u64)> {
+        vec![
+            ("host_state_ignored", self.host.ignored),
+            ("rebirth_requested", self.rebirths.requested),
+            ("rebirth", self.rebirths.done),
+        ]
+    }
+
     /// Why it holds, while it does.
     pub fn held(&self) -> Option<String> {
         let host = self.setup.primary_host.as_deref().unwrap_or_default();
@@ -503,9 +531,19 @@ impl Node {
     /// offline, an NDEATH and quiet until the host is back (the spec's node disconnects; this
     /// one keeps its connection for the other formats and holds its output).
     fn host_state(&mut self, payload: &[u8], now_ms: u64) -> Reaction {
-        let Some(online) = super::command::host_online(payload) else {
-            self.refused("primary host STATE", "not {\"online\": bool, …}");
-            return Reaction::default();
+        let online = match self.host.state(payload) {
+            State::Accepted { online } => online,
+            State::Stale { timestamp, last } => {
+                let why = format!(
+                    "its timestamp {timestamp} is older than the last one taken ({last}): ignored"
+                );
+                self.refused("primary host STATE", &why);
+                return Reaction::default();
+            }
+            State::Malformed(why) => {
+                self.refused("primary host STATE", &format!("{why}: ignored"));
+                return Reaction::default();
+            }
         };
         let was = self.host_online;
         self.host_online = online;
@@ -530,10 +568,14 @@ impl Node {
         }
     }
 
-    /// NCMD: `Node Control/Rebirth` = true is answered with every birth again.
+    /// NCMD: `Node Control/Rebirth` = true is answered with every birth again, at most once
+    /// every few seconds (a burst of requests is one rebirth now and one at the end of the gap).
     fn node_command(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
         match super::command::node(payload) {
             Ok(true) if self.connected && self.host_online => {
+                if !self.rebirths.request(now_ms) {
+                    return Vec::new();
+                }
                 tracing::info!("Sparkplug host asked for a rebirth");
                 self.births(now_ms)
             }
