@@ -25,14 +25,13 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
 use super::format::{Format, Stage};
 use super::poller::{Polled, Poller, Routes};
-use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
+use super::session::{Client, Event, EventLoop, Failure, Options};
 use super::spool::Spool;
 use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
@@ -49,7 +48,7 @@ const WINDOW: usize = 100;
 /// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
 /// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
 /// hold one back.
-const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
+pub(crate) const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
 
 /// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
 /// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
@@ -181,48 +180,7 @@ impl Shell {
     }
 }
 
-/// The client options of this gateway: a fresh client is built from them after every failure
-/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
-/// never falls back to plaintext.
-pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
-    let login = config.username.as_ref().map(|user| {
-        let password = config.password.as_ref().map(|p| p.0.clone());
-        (user.clone(), password.unwrap_or_default())
-    });
-    let (host, transport) = broker_transport(config)?;
-    Ok(Options::new(Settings {
-        protocol: config.protocol,
-        client_id: &config.client_id,
-        host: &host,
-        port: config.port,
-        keep_alive: config.keep_alive,
-        max_incoming: MAX_PACKET,
-        inflight: INFLIGHT,
-        login,
-        transport,
-    }))
-}
-
-/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
-/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
-/// TLS: `check` refuses that config, and a config built another way must fail closed too.
-pub(crate) fn broker_transport(
-    config: &Mqtt,
-) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
-    match (&config.socket, &config.tls) {
-        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
-            socket: path.display().to_string(),
-        }),
-        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
-        (None, Some(tls)) => Ok((
-            config.host.clone(),
-            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-                crate::config::tls::client_config(tls)?,
-            ))),
-        )),
-        (None, None) => Ok((config.host.clone(), None)),
-    }
-}
+pub use super::session::client_options;
 
 /// What one output's MQTT task is given, besides its channels.
 pub struct Task {

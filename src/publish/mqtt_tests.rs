@@ -1,6 +1,7 @@
 //! The MQTT task without a broker: its shell, publisher and batch, their connection scripted.
 
 use super::*;
+use crate::publish::session::Settings;
 
 #[test]
 fn a_wildcard_topic_can_never_be_sent() {

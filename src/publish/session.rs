@@ -17,7 +17,8 @@ use rumqttc::v5::mqttbytes::v5::{
 };
 use rumqttc::{Outgoing, Transport};
 
-use crate::config::MqttProtocol;
+use crate::config::{Mqtt, MqttProtocol};
+use rumqttc::TlsConfiguration;
 
 /// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
 pub const V311_MAX_OUT: u32 = 256 * 1024;
@@ -411,5 +412,57 @@ mod tests {
             Options::V311(o) => assert_eq!(o.inflight(), 164),
             Options::V5(_) => panic!("asked for 3.1.1"),
         }
+    }
+}
+
+/// The client options of this gateway: a fresh client is built from them after every failure
+/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
+/// never falls back to plaintext.
+pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
+    client_options_as(config, &config.client_id)
+}
+
+/// The same options under another client id (`pulsegate set-reading`'s own client): the one
+/// place the connection settings become rumqttc's options.
+pub fn client_options_as(
+    config: &Mqtt,
+    client_id: &str,
+) -> Result<Options, crate::config::tls::TlsError> {
+    let login = config.username.as_ref().map(|user| {
+        let password = config.password.as_ref().map(|p| p.0.clone());
+        (user.clone(), password.unwrap_or_default())
+    });
+    let (host, transport) = broker_transport(config)?;
+    Ok(Options::new(Settings {
+        protocol: config.protocol,
+        client_id,
+        host: &host,
+        port: config.port,
+        keep_alive: config.keep_alive,
+        max_incoming: super::mqtt::MAX_PACKET,
+        inflight: super::mqtt::INFLIGHT,
+        login,
+        transport,
+    }))
+}
+
+/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
+/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
+/// TLS: `check` refuses that config, and a config built another way must fail closed too.
+pub(crate) fn broker_transport(
+    config: &Mqtt,
+) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
+    match (&config.socket, &config.tls) {
+        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
+            socket: path.display().to_string(),
+        }),
+        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
+        (None, Some(tls)) => Ok((
+            config.host.clone(),
+            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
+                crate::config::tls::client_config(tls)?,
+            ))),
+        )),
+        (None, None) => Ok((config.host.clone(), None)),
     }
 }
