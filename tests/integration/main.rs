@@ -15,6 +15,7 @@ mod faults;
 mod format_seam;
 mod hostile;
 mod local_socket;
+mod mbus_frames;
 mod metering;
 mod metrics;
 mod pipeline;

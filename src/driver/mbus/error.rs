@@ -29,7 +29,8 @@ impl fmt::Display for ApplicationError {
     }
 }
 
-/// Why an answer cannot be decoded. `at` is the offset in the data after the CI field.
+/// Why an answer cannot be decoded. `at` is the offset of the record at fault, counted from
+/// the first byte after the CI field.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum DecodeError {
     #[error("the meter reports an application error: {0}")]

@@ -80,11 +80,11 @@ pub fn read(data: &[u8], at: usize, index: usize) -> Result<(Read, usize), Decod
         }
         Start::Data(dib) => dib,
     };
-    let (vib, vlen) = vif::read(&rest[dlen..], at + dlen)?;
+    let (vib, vlen) = vif::read(&rest[dlen..], at)?;
     let meaning = vife::meaning(&vib);
     let head = dlen + vlen;
     let field = &rest[head..];
-    let (len, value) = data_field(dib.coding, field, &meaning, at + head)?;
+    let (len, value) = data_field(dib.coding, field, &meaning, at)?;
     let record = Record {
         index,
         function: dib.function,
