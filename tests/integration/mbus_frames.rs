@@ -84,7 +84,7 @@ fn decode(bytes: &[u8]) -> Result<Telegram, String> {
 }
 
 /// Our value in libmbus's normalized unit: (unit as libmbus writes it, value).
-fn normalized(unit: Option<&Unit>, value: f64) -> (String, f64) {
+pub fn normalized(unit: Option<&Unit>, value: f64) -> (String, f64) {
     let (name, factor) = match unit {
         None => ("", 1.0),
         Some(Unit::Wh) => ("Wh", 1.0),
@@ -179,7 +179,7 @@ const DISAGREEMENTS: &[(&str, usize, &str)] = &[
     ),
 ];
 
-fn disagreement(name: &str, index: usize) -> Option<&'static str> {
+pub fn disagreement(name: &str, index: usize) -> Option<&'static str> {
     DISAGREEMENTS
         .iter()
         .find(|(n, i, _)| *n == name && *i == index)

@@ -252,9 +252,9 @@ pub fn req_ud2(address: u8, fcb: bool) -> Vec<u8> {
 }
 
 /// `SND_UD` to address 253 with CI 0x52: selects the slave whose secondary address matches
-/// `mask` (wildcards allowed). FCB clear, as libmbus and pymeterbus send it.
+/// `mask` (wildcards allowed). C field 0x73 (FCB set), as libmbus and pymeterbus send it.
 pub fn select(mask: &super::address::SecondaryMask) -> Vec<u8> {
-    long(SND_UD, SELECTED, CI_SELECT, &mask.to_bytes())
+    long(SND_UD | FCB, SELECTED, CI_SELECT, &mask.to_bytes())
 }
 
 /// `SND_UD` with CI 0x50 to `address`: application reset (all data, from the first telegram).
