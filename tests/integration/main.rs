@@ -17,6 +17,7 @@ mod hostile;
 mod local_socket;
 mod mbus_frames;
 mod mbus_pymeterbus;
+mod mbus_sim;
 mod metering;
 mod metrics;
 mod pipeline;

@@ -52,7 +52,8 @@ pub async fn serve_tcp(
 
 /// Serves `segment` on a new pseudo-terminal set to `baud` 8E1 (2400 is M-Bus's usual
 /// speed); returns the path of its serial end and that end (keep it open so the line
-/// survives the gateway closing and reopening it).
+/// survives the gateway closing and reopening it). Linux keeps a pty at 8 bits without
+/// parity whatever is set, so the even parity is accepted but carries no bit.
 pub fn serve_pty(
     segment: SharedSegment,
     baud: u32,
