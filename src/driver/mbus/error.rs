@@ -35,6 +35,8 @@ impl fmt::Display for ApplicationError {
 pub enum DecodeError {
     #[error("the meter reports an application error: {0}")]
     Application(ApplicationError),
+    #[error("the meter answers with an alarm status ({0:?}), not with data (CI 0x71)")]
+    AlarmStatus(Option<u8>),
     #[error("the answer is not user data (C field {0:#04x}, RSP_UD 0x08 expected)")]
     NotUserData(u8),
     #[error("a single character or short frame carries no data")]

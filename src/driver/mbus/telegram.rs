@@ -40,6 +40,7 @@ pub fn decode(ci: u8, data: &[u8]) -> Result<Telegram, DecodeError> {
                 data.first().copied(),
             )));
         }
+        0x71 => return Err(DecodeError::AlarmStatus(data.first().copied())),
         0x72 => (
             header::long(need(ci, data, header::LONG)?),
             &data[header::LONG..],
@@ -119,5 +120,42 @@ fn shift(e: DecodeError, by: usize) -> DecodeError {
         E::PlainTextNotAscii { at } => E::PlainTextNotAscii { at: at + by },
         E::ReservedLvar { at, lvar } => E::ReservedLvar { at: at + by, lvar },
         other => other,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn application_errors_alarms_and_unknown_ci_fields_are_typed_errors() {
+        assert_eq!(
+            decode(0x70, &[0x08]).unwrap_err().to_string(),
+            "the meter reports an application error: application too busy to answer"
+        );
+        assert_eq!(
+            decode(0x71, &[0x02]).unwrap_err(),
+            DecodeError::AlarmStatus(Some(2))
+        );
+        assert_eq!(decode(0x77, &[]).unwrap_err(), DecodeError::MsbFirst(0x77));
+        assert_eq!(decode(0x99, &[]).unwrap_err(), DecodeError::UnknownCi(0x99));
+        assert_eq!(
+            decode(0x72, &[0; 5]).unwrap_err(),
+            DecodeError::HeaderTooShort {
+                ci: 0x72,
+                need: 12,
+                have: 5
+            }
+        );
+    }
+
+    #[test]
+    fn a_short_header_and_no_header_read_their_records() {
+        // 7A: access 01, status 00, signature 00 00; then 01 FD 1B 05 (digital input 5).
+        let t = decode(0x7A, &[0x01, 0x00, 0x00, 0x00, 0x01, 0xFD, 0x1B, 0x05]).unwrap();
+        assert_eq!(t.records.len(), 1);
+        assert_eq!(t.header.status(), Some(0));
+        let t = decode(0x78, &[0x2F, 0x01, 0xFD, 0x1B, 0x05, 0x2F]).unwrap();
+        assert_eq!(t.records.len(), 1, "fillers are skipped");
     }
 }
