@@ -76,7 +76,7 @@ impl Header {
 }
 
 /// What the status byte of a variable data header says (bits 0–4; 5–7 are the
-/// manufacturer's), in words, or `None` when all is well.
+/// manufacturer's), in words; empty when all is well.
 pub fn status_problems(status: u8) -> Vec<&'static str> {
     let mut out = Vec::new();
     match status & 0x03 {
@@ -95,4 +95,23 @@ pub fn status_problems(status: u8) -> Vec<&'static str> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_status_byte_names_busy_errors_and_low_power() {
+        assert!(status_problems(0x00).is_empty());
+        assert_eq!(status_problems(0x01), ["application busy"]);
+        assert_eq!(
+            status_problems(0x0E),
+            ["application error", "power low", "permanent error"]
+        );
+        assert!(
+            status_problems(0xE0).is_empty(),
+            "bits 5-7 are the manufacturer's"
+        );
+    }
 }
