@@ -358,6 +358,58 @@ fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
     }
 }
 
+/// The client options of this gateway: a fresh client is built from them after every failure
+/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
+/// never falls back to plaintext.
+pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
+    client_options_as(config, &config.client_id)
+}
+
+/// The same options under another client id (`pulsegate set-reading`'s own client): the one
+/// place the connection settings become rumqttc's options.
+pub fn client_options_as(
+    config: &Mqtt,
+    client_id: &str,
+) -> Result<Options, crate::config::tls::TlsError> {
+    let login = config.username.as_ref().map(|user| {
+        let password = config.password.as_ref().map(|p| p.0.clone());
+        (user.clone(), password.unwrap_or_default())
+    });
+    let (host, transport) = broker_transport(config)?;
+    Ok(Options::new(Settings {
+        protocol: config.protocol,
+        client_id,
+        host: &host,
+        port: config.port,
+        keep_alive: config.keep_alive,
+        max_incoming: super::mqtt::MAX_PACKET,
+        inflight: super::mqtt::INFLIGHT,
+        login,
+        transport,
+    }))
+}
+
+/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
+/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
+/// TLS: `check` refuses that config, and a config built another way must fail closed too.
+pub(crate) fn broker_transport(
+    config: &Mqtt,
+) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
+    match (&config.socket, &config.tls) {
+        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
+            socket: path.display().to_string(),
+        }),
+        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
+        (None, Some(tls)) => Ok((
+            config.host.clone(),
+            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
+                crate::config::tls::client_config(tls)?,
+            ))),
+        )),
+        (None, None) => Ok((config.host.clone(), None)),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -415,54 +467,3 @@ mod tests {
     }
 }
 
-/// The client options of this gateway: a fresh client is built from them after every failure
-/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
-/// never falls back to plaintext.
-pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
-    client_options_as(config, &config.client_id)
-}
-
-/// The same options under another client id (`pulsegate set-reading`'s own client): the one
-/// place the connection settings become rumqttc's options.
-pub fn client_options_as(
-    config: &Mqtt,
-    client_id: &str,
-) -> Result<Options, crate::config::tls::TlsError> {
-    let login = config.username.as_ref().map(|user| {
-        let password = config.password.as_ref().map(|p| p.0.clone());
-        (user.clone(), password.unwrap_or_default())
-    });
-    let (host, transport) = broker_transport(config)?;
-    Ok(Options::new(Settings {
-        protocol: config.protocol,
-        client_id,
-        host: &host,
-        port: config.port,
-        keep_alive: config.keep_alive,
-        max_incoming: super::mqtt::MAX_PACKET,
-        inflight: super::mqtt::INFLIGHT,
-        login,
-        transport,
-    }))
-}
-
-/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
-/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
-/// TLS: `check` refuses that config, and a config built another way must fail closed too.
-pub(crate) fn broker_transport(
-    config: &Mqtt,
-) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
-    match (&config.socket, &config.tls) {
-        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
-            socket: path.display().to_string(),
-        }),
-        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
-        (None, Some(tls)) => Ok((
-            config.host.clone(),
-            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-                crate::config::tls::client_config(tls)?,
-            ))),
-        )),
-        (None, None) => Ok((config.host.clone(), None)),
-    }
-}
