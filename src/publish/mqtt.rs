@@ -42,22 +42,7 @@ use crate::topics::Topics;
 
 pub use crate::outbox::unsendable;
 
-/// Messages handed to rumqttc before their acknowledgement.
-const WINDOW: usize = 100;
-
-/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
-/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
-/// hold one back.
-pub(crate) const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
-
-/// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
-/// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
-const REQUESTS: usize = INFLIGHT as usize + 4096;
-
-/// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
-/// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
-/// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
-pub const MAX_PACKET: u32 = 64 * 1024;
+pub use super::session::{INFLIGHT, MAX_PACKET, REQUESTS, WINDOW};
 
 /// The outbox and the client it feeds, owned by the MQTT task.
 struct Shell {

@@ -20,6 +20,23 @@ use rumqttc::{Outgoing, Transport};
 use crate::config::{Mqtt, MqttProtocol};
 use rumqttc::TlsConfiguration;
 
+/// Messages handed to rumqttc before their acknowledgement.
+pub const WINDOW: usize = 100;
+
+/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
+/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
+/// hold one back.
+pub const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
+
+/// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
+/// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
+pub const REQUESTS: usize = INFLIGHT as usize + 4096;
+
+/// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
+/// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
+/// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
+pub const MAX_PACKET: u32 = 64 * 1024;
+
 /// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
 pub const V311_MAX_OUT: u32 = 256 * 1024;
 
@@ -382,8 +399,8 @@ pub fn client_options_as(
         host: &host,
         port: config.port,
         keep_alive: config.keep_alive,
-        max_incoming: super::mqtt::MAX_PACKET,
-        inflight: super::mqtt::INFLIGHT,
+        max_incoming: MAX_PACKET,
+        inflight: INFLIGHT,
         login,
         transport,
     }))
