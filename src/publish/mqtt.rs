@@ -29,8 +29,9 @@ use tokio::sync::mpsc::{Sender, UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
-use super::format::{Format, Stage};
+use super::format::{Control, Format, Stage};
 use super::poller::{Polled, Poller, Routes};
+use super::dialer::{Dialer, Said};
 use super::session::{Client, Event, EventLoop, Failure, Options};
 use super::spool::Spool;
 use crate::config::{Config, Mqtt};
@@ -188,6 +189,8 @@ pub struct Task {
     /// Answers this output gives itself (a command of its protocol refused before the router,
     /// or the router too busy to take it), handed back to the fan-out to be counted and said.
     pub answers: UnboundedSender<Output>,
+    /// What its protocol asks of the gateway (a reboot).
+    pub controls: UnboundedSender<Control>,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -200,7 +203,7 @@ pub async fn run(
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&task.config.topic_root);
-    let Some((options, spool)) = start(&task).await else {
+    let Some((dialer, spool)) = start(&task).await else {
         // `check` and the start refuse such a config; a file changed since is fatal too.
         shutdown.cancel();
         task.heart.set_up(false);
@@ -208,7 +211,7 @@ pub async fn run(
         return;
     };
     let mut stage = Stage::new(std::mem::take(&mut task.formats));
-    let (client, eventloop) = options.connect(stage.will().as_ref(), REQUESTS);
+    let (client, eventloop) = dialer.options().connect(stage.will().as_ref(), REQUESTS);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
     // Everything but the command topics is the task's: a connection without the voice
@@ -225,8 +228,8 @@ pub async fn run(
         },
     };
     let link = Connection {
-        options,
-        broker: task.config.broker(),
+        broker: dialer.broker(),
+        dialer,
         client_id: task.config.client_id.clone(),
         commands: task.voice && task.config.commands,
         voice: task.voice,
@@ -245,6 +248,7 @@ pub async fn run(
         batch: Batch::new(task.config.batch),
         batch_due: None,
         checkpoints: Vec::new(),
+        held_since: None,
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -252,9 +256,10 @@ pub async fn run(
     publisher.finish().await;
 }
 
-/// The client options and the spool, or `None` (logged) when the gateway cannot publish.
-async fn start(task: &Task) -> Option<(Options, Spool)> {
-    let options = match client_options(&task.config) {
+/// The dialer (brokers, protocol, TLS) and the spool, or `None` (logged) when the gateway
+/// cannot publish.
+async fn start(task: &Task) -> Option<(Dialer, Spool)> {
+    let options = match Dialer::new(&task.config) {
         Ok(o) => o,
         Err(e) => {
             tracing::error!("MQTT TLS cannot be set up: {e}; stopping (never plaintext)");
@@ -323,6 +328,8 @@ struct Publisher<'t> {
     batch_due: Option<Pin<Box<tokio::time::Sleep>>>,
     /// State saves waiting to hear that what came before them is durable.
     checkpoints: Vec<PendingCheckpoint>,
+    /// Held (a format's hold) on this connection since then.
+    held_since: Option<Instant>,
 }
 
 impl Publisher<'_> {
@@ -462,6 +469,10 @@ impl Publisher<'_> {
                 }
                 self.watch.up = Some(true);
                 self.task.heart.set_problem(None);
+                if let Some(said) = self.link.dialer.connected() {
+                    self.say(&said);
+                }
+                let s = &mut self.shell;
                 s.on_connack(max_packet, &self.link, &mut self.stage);
                 self.pump();
                 // Health (the systemd status, the ready line) says so now, not at the next beat.
@@ -508,7 +519,34 @@ impl Publisher<'_> {
         for a in reaction.answers {
             let _ = self.task.answers.send(a);
         }
+        for c in reaction.control {
+            self.control(c);
+        }
         self.pump();
+    }
+
+    /// What a format's protocol asked: the next broker now, or a reboot of the gateway.
+    fn control(&mut self, c: Control) {
+        match c {
+            Control::NextServer => self.move_on("its protocol asked for the next server"),
+            Control::Reboot => {
+                let _ = self.task.controls.send(Control::Reboot);
+            }
+        }
+    }
+
+    /// Moves to the next broker at once (with one broker: stays), the connection rebuilt.
+    fn move_on(&mut self, why: &str) {
+        let Some(said) = self.link.dialer.next_server(Instant::now(), why) else {
+            tracing::warn!(output = %self.task.name, "{why}, but this output has one broker (mqtt.hosts)");
+            return;
+        };
+        self.say(&said);
+        self.link.broker = self.link.dialer.broker();
+        self.task.heart.set_up(false);
+        let eventloop = self.shell.on_lost(self.link.dialer.options(), &mut self.stage);
+        self.poller = Poller::start(eventloop, Duration::ZERO, self.routes.clone());
+        self.settle(Instant::now());
     }
 
     /// A command of a format's own protocol into the router's bounded queue; when the queue is
@@ -547,12 +585,44 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
-        if matches!(why, Failure::ProtocolRefused) {
+        let pinned = self.task.config.protocol != crate::config::MqttProtocol::Auto;
+        if pinned && matches!(why, Failure::ProtocolRefused) {
             self.task.heart.set_problem(Some(why.to_string()));
         }
-        let eventloop = self.shell.on_lost(&self.link.options, &mut self.stage);
+        for said in self.link.dialer.failed(why, Instant::now()) {
+            self.say(&said);
+        }
+        self.link.broker = self.link.dialer.broker();
+        let eventloop = self.shell.on_lost(self.link.dialer.options(), &mut self.stage);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
         self.settle(Instant::now());
+    }
+
+    /// Held on this broker (a Sparkplug primary host offline) for `failover_after`: the next
+    /// broker, as Sparkplug 3.0 has a node do (its host may be on another server).
+    fn held_on_this_broker(&mut self, held: bool, now: Instant) {
+        if !held || !self.shell.outbox.is_connected() {
+            self.held_since = None;
+            return;
+        }
+        let since = *self.held_since.get_or_insert(now);
+        let servers = self.task.config.servers().len();
+        if servers > 1 && now.saturating_duration_since(since) >= self.task.config.failover_after {
+            self.held_since = None;
+            self.move_on("held on this broker for mqtt.failover_after (its primary host is offline here)");
+        }
+    }
+
+    /// Logs what the dialer decided.
+    fn say(&self, said: &Said) {
+        let output = &self.task.name;
+        match said {
+            Said::Fallback { broker, to } => tracing::warn!(%output, %broker, "the broker did not answer this protocol's CONNECT (refused, closed or silent): trying {to} next (mqtt.protocol = \"auto\")"),
+            Said::Speaks { broker, protocol } => tracing::info!(%output, %broker, "the broker speaks {protocol}: connected with it (mqtt.protocol = \"auto\")"),
+            Said::MovedOn { from, to, why } => tracing::warn!(%output, "moving from broker {from} to {to}: {why}; what is spooled goes there, in order"),
+            Said::TlsReloaded => tracing::info!(%output, "TLS files changed: the next connection uses them"),
+            Said::TlsRefused(e) => tracing::error!(%output, "the changed TLS files do not load ({e}): the previous ones stay in use"),
+        }
     }
 
     /// Every second: a connection that takes messages but acknowledges none is rebuilt (what
@@ -582,6 +652,7 @@ impl Publisher<'_> {
         self.task.heart.set_up(up);
         let held = self.stage.held();
         self.task.heart.set_held(held.clone());
+        self.held_on_this_broker(held.is_some(), now);
         let outbox = &self.shell.outbox;
         let spool = outbox.store();
         let chatter = outbox.chatter();
@@ -668,7 +739,9 @@ async fn due(timer: &mut Option<Pin<Box<tokio::time::Sleep>>>) {
 
 /// What a fresh client is built from, and what it announces.
 struct Connection {
-    options: Options,
+    /// Which broker, protocol and TLS files the next connection uses.
+    dialer: Dialer,
+    /// The broker of the current (or next) connection, as logs name it.
     broker: String,
     client_id: String,
     /// Subscribe to command topics (the voice's, with `mqtt.commands`).

@@ -70,7 +70,7 @@ pub struct Settings<'a> {
 impl Options {
     pub fn new(s: Settings<'_>) -> Options {
         match s.protocol {
-            MqttProtocol::V5 => {
+            MqttProtocol::V5 | MqttProtocol::Auto => {
                 let mut o = v5::MqttOptions::new(s.client_id, s.host, s.port);
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(Some(s.max_incoming));
