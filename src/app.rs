@@ -70,7 +70,15 @@ pub async fn run_with_reloads(
     let router = tokio::spawn(router.run(incoming_rx));
 
     let (controls_tx, mut controls) = unbounded_channel();
-    let north = Northbound::start(&config, &health, &metrics, (incoming_tx, controls_tx), out_rx, &shutdown).await;
+    let north = Northbound::start(
+        &config,
+        &health,
+        &metrics,
+        (incoming_tx, controls_tx),
+        out_rx,
+        &shutdown,
+    )
+    .await;
 
     let mut current = config;
     let mut ended = Ended::Stopped;

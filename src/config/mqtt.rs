@@ -90,7 +90,12 @@ pub(crate) fn overlay(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
         m.failover = list.collect();
         moved = true;
     }
-    if let Some(v) = t.duration_within("failover_after", Duration::from_secs(1), MAX_FAILOVER_AFTER, errs) {
+    if let Some(v) = t.duration_within(
+        "failover_after",
+        Duration::from_secs(1),
+        MAX_FAILOVER_AFTER,
+        errs,
+    ) {
         m.failover_after = v;
     }
     if let Some(v) = t.opt("client_id", errs) {
@@ -127,13 +132,22 @@ fn hosts(t: &mut Table<'_>, errs: &mut Errors) -> Option<Vec<(String, u16)>> {
     let list = t.opt::<Vec<String>>("hosts", errs)?;
     let mut out = Vec::new();
     if list.is_empty() || list.len() > MAX_HOSTS {
-        errs.push(&path, t.origin(), format!("1 to {MAX_HOSTS} brokers, as \"HOST:PORT\""));
+        errs.push(
+            &path,
+            t.origin(),
+            format!("1 to {MAX_HOSTS} brokers, as \"HOST:PORT\""),
+        );
         return None;
     }
     for entry in &list {
         let parsed = entry
             .rsplit_once(':')
-            .and_then(|(h, p)| Some((h.trim_start_matches('[').trim_end_matches(']'), p.parse::<u16>().ok()?)))
+            .and_then(|(h, p)| {
+                Some((
+                    h.trim_start_matches('[').trim_end_matches(']'),
+                    p.parse::<u16>().ok()?,
+                ))
+            })
             .filter(|(h, p)| !h.is_empty() && *p > 0);
         match parsed {
             Some((h, p)) if !out.contains(&(h.to_string(), p)) => out.push((h.to_string(), p)),

@@ -42,9 +42,16 @@ pub enum Said {
     /// The broker did not take MQTT 5: the next attempt speaks 3.1.1 (or the other way).
     Fallback { broker: String, to: &'static str },
     /// Connected with `auto`: the broker speaks this one.
-    Speaks { broker: String, protocol: &'static str },
+    Speaks {
+        broker: String,
+        protocol: &'static str,
+    },
     /// The connection failed for long enough (or the host asked): the next broker.
-    MovedOn { from: String, to: String, why: String },
+    MovedOn {
+        from: String,
+        to: String,
+        why: String,
+    },
     /// The TLS files changed and load: the next connection uses them.
     TlsReloaded,
     /// The TLS files changed but do not load: the previous ones are kept.
@@ -232,7 +239,11 @@ fn build(
 /// When each TLS file was last changed (none: no TLS).
 fn tls_stamps(config: &Mqtt) -> Option<Vec<Option<SystemTime>>> {
     let tls = config.tls.as_ref()?;
-    let files = [Some(&tls.ca_file), tls.cert_file.as_ref(), tls.key_file.as_ref()];
+    let files = [
+        Some(&tls.ca_file),
+        tls.cert_file.as_ref(),
+        tls.key_file.as_ref(),
+    ];
     Some(
         files
             .into_iter()

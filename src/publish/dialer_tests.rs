@@ -26,7 +26,16 @@ fn auto_speaks_mqtt_5_first_and_3_1_1_after_a_broker_that_never_answered_it() {
     let mut d = Dialer::new(&config("")).unwrap();
     assert_eq!(wire_of(&d), Wire::V5);
     let said = d.failed(&silent(), Instant::now());
-    assert!(matches!(said[0], Said::Fallback { to: "MQTT 3.1.1", .. }), "{said:?}");
+    assert!(
+        matches!(
+            said[0],
+            Said::Fallback {
+                to: "MQTT 3.1.1",
+                ..
+            }
+        ),
+        "{said:?}"
+    );
     assert_eq!(wire_of(&d), Wire::V311);
     assert!(matches!(d.options(), Options::V311(_)));
     assert_eq!(
@@ -48,7 +57,10 @@ fn a_broker_that_refuses_the_connection_is_down_not_of_another_protocol() {
     assert!(d.failed(&refused, Instant::now()).is_empty());
     assert_eq!(wire_of(&d), Wire::V5);
     let mut d = Dialer::new(&config("")).unwrap();
-    assert!(!d.failed(&Failure::ProtocolRefused, Instant::now()).is_empty());
+    assert!(
+        !d.failed(&Failure::ProtocolRefused, Instant::now())
+            .is_empty()
+    );
     assert_eq!(wire_of(&d), Wire::V311, "CONNACK 0x01/0x84: 3.1.1 next");
 }
 
@@ -57,7 +69,11 @@ fn a_pinned_protocol_is_never_changed() {
     let mut d = Dialer::new(&config("protocol = \"5\"")).unwrap();
     assert!(d.failed(&silent(), Instant::now()).is_empty());
     assert_eq!(wire_of(&d), Wire::V5);
-    assert_eq!(d.connected(), None, "nothing to say about a pinned protocol");
+    assert_eq!(
+        d.connected(),
+        None,
+        "nothing to say about a pinned protocol"
+    );
 }
 
 #[test]
@@ -71,12 +87,18 @@ fn the_next_broker_after_failing_for_failover_after_and_round_robin() {
     assert!(d.failed(&silent(), t0).is_empty());
     assert!(d.failed(&silent(), t0 + Duration::from_secs(29)).is_empty());
     let said = d.failed(&silent(), t0 + Duration::from_secs(30));
-    assert!(matches!(&said[0], Said::MovedOn { to, .. } if to == "b:1884"), "{said:?}");
+    assert!(
+        matches!(&said[0], Said::MovedOn { to, .. } if to == "b:1884"),
+        "{said:?}"
+    );
     assert_eq!(d.broker(), "b:1884");
     // b fails for its own 30 s before the round comes back to a.
     assert!(d.failed(&silent(), t0 + Duration::from_secs(45)).is_empty());
     let said = d.failed(&silent(), t0 + Duration::from_secs(61));
-    assert!(matches!(&said[0], Said::MovedOn { to, .. } if to == "a:1883"), "{said:?}");
+    assert!(
+        matches!(&said[0], Said::MovedOn { to, .. } if to == "a:1883"),
+        "{said:?}"
+    );
 }
 
 #[test]

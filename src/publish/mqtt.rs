@@ -29,9 +29,9 @@ use tokio::sync::mpsc::{Sender, UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
+use super::dialer::{Dialer, Said};
 use super::format::{Control, Format, Stage};
 use super::poller::{Polled, Poller, Routes};
-use super::dialer::{Dialer, Said};
 use super::session::{Client, Event, EventLoop, Failure, Options};
 use super::spool::Spool;
 use crate::config::{Config, Mqtt};
@@ -249,6 +249,7 @@ pub async fn run(
         batch_due: None,
         checkpoints: Vec::new(),
         held_since: None,
+        certificates_at: Instant::now(),
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -330,11 +331,14 @@ struct Publisher<'t> {
     checkpoints: Vec<PendingCheckpoint>,
     /// Held (a format's hold) on this connection since then.
     held_since: Option<Instant>,
+    /// When the certificates were last looked at.
+    certificates_at: Instant,
 }
 
 impl Publisher<'_> {
     /// The formats' subscriptions (renewed at every connection) and what they publish first.
     fn start(&mut self) {
+        self.check_certificates();
         self.shell.extra_filters = self.stage.subscriptions();
         for m in self.stage.start() {
             self.shell.queue(m);
@@ -360,6 +364,8 @@ impl Publisher<'_> {
                         self.shell.queue(m);
                     }
                     self.pump();
+                    // SIGHUP reads the TLS files again too (the next connection uses them).
+                    self.refresh_tls();
                 }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
@@ -544,7 +550,9 @@ impl Publisher<'_> {
         self.say(&said);
         self.link.broker = self.link.dialer.broker();
         self.task.heart.set_up(false);
-        let eventloop = self.shell.on_lost(self.link.dialer.options(), &mut self.stage);
+        let eventloop = self
+            .shell
+            .on_lost(self.link.dialer.options(), &mut self.stage);
         self.poller = Poller::start(eventloop, Duration::ZERO, self.routes.clone());
         self.settle(Instant::now());
     }
@@ -593,7 +601,9 @@ impl Publisher<'_> {
             self.say(&said);
         }
         self.link.broker = self.link.dialer.broker();
-        let eventloop = self.shell.on_lost(self.link.dialer.options(), &mut self.stage);
+        let eventloop = self
+            .shell
+            .on_lost(self.link.dialer.options(), &mut self.stage);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
         self.settle(Instant::now());
     }
@@ -609,19 +619,68 @@ impl Publisher<'_> {
         let servers = self.task.config.servers().len();
         if servers > 1 && now.saturating_duration_since(since) >= self.task.config.failover_after {
             self.held_since = None;
-            self.move_on("held on this broker for mqtt.failover_after (its primary host is offline here)");
+            self.move_on(
+                "held on this broker for mqtt.failover_after (its primary host is offline here)",
+            );
         }
+    }
+
+    /// The TLS files read again when they changed (logged; a set that does not load keeps the
+    /// one in use).
+    fn refresh_tls(&mut self) {
+        if let Some(said) = self.link.dialer.rebuild() {
+            self.say(&said);
+        }
+    }
+
+    /// The expiry of this connection's certificates, as metrics; a warning in the log and the
+    /// status within [`EXPIRY_WARNING`] of it (or after it).
+    fn check_certificates(&self) {
+        let now = crate::reading::unix_ms(std::time::SystemTime::now()) as i64 / 1000;
+        let mut soon = Vec::new();
+        for file in self.link.dialer.tls_files() {
+            let shown = file.display().to_string();
+            match crate::config::tls::expiry(&file) {
+                Ok(at) => {
+                    self.task.metrics.tls_expiry(&shown, at);
+                    let days = (at - now) / 86_400;
+                    if at - now < EXPIRY_WARNING.as_secs() as i64 {
+                        soon.push(format!("TLS certificate {shown} expires in {days} days"));
+                    }
+                }
+                Err(e) => {
+                    tracing::warn!(output = %self.task.name, "cannot read the expiry of {shown}: {e}")
+                }
+            }
+        }
+        for s in &soon {
+            tracing::warn!(output = %self.task.name, "{s}: renew it (the gateway reads new files at its next connection)");
+        }
+        self.task
+            .heart
+            .set_note((!soon.is_empty()).then(|| soon.join(", ")));
     }
 
     /// Logs what the dialer decided.
     fn say(&self, said: &Said) {
         let output = &self.task.name;
         match said {
-            Said::Fallback { broker, to } => tracing::warn!(%output, %broker, "the broker did not answer this protocol's CONNECT (refused, closed or silent): trying {to} next (mqtt.protocol = \"auto\")"),
-            Said::Speaks { broker, protocol } => tracing::info!(%output, %broker, "the broker speaks {protocol}: connected with it (mqtt.protocol = \"auto\")"),
-            Said::MovedOn { from, to, why } => tracing::warn!(%output, "moving from broker {from} to {to}: {why}; what is spooled goes there, in order"),
-            Said::TlsReloaded => tracing::info!(%output, "TLS files changed: the next connection uses them"),
-            Said::TlsRefused(e) => tracing::error!(%output, "the changed TLS files do not load ({e}): the previous ones stay in use"),
+            Said::Fallback { broker, to } => {
+                tracing::warn!(%output, %broker, "the broker did not answer this protocol's CONNECT (refused, closed or silent): trying {to} next (mqtt.protocol = \"auto\")")
+            }
+            Said::Speaks { broker, protocol } => {
+                tracing::info!(%output, %broker, "the broker speaks {protocol}: connected with it (mqtt.protocol = \"auto\")")
+            }
+            Said::MovedOn { from, to, why } => {
+                tracing::warn!(%output, "moving from broker {from} to {to}: {why}; what is spooled goes there, in order")
+            }
+            Said::TlsReloaded => {
+                tracing::info!(%output, "TLS files changed: the next connection uses them");
+                self.check_certificates();
+            }
+            Said::TlsRefused(e) => {
+                tracing::error!(%output, "the changed TLS files do not load ({e}): the previous ones stay in use")
+            }
         }
     }
 
@@ -629,6 +688,11 @@ impl Publisher<'_> {
     /// rumqttc does after a packet-id collision); the formats' put-off work; checkpoints the
     /// broker left waiting; health and metrics.
     fn beat(&mut self, now: Instant) {
+        if now.saturating_duration_since(self.certificates_at) >= CERTIFICATE_CHECK {
+            self.certificates_at = now;
+            self.refresh_tls();
+            self.check_certificates();
+        }
         let outbox = &self.shell.outbox;
         if outbox.stalled(now, self.stall_after) {
             tracing::warn!(
@@ -717,6 +781,12 @@ impl Publisher<'_> {
         let _ = tokio::join!(self.poller.finish(Duration::from_secs(1)), synced);
     }
 }
+
+/// How long before a certificate expires the log and the status warn of it.
+const EXPIRY_WARNING: Duration = Duration::from_secs(30 * 86_400);
+
+/// How often certificates are looked at again (their files, and the time left).
+const CERTIFICATE_CHECK: Duration = Duration::from_secs(3600);
 
 /// How long a checkpoint waits for the broker's acknowledgements before what they cover is
 /// fsynced in the spool instead (checked at the beat, so up to a second more).

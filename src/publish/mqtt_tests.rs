@@ -148,6 +148,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         batch_due: None,
         checkpoints: Vec::new(),
         held_since: None,
+        certificates_at: tokio::time::Instant::now(),
     };
     (p, reports, eventloop)
 }

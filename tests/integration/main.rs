@@ -12,6 +12,7 @@ mod dashboards;
 mod edges;
 mod edges_local;
 mod faults;
+mod fleet;
 mod format_seam;
 mod hostile;
 mod local_socket;

@@ -228,14 +228,12 @@ impl Node {
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
         self.born = true;
         self.rewind = None;
-        let mut metrics = vec![
-            Metric::new(
-                BD_SEQ,
-                None,
-                datatype::INT64,
-                Some(Value::Long(self.bd_seq.into())),
-            ),
-        ];
+        let mut metrics = vec![Metric::new(
+            BD_SEQ,
+            None,
+            datatype::INT64,
+            Some(Value::Long(self.bd_seq.into())),
+        )];
         for control in super::command::NODE_CONTROLS {
             let off = Some(Value::Boolean(false));
             metrics.push(Metric::new(control, None, datatype::BOOLEAN, off));
