@@ -57,6 +57,7 @@ pub async fn run_with_reloads(
         None => Metrics::disabled(),
     };
     let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
+    metrics.config(&config.hash());
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
     for bus in config.buses.iter().filter(|b| b.enabled) {
@@ -282,6 +283,7 @@ fn start_output(
         voice,
         answers: w.answers.clone(),
         controls: w.controls.clone(),
+        config_hash: config.hash(),
     };
     let task = tokio::spawn(crate::publish::mqtt::run(
         task,

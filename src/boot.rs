@@ -65,13 +65,16 @@ impl Boot {
         crate::state::sync_dir(state_dir)
     }
 
-    /// The retained marker this run publishes on `<root>/gateway`.
-    pub fn marker(&self, client_id: &str) -> String {
+    /// The retained marker this run publishes on `<root>/gateway`, with the hash of the config
+    /// in force (`Config::hash`).
+    pub fn marker(&self, client_id: &str, config: &str) -> String {
         serde_json::json!({
             "boot": self.id,
             "host": crate::config::host_name_raw(),
             "pid": std::process::id(),
             "client_id": client_id,
+            "config": config,
+            "version": env!("CARGO_PKG_VERSION"),
         })
         .to_string()
     }

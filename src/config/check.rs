@@ -65,6 +65,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         }
     }
     let outputs = super::outputs::read(&mut root, legacy, &mqtt, &gateway.id, errs);
+    let remote = super::remote::read(root.table("remote", errs), errs);
     root.finish(errs);
 
     // Device names become topic levels, so they are unique across the gateway.
@@ -88,6 +89,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         metrics,
         buses,
         outputs,
+        remote,
     })
 }
 

@@ -35,6 +35,8 @@ pub struct Config {
     pub buses: Vec<Bus>,
     /// `[outputs]` (or `mqtt.format`): where readings go, and their formats' settings.
     pub outputs: Outputs,
+    /// `[remote]`: config pushed from the broker.
+    pub remote: super::remote::Remote,
 }
 
 /// `[gateway]`

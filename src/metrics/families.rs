@@ -41,6 +41,7 @@ pub(super) struct Families {
     pub mqtt_held: IntGaugeVec,
     pub output_events: IntCounterVec,
     pub tls_expiry: IntGaugeVec,
+    pub config_info: IntGaugeVec,
     pub spool_messages: IntGaugeVec,
     pub spool_bytes: IntGaugeVec,
     pub spool_dropped: IntCounterVec,
@@ -158,6 +159,10 @@ const MQTT_HELD: Family = (
 const OUTPUT_EVENTS: Family = (
     "pulsegate_output_protocol_events_total",
     "Events of an output's protocol, by name: STATE messages of a host ignored (stale or malformed), rebirths asked for and done.",
+);
+const CONFIG_INFO: Family = (
+    "pulsegate_config_info",
+    "Always 1; the hash of the config in force is a label (the same config, the same hash at every start).",
 );
 const TLS_EXPIRY: Family = (
     "pulsegate_tls_certificate_expiry_timestamp_seconds",
@@ -279,6 +284,7 @@ impl Families {
             mqtt_held: family!(r, IntGaugeVec, MQTT_HELD, OUTPUT),
             output_events: family!(r, IntCounterVec, OUTPUT_EVENTS, &["output", "event"]),
             tls_expiry: family!(r, IntGaugeVec, TLS_EXPIRY, &["output", "file"]),
+            config_info: family!(r, IntGaugeVec, CONFIG_INFO, &["hash"]),
             spool_messages: family!(r, IntGaugeVec, SPOOL_MESSAGES, OUTPUT),
             spool_bytes: family!(r, IntGaugeVec, SPOOL_BYTES, OUTPUT),
             spool_dropped: family!(r, IntCounterVec, SPOOL_DROPPED, OUTPUT),

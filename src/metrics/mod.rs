@@ -80,6 +80,14 @@ impl Metrics {
         }
     }
 
+    /// The config in force is the one with `hash`: `pulsegate_config_info{hash} 1`, alone.
+    pub fn config(&self, hash: &str) {
+        if let Some(e) = &self.inner {
+            e.families.config_info.reset();
+            e.families.config_info.with_label_values(&[hash]).set(1);
+        }
+    }
+
     /// The handles of one output's connection (`output` label: its name, or `gateway` for the
     /// gateway's own connection).
     pub fn output(&self, name: &str) -> OutputMetrics {

@@ -138,7 +138,7 @@ impl Shell {
             // before ours replaces it.
             let marker = self.topics.gateway_marker();
             self.subscribe(&marker);
-            let boot = link.boot.marker(&link.client_id);
+            let boot = link.boot.marker(&link.client_id, &link.config_hash);
             self.publish_direct(Message::new(marker, boot, 1, true));
         }
         for m in stage.connected() {
@@ -191,6 +191,8 @@ pub struct Task {
     pub answers: UnboundedSender<Output>,
     /// What its protocol asks of the gateway (a reboot).
     pub controls: UnboundedSender<Control>,
+    /// The hash of the config in force (`Config::hash`), in the boot marker.
+    pub config_hash: String,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -234,6 +236,7 @@ pub async fn run(
         commands: task.voice && task.config.commands,
         voice: task.voice,
         boot: task.boot.clone(),
+        config_hash: task.config_hash.clone(),
     };
     let mut publisher = Publisher {
         stage,
@@ -366,6 +369,7 @@ impl Publisher<'_> {
                     self.pump();
                     // SIGHUP reads the TLS files again too (the next connection uses them).
                     self.refresh_tls();
+                    self.new_config_hash(config.hash());
                 }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
@@ -625,6 +629,23 @@ impl Publisher<'_> {
         }
     }
 
+    /// A config with another hash is in force: the boot marker says so at once.
+    fn new_config_hash(&mut self, hash: String) {
+        if hash == self.link.config_hash {
+            return;
+        }
+        self.link.config_hash = hash;
+        if self.link.voice && self.shell.outbox.is_connected() {
+            let marker = self.shell.topics.gateway_marker();
+            let boot = self
+                .link
+                .boot
+                .marker(&self.link.client_id, &self.link.config_hash);
+            self.shell
+                .publish_direct(Message::new(marker, boot, 1, true));
+        }
+    }
+
     /// The TLS files read again when they changed (logged; a set that does not load keeps the
     /// one in use).
     fn refresh_tls(&mut self) {
@@ -820,6 +841,8 @@ struct Connection {
     voice: bool,
     /// This run's boot id, published retained on `<root>/gateway`.
     boot: crate::boot::Boot,
+    /// The hash of the config in force, in that marker.
+    config_hash: String,
 }
 
 /// Logs of the connection: once per state change, takeovers at most once a minute.

@@ -106,6 +106,7 @@ fn task(name: &str) -> Task {
         voice: true,
         answers: tokio::sync::mpsc::unbounded_channel().0,
         controls: tokio::sync::mpsc::unbounded_channel().0,
+        config_hash: String::new(),
     }
 }
 
@@ -125,6 +126,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         commands: true,
         voice: true,
         boot: task.boot.clone(),
+        config_hash: String::new(),
     };
     let (router, _) = tokio::sync::mpsc::channel(1);
     let p = Publisher {

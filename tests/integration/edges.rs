@@ -214,7 +214,12 @@ async fn a_broker_that_refuses_mqtt_5_is_named_with_the_setting_that_fixes_it() 
     let hint = "set mqtt.protocol = \"3.1.1\"";
     for (name, port) in [("refuses-v5-gate", gate.port), ("refuses-v5-old", old)] {
         let dir = temp_dir(name);
-        let text = one_meter_toml(&plant, port, &dir, "");
+        // Pinned to MQTT 5 (the default, "auto", would try 3.1.1 next: tests/integration/fleet.rs).
+        let text = one_meter_toml(&plant, port, &dir, "").replacen(
+            "[mqtt]\n",
+            "[mqtt]\nprotocol = \"5\"\n",
+            1,
+        );
         let sock_path = dir.join("notify.sock");
         let sock = std::os::unix::net::UnixDatagram::bind(&sock_path).unwrap();
         sock.set_read_timeout(Some(Duration::from_millis(200)))

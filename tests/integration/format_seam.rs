@@ -57,6 +57,7 @@ fn run_toy(port: u16, dir: &std::path::Path, stop: std::sync::mpsc::Receiver<()>
             voice: false,
             answers: tokio::sync::mpsc::unbounded_channel().0,
             controls: tokio::sync::mpsc::unbounded_channel().0,
+            config_hash: String::new(),
         };
         let (_out, output) = tokio::sync::mpsc::unbounded_channel();
         let (incoming, _commands) = tokio::sync::mpsc::channel(8);

@@ -78,6 +78,7 @@ fn setup(config: &Config, output: &OutputConfig) -> Setup {
         commands: crate::topics::Topics::new(&config.mqtt.topic_root),
         output: output.name.as_str().into(),
         takes_commands: output.mqtt.commands,
+        config_hash: config.hash(),
         primary_host: host,
         qos: output.mqtt.qos,
         devices: shapes(config, output.mqtt.commands),
@@ -143,8 +144,13 @@ impl Format for Sparkplug {
     /// Devices or channels changed: the node is born again with them (same session and bdSeq).
     fn reload(&mut self, config: &Config) -> Vec<Message> {
         let fresh = setup(config, &self.output);
+        let hash_moved = self.node.set_config_hash(fresh.config_hash);
         if fresh.devices == self.devices {
-            return Vec::new();
+            return if hash_moved {
+                self.node.rebirth(now_ms())
+            } else {
+                Vec::new()
+            };
         }
         self.devices = fresh.devices.clone();
         self.node.reshape(fresh.devices, now_ms())

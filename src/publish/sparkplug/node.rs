@@ -26,6 +26,9 @@ use crate::reading::{Output, Reading};
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.
 pub const BD_SEQ: &str = "bdSeq";
 
+/// The NBIRTH metric that says which config the gateway runs (`Config::hash`).
+pub const CONFIG_HASH: &str = "Properties/Config Hash";
+
 /// The node metrics that answer a host's command (in the NBIRTH when the node takes commands;
 /// an NDATA sets all four for each command answered): the device and metric it wrote, `ok`
 /// or the refusal's code, and what a person reads.
@@ -67,6 +70,8 @@ pub struct Setup {
     /// The output takes commands (`commands` of its connection): the births declare the
     /// writable metrics and the answer metrics.
     pub takes_commands: bool,
+    /// The hash of the config in force, a node property of the NBIRTH ([`CONFIG_HASH`]).
+    pub config_hash: String,
     pub primary_host: Option<String>,
     /// QoS of births and data (the will is QoS 1).
     pub qos: u8,
@@ -131,6 +136,20 @@ impl Node {
         }
     }
 
+    /// Another config is in force (the next NBIRTH says so); whether it changed.
+    pub fn set_config_hash(&mut self, hash: String) -> bool {
+        hash != std::mem::replace(&mut self.setup.config_hash, hash.clone())
+    }
+
+    /// Every birth again now, when the node is born (its description changed).
+    pub fn rebirth(&mut self, now_ms: u64) -> Vec<Message> {
+        if self.connected && self.born {
+            self.births_queued(now_ms)
+        } else {
+            Vec::new()
+        }
+    }
+
     /// The devices or their channels changed (a reload): the node describes the new ones, with
     /// a rebirth when it is born.
     pub fn reshape(
@@ -151,7 +170,7 @@ impl Node {
         }
         self.setup.devices = devices;
         if self.connected && self.born {
-            self.births(now_ms)
+            self.births_queued(now_ms)
         } else {
             Vec::new()
         }
@@ -224,8 +243,21 @@ impl Node {
         }
     }
 
-    /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0.
+    /// NBIRTH and the DBIRTH of every device not known to be offline, numbered from 0: births
+    /// that go straight to the wire (at a connection, the primary host back), ahead of what the
+    /// outbox holds.
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
+        self.birth_set(now_ms, true)
+    }
+
+    /// The same births for the outbox, behind what it holds: numbered when they leave
+    /// ([`Node::outgoing`]), not now (messages made before them are still to be numbered: a
+    /// number taken now would be on the wire after theirs).
+    fn births_queued(&mut self, now_ms: u64) -> Vec<Message> {
+        self.birth_set(now_ms, false)
+    }
+
+    fn birth_set(&mut self, now_ms: u64, numbered: bool) -> Vec<Message> {
         self.born = true;
         self.rewind = None;
         let mut metrics = vec![Metric::new(
@@ -238,6 +270,8 @@ impl Node {
             let off = Some(Value::Boolean(false));
             metrics.push(Metric::new(control, None, datatype::BOOLEAN, off));
         }
+        let hash = Some(Value::String(self.setup.config_hash.clone()));
+        metrics.push(Metric::new(CONFIG_HASH, None, datatype::STRING, hash));
         if self.setup.takes_commands {
             for name in ANSWER {
                 let empty = Some(Value::String(String::new()));
@@ -247,22 +281,23 @@ impl Node {
         let payload = Payload {
             timestamp: Some(now_ms),
             metrics,
-            seq: Some(self.number(Kind::NBirth)),
+            seq: numbered.then(|| self.number(Kind::NBirth)),
             ..Payload::default()
         };
         let mut out = vec![self.message(self.setup.topics.node(Kind::NBirth), &payload)];
         let names: Vec<String> = self.devices.keys().cloned().collect();
         for name in names {
             if self.devices[&name].status != Status::Offline {
-                let mut m = self.device_birth(&name, now_ms);
+                let mut m = self.device_birth(&name, now_ms, numbered);
                 out.append(&mut m);
             }
         }
         out
     }
 
-    /// The DBIRTH of `device` (numbered now: births go straight to the wire).
-    fn device_birth(&mut self, device: &str, now_ms: u64) -> Vec<Message> {
+    /// The DBIRTH of `device`: numbered now when it goes straight to the wire with the
+    /// NBIRTH, else when it leaves the outbox.
+    fn device_birth(&mut self, device: &str, now_ms: u64, numbered: bool) -> Vec<Message> {
         let Some(d) = self.devices.get_mut(device) else {
             return Vec::new();
         };
@@ -271,7 +306,7 @@ impl Node {
         let payload = Payload {
             timestamp: Some(now_ms),
             metrics,
-            seq: Some(self.number(Kind::DBirth)),
+            seq: numbered.then(|| self.number(Kind::DBirth)),
             ..Payload::default()
         };
         let topic = self.setup.topics.device(Kind::DBirth, device);
@@ -343,7 +378,7 @@ impl Node {
         };
         d.status = Status::Online;
         if self.connected && self.born && d.declared.is_none() {
-            self.device_birth(device, now_ms)
+            self.device_birth(device, now_ms, false)
         } else {
             Vec::new()
         }
@@ -502,7 +537,7 @@ impl Node {
                 requests = self.rebirths.requested,
                 "Sparkplug rebirth for the host's requests of the last seconds"
             );
-            return self.births(now_ms);
+            return self.births_queued(now_ms);
         }
         Vec::new()
     }
@@ -586,7 +621,7 @@ impl Node {
         }
         if asked.rebirth && self.connected && self.host_online && self.rebirths.request(now_ms) {
             tracing::info!("Sparkplug host asked for a rebirth");
-            r.messages = self.births(now_ms);
+            r.messages = self.births_queued(now_ms);
         }
         r
     }

@@ -23,6 +23,7 @@ fn setup(host: Option<&str>) -> Setup {
         commands: crate::topics::Topics::new("pg/e1"),
         output: "sparkplug".into(),
         takes_commands: true,
+        config_hash: "0123456789abcdef".into(),
         primary_host: host.map(str::to_string),
         qos: 1,
         devices: vec![
@@ -553,4 +554,45 @@ fn the_readings_of_one_poll_are_one_ddata() {
     let p = decode(&out[0]);
     assert!(value_of(&p, "a0/Total").is_some() && value_of(&p, "enc0/Total").is_some());
     assert_eq!(p.timestamp, Some(9));
+}
+
+/// A rebirth asked for while readings wait in the outbox goes behind them: the readings are
+/// numbered on as before, then the NBIRTH starts at 0 and the DBIRTHs follow it, with no gap
+/// and no number taken twice (a host that saw `seq` 3 right after 91 asked for a rebirth).
+#[test]
+fn a_rebirth_behind_waiting_readings_is_numbered_when_it_leaves() {
+    let mut node = Node::new(setup(None));
+    session(&mut node, 0);
+    let sent: Vec<Message> = (0..3)
+        .flat_map(|i| node.event(&Output::Reading(reading("press", "a0", i, 5 + i as u64)), 5))
+        .collect();
+    let on_the_wire: Vec<u64> = wire(&mut node, &sent, false)
+        .iter()
+        .map(|(_, p)| p.seq.unwrap())
+        .collect();
+    assert_eq!(on_the_wire, [3, 4, 5]);
+    let waiting: Vec<Message> = (0..5)
+        .flat_map(|i| {
+            node.event(
+                &Output::Reading(reading("press", "a0", i, 10 + i as u64)),
+                10,
+            )
+        })
+        .collect();
+    let ask = dcmd(vec![Metric::new(
+        REBIRTH,
+        None,
+        datatype::BOOLEAN,
+        Some(Value::Boolean(true)),
+    )]);
+    let births = node.received("spBv1.0/plant/NCMD/e1", &ask, 99).messages;
+    let after = node.event(&Output::Reading(reading("press", "a0", 9, 100)), 100);
+    let mut all = waiting;
+    all.extend(births);
+    all.extend(after);
+    let seqs: Vec<u64> = wire(&mut node, &all, false)
+        .iter()
+        .map(|(_, p)| p.seq.unwrap())
+        .collect();
+    assert_eq!(seqs, [6, 7, 8, 9, 10, 0, 1, 2, 3]);
 }
