@@ -160,7 +160,11 @@ mod tests {
             correlation: None,
         };
         let line = serde_json::to_string(&entry).unwrap();
-        std::fs::write(planted.join("1.jsonl"), format!("{line}\n")).unwrap();
+        std::fs::write(
+            planted.join("00000000000000000001.jsonl"),
+            format!("{line}\n"),
+        )
+        .unwrap();
         assert_eq!(
             Spool::open(&planted, 1 << 20).unwrap().len(),
             1,
