@@ -644,6 +644,8 @@ impl Publisher<'_> {
             spool_bytes: spool.total_bytes(),
             spool_dropped: spool.dropped,
             spool_written: spool.written,
+            spool_write_failures: spool.write_failures(),
+            spool_unreadable_lines: spool.unreadable_lines(),
             chatter_waiting: chatter.len(),
             chatter_dropped: chatter.dropped,
         });
@@ -755,6 +757,8 @@ struct Watch {
     pause: Duration,
     /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
     protocol_named: bool,
+    /// This machine's previous run was recognised by its marker (said once).
+    earlier_run_named: bool,
 }
 
 impl Watch {
@@ -767,6 +771,7 @@ impl Watch {
             takeover_log: crate::log_budget::LogBudget::new(1),
             pause: Duration::from_secs(1),
             protocol_named: false,
+            earlier_run_named: false,
         }
     }
 
@@ -782,12 +787,21 @@ impl Watch {
         }
     }
 
-    /// A boot marker arrived: another gateway's is logged (within budget).
+    /// A boot marker arrived: another gateway's is logged (within budget); this machine's
+    /// previous run, which `boot.json` did not record, is said once as what it is.
     fn marker(&mut self, payload: &[u8], link: &Connection) {
-        if let Some(other) = link.boot.foreign(payload) {
-            let (log, _) = self.takeover_log.allow(Instant::now());
-            if log {
-                tracing::error!(other = %other, "another gateway publishes under this topic root (its boot marker is not ours): two gateways share gateway.id or mqtt.topic_root, so both receive each other's commands and, with one client id, take each other's MQTT session; give each gateway its own id");
+        match link.boot.judge(payload) {
+            crate::boot::Marker::Ours => {}
+            crate::boot::Marker::EarlierRun(earlier) => {
+                if !std::mem::replace(&mut self.earlier_run_named, true) {
+                    tracing::info!(earlier = %earlier, "the boot marker on the topic root is this machine's previous run (same host, its process is gone), which boot.json did not record: not another gateway");
+                }
+            }
+            crate::boot::Marker::Foreign(other) => {
+                let (log, _) = self.takeover_log.allow(Instant::now());
+                if log {
+                    tracing::error!(other = %other, "another gateway publishes under this topic root (its boot marker is not ours): two gateways share gateway.id or mqtt.topic_root, so both receive each other's commands and, with one client id, take each other's MQTT session; give each gateway its own id");
+                }
             }
         }
     }
