@@ -476,6 +476,63 @@ async fn process_cpu_per_tx(figures: &mut Vec<Figure>) {
     drop(plant);
 }
 
+/// CPU a transaction with JSON alone against JSON and Sparkplug B on two connections (two
+/// brokers), alternated in one window, three rounds each: the second output may cost less than
+/// half again the first.
+async fn two_outputs_cpu(figures: &mut Vec<Figure>) {
+    let (local, scada) = (Mosquitto::start(), Mosquitto::start());
+    let sim = tcp_plant(1, 50);
+    let plant = Plant::start(&sim).await.unwrap();
+    let two = format!(
+        "[outputs.json]\nkind = \"json\"\n[outputs.scada]\nkind = \"sparkplug\"\nport = {}\n\
+         [sparkplug]\ngroup_id = \"bench\"\n",
+        scada.1
+    );
+    let (mut alone, mut both) = (Vec::new(), Vec::new());
+    for round in 0..3 {
+        for (outputs, into) in [("", &mut alone), (two.as_str(), &mut both)] {
+            let dir = temp_dir(&format!("outputs-{round}-{}", into.len()));
+            let text = gateway_toml(
+                &plant,
+                &sim,
+                9600,
+                "1ms",
+                &dir,
+                &format!("port = {}", local.1),
+            )
+            .replace("stats_interval = \"1h\"", "stats_interval = \"5s\"")
+                + outputs;
+            let path = dir.join("g.toml");
+            std::fs::write(&path, text).unwrap();
+            let counts = subscribe_count(local.1, "pulsegate/bench/bus/hall0/stats");
+            let window = Duration::from_secs(10);
+            let (cpu, _, _) = measure_gateway(&path, Duration::from_secs(5), window).await;
+            let tx = counts.transactions_in(window).max(1);
+            into.push(cpu / tx as f64);
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (a, b) = (median(&mut alone), median(&mut both));
+    figures.push(Figure {
+        what: "CPU a transaction, JSON alone (median of 3)".into(),
+        value: format!("{:.1} us", a * 1e6),
+        target: "(the anchor of the next)".into(),
+        ratio: 1.0,
+        pass: true,
+    });
+    figures.push(Figure {
+        what: "CPU a transaction, JSON + Sparkplug, 2 connections".into(),
+        value: format!("{:.1} us", b * 1e6),
+        target: "< 1.5x JSON alone".into(),
+        ratio: b / a,
+        pass: b / a < 1.5,
+    });
+    drop(plant);
+}
+
 /// Stats messages seen on a topic, via mosquitto_sub (killed with the tap).
 struct StatsTap(std::sync::Arc<std::sync::Mutex<Vec<(Instant, u64)>>>, u32);
 
@@ -659,6 +716,9 @@ fn main() {
         }
         if want("command") {
             command_latency(&mut figures).await;
+        }
+        if want("outputs") {
+            two_outputs_cpu(&mut figures).await;
         }
         if want("thousand") {
             thousand_devices(&mut figures).await;

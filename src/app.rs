@@ -25,6 +25,20 @@ struct Running {
     scans: tokio::sync::mpsc::Sender<ScanRequest>,
 }
 
+/// How a run of the gateway ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ended {
+    /// Asked to stop (SIGTERM, SIGINT).
+    Stopped,
+    /// An output's protocol asked for a reboot (Sparkplug's `Node Control/Reboot`): the
+    /// process exits with [`REBOOT_STATUS`] after its orderly stop, so the service restarts it.
+    Reboot,
+}
+
+/// The exit status of a reboot: not 0 (systemd's `Restart=on-failure` restarts on it) and not
+/// 2, which `RestartPreventExitStatus=` keeps for a bad config. `EX_TEMPFAIL`.
+pub const REBOOT_STATUS: u8 = 75;
+
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
 /// applied: buses whose config did not change keep running with their counters; changed ones
 /// restart (their counter state goes through the state file); removed ones stop.
@@ -32,7 +46,7 @@ pub async fn run_with_reloads(
     config: Config,
     shutdown: CancellationToken,
     mut reloads: UnboundedReceiver<Config>,
-) {
+) -> Ended {
     let _state_lock = claim_state_dir(&config.gateway.state_dir).await;
     let health = Arc::new(Health::default());
     let (out_tx, out_rx) = unbounded_channel();
@@ -55,12 +69,27 @@ pub async fn run_with_reloads(
     *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
-    let north = Northbound::start(&config, &health, &metrics, incoming_tx, out_rx, &shutdown).await;
+    let (controls_tx, mut controls) = unbounded_channel();
+    let north = Northbound::start(
+        &config,
+        &health,
+        &metrics,
+        (incoming_tx, controls_tx),
+        out_rx,
+        &shutdown,
+    )
+    .await;
 
     let mut current = config;
+    let mut ended = Ended::Stopped;
     loop {
         tokio::select! {
             () = shutdown.cancelled() => break,
+            Some(crate::publish::format::Control::Reboot) = controls.recv() => {
+                tracing::warn!("rebooting as asked: an orderly stop (state saved), then exit status {REBOOT_STATUS} for the service to start the gateway again");
+                ended = Ended::Reboot;
+                shutdown.cancel();
+            }
             new = reloads.recv() => {
                 let Some(new) = new else {
                     shutdown.cancelled().await;
@@ -87,6 +116,7 @@ pub async fn run_with_reloads(
     if let Some(e) = endpoint {
         let _ = e.await;
     }
+    ended
 }
 
 /// The outputs and the fan-out that feeds them.
@@ -102,7 +132,10 @@ impl Northbound {
         config: &Config,
         health: &Arc<Health>,
         metrics: &Metrics,
-        incoming: tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
+        (incoming, controls): (
+            tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
+            UnboundedSender<crate::publish::format::Control>,
+        ),
         events: UnboundedReceiver<Output>,
         shutdown: &CancellationToken,
     ) -> Northbound {
@@ -117,6 +150,7 @@ impl Northbound {
             boot,
             answers,
             incoming,
+            controls,
             shutdown,
         };
         let outputs = start_outputs(config, &wiring);
@@ -160,6 +194,8 @@ struct Wiring<'a> {
     answers: UnboundedSender<Output>,
     /// The command router's bounded queue.
     incoming: tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
+    /// What the outputs' protocols ask of the gateway.
+    controls: UnboundedSender<crate::publish::format::Control>,
     shutdown: &'a CancellationToken,
 }
 
@@ -245,6 +281,7 @@ fn start_output(
         formats,
         voice,
         answers: w.answers.clone(),
+        controls: w.controls.clone(),
     };
     let task = tokio::spawn(crate::publish::mqtt::run(
         task,
@@ -312,9 +349,9 @@ async fn start_metrics(
 }
 
 /// Runs the gateway until `shutdown` (no reloads).
-pub async fn run(config: Config, shutdown: CancellationToken) {
+pub async fn run(config: Config, shutdown: CancellationToken) -> Ended {
     let (_keep, reloads) = unbounded_channel();
-    run_with_reloads(config, shutdown, reloads).await;
+    run_with_reloads(config, shutdown, reloads).await
 }
 
 fn start_bus(

@@ -26,6 +26,9 @@ pub struct Beat {
     problem: Mutex<Option<String>>,
     /// Why an output holds what it would publish (Sparkplug: its primary host is offline).
     held: Mutex<Option<String>>,
+    /// What the status line should say of the loop that is no fault yet (a certificate that
+    /// expires soon).
+    note: Mutex<Option<String>>,
     /// Milliseconds since the gateway started at which the loop went down, or was held;
     /// [`UP`] while it is up and not held.
     down_since_ms: AtomicU64,
@@ -84,6 +87,11 @@ impl Heart {
         *lock(&self.beat.problem) = problem;
     }
 
+    /// A warning for the status line that is no fault (yet); `None` to clear it.
+    pub fn set_note(&self, note: Option<String>) {
+        *lock(&self.beat.note) = note;
+    }
+
     /// The output holds what it would publish, and why; `None` when it no longer does.
     pub fn set_held(&self, why: Option<String>) {
         *lock(&self.beat.held) = why;
@@ -116,6 +124,7 @@ impl Health {
             started: AtomicBool::new(false),
             problem: Mutex::new(None),
             held: Mutex::new(None),
+            note: Mutex::new(None),
             down_since_ms: AtomicU64::new(now),
         });
         lock(&self.loops).insert(name.to_string(), beat.clone());
@@ -195,6 +204,9 @@ impl Health {
             }
             if let Some(h) = lock(&b.held).as_ref() {
                 line += &format!("; {name} held: {h}");
+            }
+            if let Some(n) = lock(&b.note).as_ref() {
+                line += &format!("; {name}: {n}");
             }
             if name.starts_with("output/") && !b.up.load(Ordering::Relaxed) {
                 line += &format!("; {name} disconnected");

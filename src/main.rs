@@ -245,8 +245,10 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             if let Some(host) = &config.gateway.id_from_hostname {
                 tracing::warn!(hostname = %host, gateway = %config.gateway.id, "gateway.id is not set: using one derived from the hostname; set gateway.id to make it explicit");
             }
-            pulsegate::app::run_with_reloads(config, shutdown, reloads).await;
-            Ok(ExitCode::SUCCESS)
+            match pulsegate::app::run_with_reloads(config, shutdown, reloads).await {
+                pulsegate::app::Ended::Stopped => Ok(ExitCode::SUCCESS),
+                pulsegate::app::Ended::Reboot => Ok(ExitCode::from(pulsegate::app::REBOOT_STATUS)),
+            }
         }
         Command::State { config, action } => {
             let config = match load(&config) {

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use bytes::Bytes;
 
-use crate::config::{Config, MqttProtocol};
+use crate::config::Config;
 use crate::decimal::{Decimal, DecimalError};
 use crate::publish::session::{Event, EventLoop, Options};
 use crate::topics::Topics;
@@ -49,37 +49,13 @@ fn check(config: &Config, device: &str, channel: &str) -> Result<(), SetReadingE
     Ok(())
 }
 
-/// A client of its own (its own id, no will: it must never mark the gateway offline).
+/// A client of its own (its own id, no will: it must never mark the gateway offline), on the
+/// connection settings of the gateway's own voice (`[mqtt]`), built where every connection's
+/// are.
 fn options(config: &Config) -> Result<Options, SetReadingError> {
     let m = &config.mqtt;
-    let (host, transport) = crate::publish::mqtt::broker_transport(m)?;
     let id = format!("{}-set-reading-{}", m.client_id, std::process::id());
-    let login = m.username.clone().map(|u| {
-        let p = m.password.as_ref().map(|p| p.0.clone()).unwrap_or_default();
-        (u, p)
-    });
-    Ok(match m.protocol {
-        MqttProtocol::V5 => {
-            let mut o = rumqttc::v5::MqttOptions::new(id, host, m.port);
-            if let Some((u, p)) = login {
-                o.set_credentials(u, p);
-            }
-            if let Some(t) = transport {
-                o.set_transport(t);
-            }
-            Options::V5(o)
-        }
-        MqttProtocol::V311 => {
-            let mut o = rumqttc::MqttOptions::new(id, host, m.port);
-            if let Some((u, p)) = login {
-                o.set_credentials(u, p);
-            }
-            if let Some(t) = transport {
-                o.set_transport(t);
-            }
-            Options::V311(o)
-        }
-    })
+    Ok(crate::publish::session::client_options_as(m, &id)?)
 }
 
 /// Sends `set_reading` for `device`/`channel` with `value` (decimal text) and returns the

@@ -8,8 +8,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// What each part of `src/` may use, lowest floors first. A part is a top-level module, except
-/// that `driver::modbus` (the Modbus driver) is a part of its own: only the parts listed here
-/// may know Modbus. A part may always use itself. A new module needs a row (and a floor).
+/// that `driver::modbus` (the Modbus driver) and `driver::mbus` (the M-Bus protocol layer) are
+/// parts of their own: only the parts listed here may know Modbus or M-Bus. A part may always
+/// use itself. A new module needs a row (and a floor).
 const FLOORS: &[(&str, &[&str])] = &[
     // Vocabulary: pure values and rules used everywhere.
     ("topics", &[]),
@@ -103,6 +104,8 @@ const FLOORS: &[(&str, &[&str])] = &[
             "topics",
         ],
     ),
+    // The M-Bus protocol layer: pure frames and records, standing on nothing of ours.
+    ("driver::mbus", &[]),
     ("driver", &["bus", "config", "driver::modbus", "scan"]),
     // Commands in, messages out.
     (
@@ -395,6 +398,7 @@ fn resolve(
 fn part(module: &[String]) -> String {
     match module {
         [d, m, ..] if d == "driver" && m == "modbus" => "driver::modbus".into(),
+        [d, m, ..] if d == "driver" && m == "mbus" => "driver::mbus".into(),
         [] => "lib".into(),
         [top, ..] => top.clone(),
     }

@@ -3,7 +3,7 @@
 here, on Eclipse Tahu's protobuf): subscribes to spBv1.0/# on the test's broker and prints one
 JSON line per message, decoded the way a host decodes it (DDATA through the DBIRTH that
 declared its aliases). Reads commands from stdin, one JSON line each:
-  {"ncmd": "<group>/<node>", "rebirth": true}
+  {"ncmd": "<group>/<node>", "rebirth": true}   (or "reboot", "next_server": node controls)
   {"dcmd": "<group>/<node>/<device>", "metric": "a0/Clear", "type": "BOOLEAN", "value": true}
   {"state": "<host>", "online": true}      (a primary host's retained STATE, spec 3.0;
                                             "timestamp": ms to send another than now)
@@ -114,8 +114,13 @@ def command(client, line):
     count = cmd.get("count", 1)
     if "ncmd" in cmd:
         group, node = cmd["ncmd"].split("/")
-        metric = Metric(now, "Node Control/Rebirth", DataType.BOOLEAN, value=True)
-        payload = NCmd(now, (metric,)).encode(include_dtypes=True)
+        controls = {"rebirth": "Rebirth", "reboot": "Reboot", "next_server": "Next Server"}
+        metrics = tuple(
+            Metric(now, f"Node Control/{name}", DataType.BOOLEAN, value=True)
+            for key, name in controls.items()
+            if cmd.get(key)
+        )
+        payload = NCmd(now, metrics).encode(include_dtypes=True)
         for _ in range(count):
             client.publish(f"spBv1.0/{group}/NCMD/{node}", payload, qos=0)
     elif "dcmd" in cmd:

@@ -50,14 +50,26 @@ pub struct Mqtt {
     /// Subscribe to command topics at all (`false`: a read-only site, no clear or preset from
     /// MQTT whatever the devices say).
     pub commands: bool,
-    /// `mqtt.protocol`: "5" (default) or "3.1.1".
+    /// `mqtt.protocol`: "auto" (default: MQTT 5, else 3.1.1), "5" or "3.1.1".
     pub protocol: MqttProtocol,
+    /// `mqtt.hosts` after the first (which is `host`/`port`): the brokers to move to, round
+    /// robin, after the connection has failed for `failover_after`.
+    pub failover: Vec<(String, u16)>,
+    /// `mqtt.failover_after`: how long the connection may fail before the next broker is tried.
+    pub failover_after: Duration,
     /// `mqtt.batch`: how long readings may wait to go to the broker with the next polls' (see
     /// [`crate::publish::batch`]); zero sends each poll's at once.
     pub batch: Duration,
 }
 
 impl Mqtt {
+    /// Every broker this connection may use, in order: `host:port`, then the failover hosts.
+    pub fn servers(&self) -> Vec<(String, u16)> {
+        let mut all = vec![(self.host.clone(), self.port)];
+        all.extend(self.failover.iter().cloned());
+        all
+    }
+
     /// The broker as logs and status name it: the socket path, or `host:port`.
     pub fn broker(&self) -> String {
         match &self.socket {
@@ -70,7 +82,10 @@ impl Mqtt {
 /// The MQTT protocol version spoken to the broker.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum MqttProtocol {
+    /// MQTT 5 first; a broker that refuses it, or closes the connection without a CONNACK,
+    /// gets MQTT 3.1.1 next (and keeps it once it answered).
     #[default]
+    Auto,
     V5,
     /// For brokers that refuse v5 (Azure IoT Hub, older Mosquitto, some embedded brokers): no
     /// response topic or correlation data; everything else works the same.

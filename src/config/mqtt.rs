@@ -24,7 +24,9 @@ pub(crate) fn defaults(gateway_id: &str) -> Mqtt {
         topic_root: format!("pulsegate/{gateway_id}"),
         spool_bytes: 64 << 20,
         commands: true,
-        protocol: MqttProtocol::V5,
+        protocol: MqttProtocol::Auto,
+        failover: Vec::new(),
+        failover_after: DEFAULT_FAILOVER_AFTER,
         batch: DEFAULT_BATCH,
     }
 }
@@ -54,12 +56,13 @@ fn mqtt_or_credential(mut m: Mqtt) -> Mqtt {
 pub(crate) fn overlay(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
     if let Some(v) = t.opt::<String>("protocol", errs) {
         match v.as_str() {
+            "auto" => m.protocol = MqttProtocol::Auto,
             "5" => m.protocol = MqttProtocol::V5,
             "3.1.1" => m.protocol = MqttProtocol::V311,
             _ => errs.push(
                 &join(&t.path, "protocol"),
                 t.origin(),
-                format!("unknown MQTT protocol {v:?}: \"5\" or \"3.1.1\""),
+                format!("unknown MQTT protocol {v:?}: \"auto\", \"5\" or \"3.1.1\""),
             ),
         }
     }
@@ -74,6 +77,26 @@ pub(crate) fn overlay(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
         }
         m.port = v;
         moved = true;
+    }
+    if let Some(list) = hosts(t, errs) {
+        if moved {
+            let why = "set hosts, or host and port, not both";
+            errs.push(&join(&t.path, "hosts"), t.origin(), why);
+        }
+        let mut list = list.into_iter();
+        if let Some((host, port)) = list.next() {
+            (m.host, m.port) = (host, port);
+        }
+        m.failover = list.collect();
+        moved = true;
+    }
+    if let Some(v) = t.duration_within(
+        "failover_after",
+        Duration::from_secs(1),
+        MAX_FAILOVER_AFTER,
+        errs,
+    ) {
+        m.failover_after = v;
     }
     if let Some(v) = t.opt("client_id", errs) {
         m.client_id = v;
@@ -94,6 +117,45 @@ pub(crate) fn overlay(t: &mut Table<'_>, m: &mut Mqtt, errs: &mut Errors) {
         None => {}
     }
     delivery(t, m, errs);
+}
+
+/// How long a connection fails before the next of `hosts` is tried.
+pub const DEFAULT_FAILOVER_AFTER: Duration = Duration::from_secs(30);
+const MAX_FAILOVER_AFTER: Duration = Duration::from_secs(3600);
+/// The most brokers one connection moves between.
+const MAX_HOSTS: usize = 16;
+
+/// `hosts = ["a:8883", "b:8883"]`: each `HOST:PORT` (an IPv6 address in brackets), at least
+/// one, none twice.
+fn hosts(t: &mut Table<'_>, errs: &mut Errors) -> Option<Vec<(String, u16)>> {
+    let path = join(&t.path, "hosts");
+    let list = t.opt::<Vec<String>>("hosts", errs)?;
+    let mut out = Vec::new();
+    if list.is_empty() || list.len() > MAX_HOSTS {
+        errs.push(
+            &path,
+            t.origin(),
+            format!("1 to {MAX_HOSTS} brokers, as \"HOST:PORT\""),
+        );
+        return None;
+    }
+    for entry in &list {
+        let parsed = entry
+            .rsplit_once(':')
+            .and_then(|(h, p)| {
+                Some((
+                    h.trim_start_matches('[').trim_end_matches(']'),
+                    p.parse::<u16>().ok()?,
+                ))
+            })
+            .filter(|(h, p)| !h.is_empty() && *p > 0);
+        match parsed {
+            Some((h, p)) if !out.contains(&(h.to_string(), p)) => out.push((h.to_string(), p)),
+            Some(_) => errs.push(&path, t.origin(), format!("{entry:?} is named twice")),
+            None => errs.push(&path, t.origin(), format!("{entry:?} is not \"HOST:PORT\"")),
+        }
+    }
+    (out.len() == list.len()).then_some(out)
 }
 
 /// A password read from a file: the line ending is not part of it.

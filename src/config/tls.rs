@@ -54,6 +54,18 @@ fn certificates(path: &Path) -> Result<Vec<CertificateDer<'static>>, TlsError> {
     Ok(certs)
 }
 
+/// When the first certificate in the PEM file `path` expires (its notAfter), in seconds since
+/// the Unix epoch.
+pub fn expiry(path: &Path) -> Result<i64, TlsError> {
+    let first = certificates(path)?.swap_remove(0);
+    let (_, cert) =
+        x509_parser::parse_x509_certificate(first.as_ref()).map_err(|e| TlsError::BadPem {
+            path: path.display().to_string(),
+            message: format!("not an X.509 certificate: {e}"),
+        })?;
+    Ok(cert.validity().not_after.timestamp())
+}
+
 /// The rustls client configuration for `tls`: the broker's certificate must chain to `ca_file`;
 /// the client certificate is presented when configured.
 pub fn client_config(tls: &Tls) -> Result<Arc<ClientConfig>, TlsError> {

@@ -2,6 +2,7 @@
 //! [`crate::bus::driver::Driver`] under the protocol-neutral bus task. [`spawn`] is the one
 //! place that picks a bus's driver from its config (`config::Link`).
 
+pub mod mbus;
 pub mod modbus;
 
 use tokio::sync::mpsc::Receiver;

@@ -40,6 +40,7 @@ pub(super) struct Families {
     pub mqtt_connected: IntGaugeVec,
     pub mqtt_held: IntGaugeVec,
     pub output_events: IntCounterVec,
+    pub tls_expiry: IntGaugeVec,
     pub spool_messages: IntGaugeVec,
     pub spool_bytes: IntGaugeVec,
     pub spool_dropped: IntCounterVec,
@@ -159,6 +160,10 @@ const MQTT_HELD: Family = (
 const OUTPUT_EVENTS: Family = (
     "pulsegate_output_protocol_events_total",
     "Events of an output's protocol, by name: STATE messages of a host ignored (stale or malformed), rebirths asked for and done.",
+);
+const TLS_EXPIRY: Family = (
+    "pulsegate_tls_certificate_expiry_timestamp_seconds",
+    "When a TLS certificate the gateway uses (a client certificate, a CA) expires: its notAfter, seconds since the Unix epoch.",
 );
 const SPOOL_MESSAGES: Family = (
     "pulsegate_spool_messages",
@@ -283,6 +288,7 @@ impl Families {
             mqtt_connected: family!(r, IntGaugeVec, MQTT_CONNECTED, OUTPUT),
             mqtt_held: family!(r, IntGaugeVec, MQTT_HELD, OUTPUT),
             output_events: family!(r, IntCounterVec, OUTPUT_EVENTS, &["output", "event"]),
+            tls_expiry: family!(r, IntGaugeVec, TLS_EXPIRY, &["output", "file"]),
             spool_messages: family!(r, IntGaugeVec, SPOOL_MESSAGES, OUTPUT),
             spool_bytes: family!(r, IntGaugeVec, SPOOL_BYTES, OUTPUT),
             spool_dropped: family!(r, IntCounterVec, SPOOL_DROPPED, OUTPUT),

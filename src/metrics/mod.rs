@@ -450,6 +450,15 @@ impl OutputMetrics {
         }
     }
 
+    /// When the TLS certificate in `file` expires (seconds since the epoch).
+    pub fn tls_expiry(&self, file: &str, not_after: i64) {
+        if let Some((f, name)) = &self.inner {
+            f.tls_expiry
+                .with_label_values(&[name.as_str(), file])
+                .set(not_after);
+        }
+    }
+
     /// The output's protocol events counted since start (see `Format::tallies`).
     pub fn tallies(&self, tallies: &[(&'static str, u64)]) {
         let Some((f, name)) = &self.inner else { return };

@@ -42,6 +42,17 @@ pub struct Reaction {
     /// Answers the format gave itself (a command of its protocol it refused before the router
     /// saw it): `Output::CommandResult`s, counted and routed back like every answer.
     pub answers: Vec<Output>,
+    /// What its protocol asked of the output or the gateway (Sparkplug's node controls).
+    pub control: Vec<Control>,
+}
+
+/// A request of an output's protocol to the output or the gateway.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Control {
+    /// Move this output to its next broker now.
+    NextServer,
+    /// Stop the gateway cleanly (state saved) with an exit status the service restarts on.
+    Reboot,
 }
 
 impl From<Vec<Message>> for Reaction {
@@ -181,6 +192,7 @@ impl Stage {
             out.commands.extend(r.commands);
             out.at_once.extend(r.at_once);
             out.answers.extend(r.answers);
+            out.control.extend(r.control);
         }
         out
     }

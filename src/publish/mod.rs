@@ -5,6 +5,7 @@
 
 pub mod batch;
 pub mod delivery;
+pub mod dialer;
 pub mod fanout;
 pub mod format;
 pub mod formats;

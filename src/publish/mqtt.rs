@@ -25,14 +25,14 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
-use rumqttc::{TlsConfiguration, Transport};
 use tokio::sync::mpsc::{Sender, UnboundedReceiver, UnboundedSender};
 use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
-use super::format::{Format, Stage};
+use super::dialer::{Dialer, Said};
+use super::format::{Control, Format, Stage};
 use super::poller::{Polled, Poller, Routes};
-use super::session::{Client, Event, EventLoop, Failure, Options, Settings};
+use super::session::{Client, Event, EventLoop, Failure, Options};
 use super::spool::Spool;
 use crate::config::{Config, Mqtt};
 use crate::dispatch::Incoming;
@@ -43,22 +43,7 @@ use crate::topics::Topics;
 
 pub use crate::outbox::unsendable;
 
-/// Messages handed to rumqttc before their acknowledgement.
-const WINDOW: usize = 100;
-
-/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
-/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
-/// hold one back.
-const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
-
-/// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
-/// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
-const REQUESTS: usize = INFLIGHT as usize + 4096;
-
-/// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
-/// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
-/// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
-pub const MAX_PACKET: u32 = 64 * 1024;
+pub use super::session::{INFLIGHT, MAX_PACKET, REQUESTS, WINDOW};
 
 /// The outbox and the client it feeds, owned by the MQTT task.
 struct Shell {
@@ -180,48 +165,7 @@ impl Shell {
     }
 }
 
-/// The client options of this gateway: a fresh client is built from them after every failure
-/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
-/// never falls back to plaintext.
-pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
-    let login = config.username.as_ref().map(|user| {
-        let password = config.password.as_ref().map(|p| p.0.clone());
-        (user.clone(), password.unwrap_or_default())
-    });
-    let (host, transport) = broker_transport(config)?;
-    Ok(Options::new(Settings {
-        protocol: config.protocol,
-        client_id: &config.client_id,
-        host: &host,
-        port: config.port,
-        keep_alive: config.keep_alive,
-        max_incoming: MAX_PACKET,
-        inflight: INFLIGHT,
-        login,
-        transport,
-    }))
-}
-
-/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
-/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
-/// TLS: `check` refuses that config, and a config built another way must fail closed too.
-pub(crate) fn broker_transport(
-    config: &Mqtt,
-) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
-    match (&config.socket, &config.tls) {
-        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
-            socket: path.display().to_string(),
-        }),
-        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
-        (None, Some(tls)) => Ok((
-            config.host.clone(),
-            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
-                crate::config::tls::client_config(tls)?,
-            ))),
-        )),
-        (None, None) => Ok((config.host.clone(), None)),
-    }
-}
+pub use super::session::client_options;
 
 /// What one output's MQTT task is given, besides its channels.
 pub struct Task {
@@ -244,6 +188,8 @@ pub struct Task {
     /// Answers this output gives itself (a command of its protocol refused before the router,
     /// or the router too busy to take it), handed back to the fan-out to be counted and said.
     pub answers: UnboundedSender<Output>,
+    /// What its protocol asks of the gateway (a reboot).
+    pub controls: UnboundedSender<Control>,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -256,7 +202,7 @@ pub async fn run(
     shutdown: CancellationToken,
 ) {
     let topics = Topics::new(&task.config.topic_root);
-    let Some((options, spool)) = start(&task).await else {
+    let Some((dialer, spool)) = start(&task).await else {
         // `check` and the start refuse such a config; a file changed since is fatal too.
         shutdown.cancel();
         task.heart.set_up(false);
@@ -264,7 +210,7 @@ pub async fn run(
         return;
     };
     let mut stage = Stage::new(std::mem::take(&mut task.formats));
-    let (client, eventloop) = options.connect(stage.will().as_ref(), REQUESTS);
+    let (client, eventloop) = dialer.options().connect(stage.will().as_ref(), REQUESTS);
     let mut to_task = vec![topics.gateway_marker()];
     to_task.extend(stage.subscriptions());
     // Everything but the command topics is the task's: a connection without the voice
@@ -281,8 +227,8 @@ pub async fn run(
         },
     };
     let link = Connection {
-        options,
-        broker: task.config.broker(),
+        broker: dialer.broker(),
+        dialer,
         client_id: task.config.client_id.clone(),
         commands: task.voice && task.config.commands,
         voice: task.voice,
@@ -301,6 +247,8 @@ pub async fn run(
         batch: Batch::new(task.config.batch),
         batch_due: None,
         checkpoints: Vec::new(),
+        held_since: None,
+        certificates_at: Instant::now(),
     };
     publisher.start();
     publisher.serve(&mut output).await;
@@ -308,9 +256,10 @@ pub async fn run(
     publisher.finish().await;
 }
 
-/// The client options and the spool, or `None` (logged) when the gateway cannot publish.
-async fn start(task: &Task) -> Option<(Options, Spool)> {
-    let options = match client_options(&task.config) {
+/// The dialer (brokers, protocol, TLS) and the spool, or `None` (logged) when the gateway
+/// cannot publish.
+async fn start(task: &Task) -> Option<(Dialer, Spool)> {
+    let options = match Dialer::new(&task.config) {
         Ok(o) => o,
         Err(e) => {
             tracing::error!("MQTT TLS cannot be set up: {e}; stopping (never plaintext)");
@@ -379,11 +328,16 @@ struct Publisher<'t> {
     batch_due: Option<Pin<Box<tokio::time::Sleep>>>,
     /// State saves waiting to hear that what came before them is durable.
     checkpoints: Vec<PendingCheckpoint>,
+    /// Held (a format's hold) on this connection since then.
+    held_since: Option<Instant>,
+    /// When the certificates were last looked at.
+    certificates_at: Instant,
 }
 
 impl Publisher<'_> {
     /// The formats' subscriptions (renewed at every connection) and what they publish first.
     fn start(&mut self) {
+        self.check_certificates();
         self.shell.extra_filters = self.stage.subscriptions();
         for m in self.stage.start() {
             self.shell.queue(m);
@@ -409,6 +363,8 @@ impl Publisher<'_> {
                         self.shell.queue(m);
                     }
                     self.pump();
+                    // SIGHUP reads the TLS files again too (the next connection uses them).
+                    self.refresh_tls();
                 }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
@@ -514,6 +470,10 @@ impl Publisher<'_> {
                 }
                 self.watch.up = Some(true);
                 self.task.heart.set_problem(None);
+                if let Some(said) = self.link.dialer.connected() {
+                    self.say(&said);
+                }
+                let s = &mut self.shell;
                 s.on_connack(max_packet, &self.link, &mut self.stage);
                 self.pump();
                 // Health (the systemd status, the ready line) says so now, not at the next beat.
@@ -560,7 +520,36 @@ impl Publisher<'_> {
         for a in reaction.answers {
             let _ = self.task.answers.send(a);
         }
+        for c in reaction.control {
+            self.control(c);
+        }
         self.pump();
+    }
+
+    /// What a format's protocol asked: the next broker now, or a reboot of the gateway.
+    fn control(&mut self, c: Control) {
+        match c {
+            Control::NextServer => self.move_on("its protocol asked for the next server"),
+            Control::Reboot => {
+                let _ = self.task.controls.send(Control::Reboot);
+            }
+        }
+    }
+
+    /// Moves to the next broker at once (with one broker: stays), the connection rebuilt.
+    fn move_on(&mut self, why: &str) {
+        let Some(said) = self.link.dialer.next_server(Instant::now(), why) else {
+            tracing::warn!(output = %self.task.name, "{why}, but this output has one broker (mqtt.hosts)");
+            return;
+        };
+        self.say(&said);
+        self.link.broker = self.link.dialer.broker();
+        self.task.heart.set_up(false);
+        let eventloop = self
+            .shell
+            .on_lost(self.link.dialer.options(), &mut self.stage);
+        self.poller = Poller::start(eventloop, Duration::ZERO, self.routes.clone());
+        self.settle(Instant::now());
     }
 
     /// A command of a format's own protocol into the router's bounded queue; when the queue is
@@ -599,18 +588,106 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
-        if matches!(why, Failure::ProtocolRefused) {
+        let pinned = self.task.config.protocol != crate::config::MqttProtocol::Auto;
+        if pinned && matches!(why, Failure::ProtocolRefused) {
             self.task.heart.set_problem(Some(why.to_string()));
         }
-        let eventloop = self.shell.on_lost(&self.link.options, &mut self.stage);
+        for said in self.link.dialer.failed(why, Instant::now()) {
+            self.say(&said);
+        }
+        self.link.broker = self.link.dialer.broker();
+        let eventloop = self
+            .shell
+            .on_lost(self.link.dialer.options(), &mut self.stage);
         self.poller = Poller::start(eventloop, self.watch.pause, self.routes.clone());
         self.settle(Instant::now());
+    }
+
+    /// Held on this broker (a Sparkplug primary host offline) for `failover_after`: the next
+    /// broker, as Sparkplug 3.0 has a node do (its host may be on another server).
+    fn held_on_this_broker(&mut self, held: bool, now: Instant) {
+        if !held || !self.shell.outbox.is_connected() {
+            self.held_since = None;
+            return;
+        }
+        let since = *self.held_since.get_or_insert(now);
+        let servers = self.task.config.servers().len();
+        if servers > 1 && now.saturating_duration_since(since) >= self.task.config.failover_after {
+            self.held_since = None;
+            self.move_on(
+                "held on this broker for mqtt.failover_after (its primary host is offline here)",
+            );
+        }
+    }
+
+    /// The TLS files read again when they changed (logged; a set that does not load keeps the
+    /// one in use).
+    fn refresh_tls(&mut self) {
+        if let Some(said) = self.link.dialer.rebuild() {
+            self.say(&said);
+        }
+    }
+
+    /// The expiry of this connection's certificates, as metrics; a warning in the log and the
+    /// status within [`EXPIRY_WARNING`] of it (or after it).
+    fn check_certificates(&self) {
+        let now = crate::reading::unix_ms(std::time::SystemTime::now()) as i64 / 1000;
+        let mut soon = Vec::new();
+        for file in self.link.dialer.tls_files() {
+            let shown = file.display().to_string();
+            match crate::config::tls::expiry(&file) {
+                Ok(at) => {
+                    self.task.metrics.tls_expiry(&shown, at);
+                    let days = (at - now) / 86_400;
+                    if at - now < EXPIRY_WARNING.as_secs() as i64 {
+                        soon.push(format!("TLS certificate {shown} expires in {days} days"));
+                    }
+                }
+                Err(e) => {
+                    tracing::warn!(output = %self.task.name, "cannot read the expiry of {shown}: {e}")
+                }
+            }
+        }
+        for s in &soon {
+            tracing::warn!(output = %self.task.name, "{s}: renew it (the gateway reads new files at its next connection)");
+        }
+        self.task
+            .heart
+            .set_note((!soon.is_empty()).then(|| soon.join(", ")));
+    }
+
+    /// Logs what the dialer decided.
+    fn say(&self, said: &Said) {
+        let output = &self.task.name;
+        match said {
+            Said::Fallback { broker, to } => {
+                tracing::warn!(%output, %broker, "the broker did not answer this protocol's CONNECT (refused, closed or silent): trying {to} next (mqtt.protocol = \"auto\")")
+            }
+            Said::Speaks { broker, protocol } => {
+                tracing::info!(%output, %broker, "the broker speaks {protocol}: connected with it (mqtt.protocol = \"auto\")")
+            }
+            Said::MovedOn { from, to, why } => {
+                tracing::warn!(%output, "moving from broker {from} to {to}: {why}; what is spooled goes there, in order")
+            }
+            Said::TlsReloaded => {
+                tracing::info!(%output, "TLS files changed: the next connection uses them");
+                self.check_certificates();
+            }
+            Said::TlsRefused(e) => {
+                tracing::error!(%output, "the changed TLS files do not load ({e}): the previous ones stay in use")
+            }
+        }
     }
 
     /// Every second: a connection that takes messages but acknowledges none is rebuilt (what
     /// rumqttc does after a packet-id collision); the formats' put-off work; checkpoints the
     /// broker left waiting; health and metrics.
     fn beat(&mut self, now: Instant) {
+        if now.saturating_duration_since(self.certificates_at) >= CERTIFICATE_CHECK {
+            self.certificates_at = now;
+            self.refresh_tls();
+            self.check_certificates();
+        }
         let outbox = &self.shell.outbox;
         if outbox.stalled(now, self.stall_after) {
             tracing::warn!(
@@ -634,6 +711,7 @@ impl Publisher<'_> {
         self.task.heart.set_up(up);
         let held = self.stage.held();
         self.task.heart.set_held(held.clone());
+        self.held_on_this_broker(held.is_some(), now);
         let outbox = &self.shell.outbox;
         let spool = outbox.store();
         let chatter = outbox.chatter();
@@ -713,6 +791,12 @@ fn kept_summary(spool: &Spool) {
     }
 }
 
+/// How long before a certificate expires the log and the status warn of it.
+const EXPIRY_WARNING: Duration = Duration::from_secs(30 * 86_400);
+
+/// How often certificates are looked at again (their files, and the time left).
+const CERTIFICATE_CHECK: Duration = Duration::from_secs(3600);
+
 /// How long a checkpoint waits for the broker's acknowledgements before what they cover is
 /// fsynced in the spool instead (checked at the beat, so up to a second more).
 const CHECKPOINT_WAIT: Duration = Duration::from_millis(500);
@@ -734,7 +818,9 @@ async fn due(timer: &mut Option<Pin<Box<tokio::time::Sleep>>>) {
 
 /// What a fresh client is built from, and what it announces.
 struct Connection {
-    options: Options,
+    /// Which broker, protocol and TLS files the next connection uses.
+    dialer: Dialer,
+    /// The broker of the current (or next) connection, as logs name it.
     broker: String,
     client_id: String,
     /// Subscribe to command topics (the voice's, with `mqtt.commands`).

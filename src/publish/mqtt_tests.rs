@@ -1,6 +1,7 @@
 //! The MQTT task without a broker: its shell, publisher and batch, their connection scripted.
 
 use super::*;
+use crate::publish::session::Settings;
 
 #[test]
 fn a_wildcard_topic_can_never_be_sent() {
@@ -104,6 +105,7 @@ fn task(name: &str) -> Task {
         config: config.mqtt,
         voice: true,
         answers: tokio::sync::mpsc::unbounded_channel().0,
+        controls: tokio::sync::mpsc::unbounded_channel().0,
     }
 }
 
@@ -117,7 +119,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
     let (shell, eventloop) = shell(name);
     let (poller, reports) = Poller::scripted();
     let link = Connection {
-        options: client_options(&task.config).unwrap(),
+        dialer: crate::publish::dialer::Dialer::new(&task.config).unwrap(),
         broker: "127.0.0.1:1".into(),
         client_id: "t".into(),
         commands: true,
@@ -145,6 +147,8 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         batch: Batch::new(task.config.batch),
         batch_due: None,
         checkpoints: Vec::new(),
+        held_since: None,
+        certificates_at: tokio::time::Instant::now(),
     };
     (p, reports, eventloop)
 }

@@ -17,7 +17,25 @@ use rumqttc::v5::mqttbytes::v5::{
 };
 use rumqttc::{Outgoing, Transport};
 
-use crate::config::MqttProtocol;
+use crate::config::{Mqtt, MqttProtocol};
+use rumqttc::TlsConfiguration;
+
+/// Messages handed to rumqttc before their acknowledgement.
+pub const WINDOW: usize = 100;
+
+/// rumqttc's own in-flight limit: the outbox's two windows (owed and chatter) plus room for the
+/// messages that bypass them (boot marker, what formats say at connect), so rumqttc never has to
+/// hold one back.
+pub const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
+
+/// Requests rumqttc's queue takes: both windows, and what formats publish at once at a
+/// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
+pub const REQUESTS: usize = INFLIGHT as usize + 4096;
+
+/// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
+/// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
+/// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
+pub const MAX_PACKET: u32 = 64 * 1024;
 
 /// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
 pub const V311_MAX_OUT: u32 = 256 * 1024;
@@ -52,7 +70,7 @@ pub struct Settings<'a> {
 impl Options {
     pub fn new(s: Settings<'_>) -> Options {
         match s.protocol {
-            MqttProtocol::V5 => {
+            MqttProtocol::V5 | MqttProtocol::Auto => {
                 let mut o = v5::MqttOptions::new(s.client_id, s.host, s.port);
                 o.set_keep_alive(s.keep_alive);
                 o.set_max_packet_size(Some(s.max_incoming));
@@ -354,6 +372,58 @@ fn v311_failure(e: rumqttc::ConnectionError) -> Failure {
     match e {
         rumqttc::ConnectionError::RequestsDone => Failure::RequestsDone,
         other => Failure::Other(other.to_string()),
+    }
+}
+
+/// The client options of this gateway: a fresh client is built from them after every failure
+/// (with the formats' will of the moment). TLS that cannot be set up is an error: the gateway
+/// never falls back to plaintext.
+pub fn client_options(config: &Mqtt) -> Result<Options, crate::config::tls::TlsError> {
+    client_options_as(config, &config.client_id)
+}
+
+/// The same options under another client id (`pulsegate set-reading`'s own client): the one
+/// place the connection settings become rumqttc's options.
+pub fn client_options_as(
+    config: &Mqtt,
+    client_id: &str,
+) -> Result<Options, crate::config::tls::TlsError> {
+    let login = config.username.as_ref().map(|user| {
+        let password = config.password.as_ref().map(|p| p.0.clone());
+        (user.clone(), password.unwrap_or_default())
+    });
+    let (host, transport) = broker_transport(config)?;
+    Ok(Options::new(Settings {
+        protocol: config.protocol,
+        client_id,
+        host: &host,
+        port: config.port,
+        keep_alive: config.keep_alive,
+        max_incoming: MAX_PACKET,
+        inflight: INFLIGHT,
+        login,
+        transport,
+    }))
+}
+
+/// Where and how to connect: a local socket (its path is rumqttc's broker address, the port
+/// is ignored), TLS, or plain TCP. A socket with TLS is refused rather than connected without
+/// TLS: `check` refuses that config, and a config built another way must fail closed too.
+pub(crate) fn broker_transport(
+    config: &Mqtt,
+) -> Result<(String, Option<Transport>), crate::config::tls::TlsError> {
+    match (&config.socket, &config.tls) {
+        (Some(path), Some(_)) => Err(crate::config::tls::TlsError::OverSocket {
+            socket: path.display().to_string(),
+        }),
+        (Some(path), None) => Ok((path.to_string_lossy().into_owned(), Some(Transport::Unix))),
+        (None, Some(tls)) => Ok((
+            config.host.clone(),
+            Some(Transport::tls_with_config(TlsConfiguration::Rustls(
+                crate::config::tls::client_config(tls)?,
+            ))),
+        )),
+        (None, None) => Ok((config.host.clone(), None)),
     }
 }
 

@@ -10,6 +10,7 @@ mod datasheet;
 mod error;
 pub mod gateway;
 pub mod line;
+pub mod mbus;
 pub mod model;
 mod server;
 

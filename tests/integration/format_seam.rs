@@ -56,6 +56,7 @@ fn run_toy(port: u16, dir: &std::path::Path, stop: std::sync::mpsc::Receiver<()>
             formats: vec![Box::new(Toy)],
             voice: false,
             answers: tokio::sync::mpsc::unbounded_channel().0,
+            controls: tokio::sync::mpsc::unbounded_channel().0,
         };
         let (_out, output) = tokio::sync::mpsc::unbounded_channel();
         let (incoming, _commands) = tokio::sync::mpsc::channel(8);

@@ -512,3 +512,125 @@ fn ms_of(t: SystemTime) -> u64 {
         .unwrap()
         .as_millis() as u64
 }
+
+/// The gateway's config with a primary host and the metrics endpoint on `http`.
+fn with_host_and_metrics(
+    plant: &Plant,
+    port: u16,
+    dir: &std::path::Path,
+    http: u16,
+) -> std::path::PathBuf {
+    let keys = format!("primary_host = \"scada\"\n[metrics]\nlisten = \"127.0.0.1:{http}\"\n");
+    config_with(plant, port, dir, &keys)
+}
+
+fn sparkplug_events(text: &str, event: &str) -> Option<f64> {
+    let series =
+        format!("pulsegate_output_protocol_events_total{{event=\"{event}\",output=\"sparkplug\"}}");
+    crate::metrics::sample(text, &series)
+}
+
+/// Sparkplug 3.0: a STATE older than the last one taken, or one that is not
+/// `{"online": bool, "timestamp": ms}`, is ignored: no NDEATH, no hold, the node keeps
+/// publishing, and the ignored messages are counted; a current `offline` still takes it down.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stale_or_malformed_state_is_ignored_and_no_ndeath_follows() {
+    const T: u64 = 2_000_000_000_000;
+    let broker = Broker::start();
+    let mut host = Host::start(broker.port, false);
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("sparkplug-stale-state");
+    let http = free_port();
+    let _gw = Gateway::start(&with_host_and_metrics(&plant, broker.port, &dir, http));
+    host.send(json!({"state": "scada", "online": true, "timestamp": T}));
+    host.wait(Duration::from_secs(15), "born, and data", |l| {
+        of_type(l, "DBIRTH").count() == 2 && of_type(l, "DDATA").count() >= 3
+    })
+    .await;
+    host.send(json!({"state": "scada", "online": false, "timestamp": T - 10_000}));
+    host.send(json!({"state_raw": "scada", "payload": "{\"online\":false,\"timestamp\":\"x\"}"}));
+    host.send(json!({"state": "scada", "online": true, "timestamp": T - 20_000}));
+    let text = crate::metrics::scrape_until(http, Duration::from_secs(10), "3 ignored", |t| {
+        sparkplug_events(t, "host_state_ignored") == Some(3.0)
+    })
+    .await;
+    assert_eq!(sample_held(&text), Some(0.0), "not held");
+    let data_before = of_type(&host.lines(), "DDATA").count();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let lines = host.lines();
+    assert_eq!(
+        of_type(&lines, "NDEATH").count(),
+        0,
+        "no NDEATH for a stale or forged STATE"
+    );
+    assert_eq!(
+        of_type(&lines, "NBIRTH").count(),
+        1,
+        "no rebirth for an older online"
+    );
+    assert!(
+        of_type(&lines, "DDATA").count() > data_before + 5,
+        "still publishing"
+    );
+    let (code, body) =
+        tokio::task::spawn_blocking(move || crate::metrics::http_get(http, "/healthz"))
+            .await
+            .unwrap();
+    assert_eq!(code, 200, "{body}");
+    host.send(json!({"state": "scada", "online": false, "timestamp": T + 1}));
+    host.wait(
+        Duration::from_secs(10),
+        "the NDEATH of a current offline",
+        |l| of_type(l, "NDEATH").count() == 1,
+    )
+    .await;
+    no_errors(&host.lines());
+}
+
+fn sample_held(text: &str) -> Option<f64> {
+    crate::metrics::sample(text, "pulsegate_mqtt_held{output=\"sparkplug\"}")
+}
+
+/// Three hundred `Node Control/Rebirth` in a burst: every one counted, a handful of births (one
+/// at once, the rest coalesced into one at the end of the gap), not three hundred.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_hundred_rebirth_requests_are_a_handful_of_births() {
+    let broker = Broker::start();
+    let mut host = Host::start(broker.port, false);
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("sparkplug-rebirth-flood");
+    let http = free_port();
+    let text = gateway_toml(
+        &plant,
+        broker.port,
+        &dir,
+        &DEVICES,
+        &format!("[sparkplug]\ngroup_id = \"plant\"\n[metrics]\nlisten = \"127.0.0.1:{http}\"\n"),
+    )
+    .replacen(
+        "[mqtt]\n",
+        "[mqtt]\nformat = [\"json\", \"sparkplug\"]\n",
+        1,
+    );
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    host.wait(Duration::from_secs(15), "born", |l| {
+        of_type(l, "DBIRTH").count() == 2
+    })
+    .await;
+    host.send(json!({"ncmd": "plant/test", "rebirth": true, "count": 300}));
+    crate::metrics::scrape_until(http, Duration::from_secs(10), "300 requests", |t| {
+        sparkplug_events(t, "rebirth_requested") == Some(300.0)
+    })
+    .await;
+    tokio::time::sleep(Duration::from_secs(7)).await;
+    let lines = host.lines();
+    let births = of_type(&lines, "NBIRTH").count() - 1;
+    println!("300 rebirth requests: {births} rebirths");
+    assert!(
+        (1..=3).contains(&births),
+        "{births} rebirths for 300 requests"
+    );
+    assert_eq!(of_type(&lines, "DBIRTH").count(), 2 * (births + 1));
+    assert_seq_unbroken(&lines);
+    no_errors(&lines);
+}

@@ -10,6 +10,21 @@ use crate::dispatch::Incoming;
 
 /// The NBIRTH metric a host writes to ask for a rebirth.
 pub const REBIRTH: &str = "Node Control/Rebirth";
+/// The NBIRTH metric a host writes to have the node stop and start again.
+pub const REBOOT: &str = "Node Control/Reboot";
+/// The NBIRTH metric a host writes to move the node to its next MQTT server.
+pub const NEXT_SERVER: &str = "Node Control/Next Server";
+
+/// The node controls of the spec the node takes, as its NBIRTH lists them.
+pub const NODE_CONTROLS: [&str; 3] = [REBIRTH, REBOOT, NEXT_SERVER];
+
+/// What an NCMD asks of the node (each a `Node Control/…` written `true`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct NodeCommand {
+    pub rebirth: bool,
+    pub reboot: bool,
+    pub next_server: bool,
+}
 
 /// The most metrics one command may carry (a host writes one or a few at a time).
 pub const MAX_METRICS: usize = 64;
@@ -105,13 +120,20 @@ fn decode(payload: &[u8]) -> Result<Payload, HostCommandError> {
     Ok(p)
 }
 
-/// NCMD: whether it asks for a rebirth (`Node Control/Rebirth` = true). Other node metrics
-/// are not writable and are ignored.
-pub fn node(payload: &[u8]) -> Result<bool, HostCommandError> {
+/// NCMD: which node controls it writes `true` (`Node Control/Rebirth`, `…/Reboot`,
+/// `…/Next Server`). Other node metrics are not writable and are ignored.
+pub fn node(payload: &[u8]) -> Result<NodeCommand, HostCommandError> {
     let p = decode(payload)?;
-    Ok(p.metrics
-        .iter()
-        .any(|m| m.name.as_deref() == Some(REBIRTH) && m.value == Some(Value::Boolean(true))))
+    let set = |name: &str| {
+        p.metrics
+            .iter()
+            .any(|m| m.name.as_deref() == Some(name) && m.value == Some(Value::Boolean(true)))
+    };
+    Ok(NodeCommand {
+        rebirth: set(REBIRTH),
+        reboot: set(REBOOT),
+        next_server: set(NEXT_SERVER),
+    })
 }
 
 /// DCMD: the writes it asks for; `name_of` reads an alias the device's birth declared.

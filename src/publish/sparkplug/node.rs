@@ -20,7 +20,7 @@ use super::topic::{Kind, Topics};
 use crate::command::{CommandError, Reply, Via, Written};
 use crate::outbox::{Content, Message};
 use crate::outcome::{CommandOutcome, Outcome};
-use crate::publish::format::Reaction;
+use crate::publish::format::{Control, Reaction};
 use crate::reading::{Output, Reading};
 
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.
@@ -228,20 +228,16 @@ impl Node {
     pub fn births(&mut self, now_ms: u64) -> Vec<Message> {
         self.born = true;
         self.rewind = None;
-        let mut metrics = vec![
-            Metric::new(
-                BD_SEQ,
-                None,
-                datatype::INT64,
-                Some(Value::Long(self.bd_seq.into())),
-            ),
-            Metric::new(
-                super::command::REBIRTH,
-                None,
-                datatype::BOOLEAN,
-                Some(Value::Boolean(false)),
-            ),
-        ];
+        let mut metrics = vec![Metric::new(
+            BD_SEQ,
+            None,
+            datatype::INT64,
+            Some(Value::Long(self.bd_seq.into())),
+        )];
+        for control in super::command::NODE_CONTROLS {
+            let off = Some(Value::Boolean(false));
+            metrics.push(Metric::new(control, None, datatype::BOOLEAN, off));
+        }
         if self.setup.takes_commands {
             for name in ANSWER {
                 let empty = Some(Value::String(String::new()));
@@ -487,7 +483,7 @@ impl Node {
             return self.host_state(payload, now_ms);
         }
         match self.setup.topics.parse(topic) {
-            Some((Kind::NCmd, None)) => self.node_command(payload, now_ms).into(),
+            Some((Kind::NCmd, None)) => self.node_command(payload, now_ms),
             Some((Kind::DCmd, Some(device))) => self.device_command(device, payload),
             _ => Reaction::default(),
         }
@@ -569,22 +565,30 @@ impl Node {
     }
 
     /// NCMD: `Node Control/Rebirth` = true is answered with every birth again, at most once
-    /// every few seconds (a burst of requests is one rebirth now and one at the end of the gap).
-    fn node_command(&mut self, payload: &[u8], now_ms: u64) -> Vec<Message> {
-        match super::command::node(payload) {
-            Ok(true) if self.connected && self.host_online => {
-                if !self.rebirths.request(now_ms) {
-                    return Vec::new();
-                }
-                tracing::info!("Sparkplug host asked for a rebirth");
-                self.births(now_ms)
-            }
-            Ok(_) => Vec::new(),
+    /// every few seconds (a burst of requests is one rebirth now and one at the end of the gap);
+    /// `Reboot` and `Next Server` are the output's and the gateway's to carry out.
+    fn node_command(&mut self, payload: &[u8], now_ms: u64) -> Reaction {
+        let asked = match super::command::node(payload) {
+            Ok(asked) => asked,
             Err(e) => {
                 self.refused("NCMD", &e.to_string());
-                Vec::new()
+                return Reaction::default();
             }
+        };
+        let mut r = Reaction::default();
+        if asked.reboot {
+            tracing::warn!("Sparkplug host asked the node to reboot");
+            r.control.push(Control::Reboot);
         }
+        if asked.next_server {
+            tracing::info!("Sparkplug host asked the node to move to its next server");
+            r.control.push(Control::NextServer);
+        }
+        if asked.rebirth && self.connected && self.host_online && self.rebirths.request(now_ms) {
+            tracing::info!("Sparkplug host asked for a rebirth");
+            r.messages = self.births(now_ms);
+        }
+        r
     }
 
     /// DCMD: writes to `<c>/Clear` and `<c>/Preset` of a writable channel, as commands for the
