@@ -23,6 +23,7 @@
 
 mod chatter;
 mod message;
+pub mod stored;
 mod window;
 
 use std::collections::VecDeque;
@@ -35,20 +36,17 @@ pub use message::{Class, Content, Message, Properties, Will};
 use window::{Held, Window};
 
 use bytes::Bytes;
-use serde::{Deserialize, Serialize};
 
-/// A stored message waiting for the broker.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+/// A stored message waiting for the broker. Its form in a spool file is [`stored`]'s.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Entry {
     /// Store sequence number: strictly increasing, across restarts.
     pub seq: u64,
     pub topic: String,
     /// Shared, so handing it to the MQTT client (and again after a reconnect) copies nothing.
-    #[serde(with = "payload_bytes")]
     pub payload: Bytes,
     pub qos: u8,
     pub retain: bool,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub correlation: Option<Vec<u8>>,
 }
 
@@ -56,34 +54,6 @@ impl Entry {
     /// What the store accounts for it (bytes plus a fixed overhead).
     pub fn size(&self) -> u64 {
         (self.topic.len() + self.payload.len() + 64) as u64
-    }
-}
-
-/// Payloads on disk: UTF-8 payloads as a JSON string (readable, and what earlier versions wrote),
-/// anything else as an array of byte values, so a binary payload comes back unchanged.
-mod payload_bytes {
-    use bytes::Bytes;
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(b: &Bytes, s: S) -> Result<S::Ok, S::Error> {
-        match std::str::from_utf8(b) {
-            Ok(text) => s.serialize_str(text),
-            Err(_) => s.collect_seq(b.iter()),
-        }
-    }
-
-    #[derive(Deserialize)]
-    #[serde(untagged)]
-    enum Stored {
-        Text(String),
-        Raw(Vec<u8>),
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Bytes, D::Error> {
-        Ok(match Stored::deserialize(d)? {
-            Stored::Text(t) => Bytes::from(t),
-            Stored::Raw(r) => Bytes::from(r),
-        })
     }
 }
 

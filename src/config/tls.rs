@@ -57,13 +57,18 @@ fn certificates(path: &Path) -> Result<Vec<CertificateDer<'static>>, TlsError> {
 /// When the first certificate in the PEM file `path` expires (its notAfter), in seconds since
 /// the Unix epoch.
 pub fn expiry(path: &Path) -> Result<i64, TlsError> {
+    use x509_cert::der::Decode;
     let first = certificates(path)?.swap_remove(0);
-    let (_, cert) =
-        x509_parser::parse_x509_certificate(first.as_ref()).map_err(|e| TlsError::BadPem {
-            path: path.display().to_string(),
-            message: format!("not an X.509 certificate: {e}"),
-        })?;
-    Ok(cert.validity().not_after.timestamp())
+    let cert = x509_cert::Certificate::from_der(first.as_ref()).map_err(|e| TlsError::BadPem {
+        path: path.display().to_string(),
+        message: format!("not an X.509 certificate: {e}"),
+    })?;
+    let not_after = cert
+        .tbs_certificate()
+        .validity()
+        .not_after
+        .to_unix_duration();
+    Ok(not_after.as_secs() as i64)
 }
 
 /// The rustls client configuration for `tls`: the broker's certificate must chain to `ca_file`;

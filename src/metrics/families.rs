@@ -47,6 +47,8 @@ pub(super) struct Families {
     pub spool_dropped: IntCounterVec,
     pub spool_fallback: IntGaugeVec,
     pub spool_written: IntCounterVec,
+    pub spool_write_failures: IntCounterVec,
+    pub spool_unreadable_lines: IntCounterVec,
     pub chatter_messages: IntGaugeVec,
     pub chatter_dropped: IntCounterVec,
     pub commands_received: IntCounter,
@@ -178,7 +180,7 @@ const SPOOL_BYTES: Family = (
 );
 const SPOOL_DROPPED: Family = (
     "pulsegate_spool_dropped_messages_total",
-    "Oldest messages dropped because the spool was full.",
+    "Oldest messages dropped because the spool was full, or because memory's share for messages the disk refused was.",
 );
 const SPOOL_FALLBACK: Family = (
     "pulsegate_spool_private_fallback",
@@ -187,6 +189,14 @@ const SPOOL_FALLBACK: Family = (
 const SPOOL_WRITTEN: Family = (
     "pulsegate_spool_written_bytes_total",
     "Bytes written to the spool's files (while the broker is away, and at checkpoints a stalled broker leaves unacknowledged).",
+);
+const SPOOL_WRITE_FAILURES: Family = (
+    "pulsegate_spool_write_failures_total",
+    "Writes or syncs of the spool's files that failed (disk full, I/O error, permissions): their messages stayed in memory (tried again at the next flush) or were dropped and counted in pulsegate_spool_dropped_messages_total; never counted as on disk.",
+);
+const SPOOL_UNREADABLE_LINES: Family = (
+    "pulsegate_spool_unreadable_lines_total",
+    "Lines of spool files that were not a stored message (not UTF-8, not an entry): skipped, the rest of the file sent, the file kept as <name>.unreadable.",
 );
 const CHATTER_MESSAGES: Family = (
     "pulsegate_mqtt_chatter_messages",
@@ -290,6 +300,8 @@ impl Families {
             spool_dropped: family!(r, IntCounterVec, SPOOL_DROPPED, OUTPUT),
             spool_fallback: family!(r, IntGaugeVec, SPOOL_FALLBACK, OUTPUT),
             spool_written: family!(r, IntCounterVec, SPOOL_WRITTEN, OUTPUT),
+            spool_write_failures: family!(r, IntCounterVec, SPOOL_WRITE_FAILURES, OUTPUT),
+            spool_unreadable_lines: family!(r, IntCounterVec, SPOOL_UNREADABLE_LINES, OUTPUT),
             chatter_messages: family!(r, IntGaugeVec, CHATTER_MESSAGES, OUTPUT),
             chatter_dropped: family!(r, IntCounterVec, CHATTER_DROPPED, OUTPUT),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),

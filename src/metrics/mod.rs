@@ -417,6 +417,10 @@ pub struct OutputSample {
     /// Messages the spool dropped since start (its bound), and bytes it wrote to disk.
     pub spool_dropped: u64,
     pub spool_written: u64,
+    /// Writes (or syncs) of spool files that failed, and spool lines that could not be read,
+    /// since start.
+    pub spool_write_failures: u64,
+    pub spool_unreadable_lines: u64,
     pub chatter_waiting: usize,
     pub chatter_dropped: u64,
 }
@@ -442,6 +446,8 @@ impl OutputMetrics {
         for (counter, now) in [
             (&f.spool_dropped, s.spool_dropped),
             (&f.spool_written, s.spool_written),
+            (&f.spool_write_failures, s.spool_write_failures),
+            (&f.spool_unreadable_lines, s.spool_unreadable_lines),
             (&f.chatter_dropped, s.chatter_dropped),
         ] {
             let c = counter.with_label_values(&l);

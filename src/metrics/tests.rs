@@ -177,6 +177,7 @@ fn the_spool_and_mqtt_state_are_sampled_and_drops_only_count_up() {
         spool_messages: messages,
         spool_bytes: bytes,
         spool_dropped: 3,
+        spool_write_failures: 2,
         ..Default::default()
     };
     m.output("json").sample(&sample(42, 4096));
@@ -191,6 +192,7 @@ fn the_spool_and_mqtt_state_are_sampled_and_drops_only_count_up() {
     assert!(text.contains("pulsegate_spool_messages{output=\"json\"} 43"));
     assert!(text.contains("pulsegate_spool_bytes{output=\"json\"} 4200"));
     assert!(text.contains("pulsegate_spool_dropped_messages_total{output=\"json\"} 3"));
+    assert!(text.contains("pulsegate_spool_write_failures_total{output=\"json\"} 2"));
     assert!(text.contains("pulsegate_mqtt_connected{output=\"scada\"} 1"));
     assert!(text.contains("pulsegate_mqtt_held{output=\"scada\"} 1"));
 }

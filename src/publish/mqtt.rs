@@ -102,11 +102,10 @@ impl Shell {
         self.backlog |= self.outbox.backlogged();
     }
 
-    /// Into the outbox (and its spool) without handing anything to rumqttc yet.
+    /// Into the outbox (and its spool) without handing anything to rumqttc yet. Storing
+    /// never fails: a message the disk refuses waits in memory or is dropped and counted.
     fn queue(&mut self, message: Message) {
-        if let Err(e) = self.outbox.enqueue(message) {
-            tracing::error!("{e}");
-        }
+        let Ok(_) = self.outbox.enqueue(message);
     }
 
     /// A publish outside the outbox (boot marker, what formats say at connect and at stop).
@@ -436,16 +435,12 @@ impl Publisher<'_> {
         }
     }
 
-    /// Spills what only memory holds and answers `checkpoints` once the disk has it.
+    /// Spills what only memory holds and answers `checkpoints` once the disk has it: `false`
+    /// when something could not be written or synced (the save then waits for the broker).
     fn sync_to_disk(&mut self, checkpoints: Vec<PendingCheckpoint>) {
-        let spool = self.shell.outbox.store_mut();
-        let spilled = spool.spill();
-        if let Err(e) = &spilled {
-            tracing::error!("{e}; the state save waits for the broker's acknowledgement");
-        }
-        let synced = spool.barrier();
+        let durable = self.shell.outbox.store_mut().durable();
         tokio::task::spawn_blocking(move || {
-            let durable = spilled.is_ok() && synced.recv_timeout(Duration::from_secs(5)).is_ok();
+            let durable = durable.wait(Duration::from_secs(5));
             for p in checkpoints {
                 p.checkpoint.answer(durable);
             }
@@ -748,6 +743,8 @@ impl Publisher<'_> {
             spool_bytes: spool.total_bytes(),
             spool_dropped: spool.dropped,
             spool_written: spool.written,
+            spool_write_failures: spool.write_failures(),
+            spool_unreadable_lines: spool.unreadable_lines(),
             chatter_waiting: chatter.len(),
             chatter_dropped: chatter.dropped,
         });
@@ -755,18 +752,18 @@ impl Publisher<'_> {
         self.watch.chatter_dropped(chatter.dropped, now);
     }
 
-    /// While the broker is away, memory is written out so a crash loses little.
+    /// While the broker is away, memory is written out so a crash loses little; what could
+    /// not be written before is tried again (the spool counts and logs its failures).
     fn flush(&mut self) {
         let up = self.shell.outbox.is_connected();
         let spool = self.shell.outbox.store_mut();
-        if let Err(e) = if up { spool.flush() } else { spool.spill() } {
-            tracing::error!("{e}");
-        }
+        if up { spool.flush() } else { spool.spill() }
     }
 
     /// Gives the broker a moment to take what is in flight, keeps the rest for next time,
     /// lets the formats say goodbye, lets the connection write that and our DISCONNECT, and
-    /// waits (off the runtime thread) for the spool's last writes.
+    /// waits (off the runtime thread) for the spool's last writes. The summary counts what is
+    /// really on disk, and says what could not be written.
     async fn finish(&mut self) {
         self.pump();
         let deadline = tokio::time::Instant::now() + Duration::from_millis(1500);
@@ -777,29 +774,41 @@ impl Publisher<'_> {
             }
         }
         let s = &mut self.shell;
-        if let Err(e) = s.outbox.store_mut().spill() {
-            tracing::error!("{e}");
-        }
-        if !s.outbox.store().is_empty() {
-            let messages = s.outbox.store().len();
-            tracing::info!(messages, "unsent messages kept for the next start");
-        }
+        let durable = s.outbox.store_mut().durable();
         if s.outbox.is_connected() {
             for m in self.stage.stopping() {
                 s.publish_direct(m);
             }
             let _ = s.client.disconnect();
         }
-        let synced = s.outbox.store().barrier();
         let waiting = std::mem::take(&mut self.checkpoints);
         // The spool's last writes reach the disk before the process ends.
         let synced = tokio::task::spawn_blocking(move || {
-            let durable = synced.recv_timeout(Duration::from_secs(3)).is_ok();
+            let durable = durable.wait(Duration::from_secs(3));
             for p in waiting {
                 p.checkpoint.answer(durable);
             }
         });
         let _ = tokio::join!(self.poller.finish(Duration::from_secs(1)), synced);
+        let spool = self.shell.outbox.store_mut();
+        spool.settle();
+        kept_summary(spool);
+    }
+}
+
+/// What the stop leaves for the next start: only what is on disk is said to be kept.
+fn kept_summary(spool: &Spool) {
+    let kept = spool.on_disk();
+    let lost = spool.len() - kept;
+    if kept > 0 {
+        tracing::info!(messages = kept, "unsent messages kept for the next start");
+    }
+    if lost > 0 {
+        tracing::error!(
+            messages = lost,
+            spool = %spool.dir().display(),
+            "unsent messages could not be written to the spool (see the spool errors above): lost with this stop; the readings after them carry the totals, so counts stay exact, but these messages are not sent"
+        );
     }
 }
 
@@ -857,6 +866,8 @@ struct Watch {
     pause: Duration,
     /// The broker's refusal of MQTT 5 was logged (once a run: it will not change by itself).
     protocol_named: bool,
+    /// This machine's previous run was recognised by its marker (said once).
+    earlier_run_named: bool,
 }
 
 impl Watch {
@@ -869,6 +880,7 @@ impl Watch {
             takeover_log: crate::log_budget::LogBudget::new(1),
             pause: Duration::from_secs(1),
             protocol_named: false,
+            earlier_run_named: false,
         }
     }
 
@@ -884,12 +896,21 @@ impl Watch {
         }
     }
 
-    /// A boot marker arrived: another gateway's is logged (within budget).
+    /// A boot marker arrived: another gateway's is logged (within budget); this machine's
+    /// previous run, which `boot.json` did not record, is said once as what it is.
     fn marker(&mut self, payload: &[u8], link: &Connection) {
-        if let Some(other) = link.boot.foreign(payload) {
-            let (log, _) = self.takeover_log.allow(Instant::now());
-            if log {
-                tracing::error!(other = %other, "another gateway publishes under this topic root (its boot marker is not ours): two gateways share gateway.id or mqtt.topic_root, so both receive each other's commands and, with one client id, take each other's MQTT session; give each gateway its own id");
+        match link.boot.judge(payload) {
+            crate::boot::Marker::Ours => {}
+            crate::boot::Marker::EarlierRun(earlier) => {
+                if !std::mem::replace(&mut self.earlier_run_named, true) {
+                    tracing::info!(earlier = %earlier, "the boot marker on the topic root is this machine's previous run (same host, its process is gone), which boot.json did not record: not another gateway");
+                }
+            }
+            crate::boot::Marker::Foreign(other) => {
+                let (log, _) = self.takeover_log.allow(Instant::now());
+                if log {
+                    tracing::error!(other = %other, "another gateway publishes under this topic root (its boot marker is not ours): two gateways share gateway.id or mqtt.topic_root, so both receive each other's commands and, with one client id, take each other's MQTT session; give each gateway its own id");
+                }
             }
         }
     }

@@ -29,11 +29,14 @@ pub fn adopt_legacy(state_dir: &Path, into: &Path) -> std::io::Result<usize> {
     };
     let mut moved = 0;
     for entry in entries {
-        let path = entry?.path();
+        let entry = entry?;
+        let path = entry.path();
         let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
             continue;
         };
-        if !super::spool::is_segment_name(name) || !path.is_file() {
+        // A link with a segment's name is not ours: never moved (nor what it points to).
+        let regular = entry.file_type().is_ok_and(|t| t.is_file());
+        if !super::spool::is_segment_name(name) || !regular {
             continue;
         }
         std::fs::create_dir_all(into)?;
@@ -160,7 +163,11 @@ mod tests {
             correlation: None,
         };
         let line = serde_json::to_string(&entry).unwrap();
-        std::fs::write(planted.join("1.jsonl"), format!("{line}\n")).unwrap();
+        std::fs::write(
+            planted.join("00000000000000000001.jsonl"),
+            format!("{line}\n"),
+        )
+        .unwrap();
         assert_eq!(
             Spool::open(&planted, 1 << 20).unwrap().len(),
             1,

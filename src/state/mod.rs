@@ -241,12 +241,15 @@ impl BusState {
         let bytes = serde_json::to_vec_pretty(&this).expect("state serializes");
         let dir = path.parent().unwrap_or(Path::new("."));
         std::fs::create_dir_all(dir).map_err(io)?;
-        {
-            let mut f = std::fs::File::create(tmp).map_err(io)?;
-            f.write_all(&bytes).map_err(io)?;
-            f.sync_all().map_err(io)?;
+        let written = std::fs::File::create(tmp).and_then(|mut f| {
+            f.write_all(&bytes)?;
+            f.sync_all()
+        });
+        if let Err(e) = written.and_then(|()| std::fs::rename(tmp, path)) {
+            // A full disk: no empty temp file is left behind.
+            let _ = std::fs::remove_file(tmp);
+            return Err(io(e));
         }
-        std::fs::rename(tmp, path).map_err(io)?;
         sync_dir(dir).map_err(io)?;
         Ok(())
     }

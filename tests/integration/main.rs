@@ -28,4 +28,5 @@ mod protocol;
 mod readings_first;
 mod service;
 mod sparkplug;
+mod spool_truth;
 mod support;
