@@ -9,7 +9,6 @@
 //! a marker from this host whose process is gone, or is this one, is this machine's previous
 //! run, not a second gateway: that is said as what it is, never as the alarm.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -72,17 +71,8 @@ impl Boot {
     }
 
     fn save(&self, state_dir: &Path) -> std::io::Result<()> {
-        std::fs::create_dir_all(state_dir)?;
-        let tmp = state_dir.join("boot.json.tmp");
-        let written = std::fs::File::create(&tmp).and_then(|mut f| {
-            f.write_all(&serde_json::to_vec(self).expect("boot serializes"))?;
-            f.sync_all()
-        });
-        if let Err(e) = written.and_then(|()| std::fs::rename(&tmp, path(state_dir))) {
-            let _ = std::fs::remove_file(&tmp);
-            return Err(e);
-        }
-        crate::state::sync_dir(state_dir)
+        let bytes = serde_json::to_vec(self).expect("boot serializes");
+        crate::state::write_atomic(&path(state_dir), &state_dir.join("boot.json.tmp"), &bytes)
     }
 
     /// The retained marker this run publishes on `<root>/gateway`, with the hash of the config

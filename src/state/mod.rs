@@ -83,6 +83,24 @@ pub enum StateError {
 
 /// Makes a create, rename or delete in `dir` durable: without it a power cut can undo the
 /// directory entry even though the file's data was synced.
+/// Writes `bytes` to `path` so that a crash leaves the old file or the new one, never half of
+/// one: into `tmp` (synced), renamed over `path`, the directory synced. The one way the
+/// gateway replaces a small file (state, boot id, Sparkplug's bdSeq). A failed write (a full
+/// disk) leaves no temporary file behind.
+pub fn write_atomic(path: &Path, tmp: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir)?;
+    let written = std::fs::File::create(tmp).and_then(|mut f| {
+        f.write_all(bytes)?;
+        f.sync_all()
+    });
+    if let Err(e) = written.and_then(|()| std::fs::rename(tmp, path)) {
+        let _ = std::fs::remove_file(tmp);
+        return Err(e);
+    }
+    sync_dir(dir)
+}
+
 pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
     std::fs::File::open(dir)?.sync_all()
 }
@@ -239,19 +257,7 @@ impl BusState {
         let mut this = self.clone();
         this.version = VERSION;
         let bytes = serde_json::to_vec_pretty(&this).expect("state serializes");
-        let dir = path.parent().unwrap_or(Path::new("."));
-        std::fs::create_dir_all(dir).map_err(io)?;
-        let written = std::fs::File::create(tmp).and_then(|mut f| {
-            f.write_all(&bytes)?;
-            f.sync_all()
-        });
-        if let Err(e) = written.and_then(|()| std::fs::rename(tmp, path)) {
-            // A full disk: no empty temp file is left behind.
-            let _ = std::fs::remove_file(tmp);
-            return Err(io(e));
-        }
-        sync_dir(dir).map_err(io)?;
-        Ok(())
+        write_atomic(path, tmp, &bytes).map_err(io)
     }
 
     /// Holes of a device as ranges.

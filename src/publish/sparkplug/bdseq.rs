@@ -22,6 +22,8 @@ pub fn file(output: &str) -> String {
 pub struct BdSeq {
     path: PathBuf,
     next: u8,
+    /// Failures to save, logged once a minute.
+    log: crate::log_budget::LogBudget,
 }
 
 impl BdSeq {
@@ -40,7 +42,11 @@ impl BdSeq {
                 0
             }
         };
-        BdSeq { path, next }
+        BdSeq {
+            path,
+            next,
+            log: crate::log_budget::LogBudget::new(1),
+        }
     }
 
     /// The bdSeq of a new session; the one after it is written down first (atomically), so a
@@ -49,23 +55,21 @@ impl BdSeq {
         let this = self.next;
         self.next = this.wrapping_add(1);
         if let Err(e) = self.save() {
-            tracing::error!(file = %self.path.display(), "cannot save the Sparkplug bdSeq: {e}; a restart may repeat bdSeq {this}");
+            // Each connection attempt takes one: said at most once a minute (a full disk).
+            let (log, suppressed) = self.log.allow(tokio::time::Instant::now());
+            if log {
+                let more = suppressed
+                    .map(|n| format!(" ({n} more not logged)"))
+                    .unwrap_or_default();
+                tracing::error!(file = %self.path.display(), "cannot save the Sparkplug bdSeq: {e}; a restart may repeat bdSeq {this}{more}");
+            }
         }
         this
     }
 
     fn save(&self) -> std::io::Result<()> {
-        if let Some(dir) = self.path.parent() {
-            std::fs::create_dir_all(dir)?;
-        }
         let tmp = self.path.with_extension("tmp");
-        std::fs::write(&tmp, format!("{}\n", self.next))?;
-        std::fs::File::open(&tmp)?.sync_all()?;
-        std::fs::rename(&tmp, &self.path)?;
-        if let Some(dir) = self.path.parent() {
-            crate::state::sync_dir(dir)?;
-        }
-        Ok(())
+        crate::state::write_atomic(&self.path, &tmp, format!("{}\n", self.next).as_bytes())
     }
 }
 
