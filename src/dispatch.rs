@@ -95,6 +95,8 @@ pub struct Router {
     admission: Arc<Mutex<Admission>>,
     log_budget: Mutex<LogBudget>,
     scans: Scans,
+    /// Where a pushed config goes (`[remote] config = true`), one at a time.
+    remote: Option<tokio::sync::mpsc::Sender<Incoming>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -120,6 +122,43 @@ impl Router {
             admission: Arc::default(),
             log_budget: Mutex::new(LogBudget::new(20)),
             scans: Arc::default(),
+            remote: None,
+        }
+    }
+
+    /// Pushed configs (`<root>/config/set`) go to `remote`.
+    pub fn with_remote(mut self, remote: tokio::sync::mpsc::Sender<Incoming>) -> Router {
+        self.remote = Some(remote);
+        self
+    }
+
+    /// `<root>/config/set`: to the remote config task, which answers it; while it works on
+    /// one, another is answered `busy`.
+    fn config_push(&self, msg: Incoming) {
+        let Some(remote) = &self.remote else {
+            return self.warn(&msg.topic, "a pushed config, but [remote] config is off");
+        };
+        if let Err(e) = remote.try_send(msg) {
+            let msg = e.into_inner();
+            let id = crate::remote::parse(&msg.payload).ok().and_then(|p| p.id);
+            self.warn(
+                &msg.topic,
+                "a pushed config refused: another one is being applied",
+            );
+            let outcome = crate::outcome::ConfigOutcome {
+                id,
+                status: "refused",
+                error: Some("busy"),
+                message: "a pushed config is being applied or watched: push again after its result"
+                    .into(),
+                hash: None,
+            };
+            let reply = Reply {
+                topics: vec![self.topics.config_result()],
+                correlation: None,
+                via: None,
+            };
+            self.send(&reply, Outcome::Config(outcome));
         }
     }
 
@@ -220,6 +259,9 @@ impl Router {
         }
         if let Some(bus) = self.topics.parse_scan(&msg.topic) {
             return self.scan(bus, &msg);
+        }
+        if msg.topic == self.topics.config_set() {
+            return self.config_push(msg);
         }
         let Some((device, channel)) = self.topics.parse_command(&msg.topic) else {
             return;

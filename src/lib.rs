@@ -37,6 +37,7 @@ pub mod plan;
 pub mod profile;
 pub mod publish;
 pub mod reading;
+pub mod remote;
 pub mod report;
 pub mod sample;
 pub mod scan;

@@ -41,6 +41,24 @@ pub struct ScanProgress {
 pub enum Outcome {
     Command(CommandOutcome),
     Scan(ScanOutcome),
+    /// A config pushed from the broker (`<root>/config/result`).
+    Config(ConfigOutcome),
+}
+
+/// What became of a pushed config: shaped as command results are (`ok`, `error`, `message`),
+/// with its `id` and where it stands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigOutcome {
+    pub id: Option<String>,
+    /// `applied` (in force, watched: a progress result), `kept` (the grace period passed),
+    /// `rolled_back`, or `refused`.
+    pub status: &'static str,
+    /// The error code when it is not in force: `bad_payload`, `bad_config`, `forbidden`,
+    /// `busy`, `write_failed`, `rolled_back`.
+    pub error: Option<&'static str>,
+    pub message: String,
+    /// The hash of the config in force after this step.
+    pub hash: Option<String>,
 }
 
 /// What became of a clear, preset or clear_all.
@@ -91,6 +109,7 @@ impl Outcome {
             Outcome::Command(c) => c.result.as_ref().err().map(CommandError::code),
             Outcome::Scan(ScanOutcome::Refused { code, .. }) => Some(code),
             Outcome::Scan(ScanOutcome::Report(_)) => None,
+            Outcome::Config(c) => c.error,
         }
     }
 
@@ -102,6 +121,23 @@ impl Outcome {
             }
             Outcome::Scan(ScanOutcome::Report(r)) => {
                 serde_json::to_value(r).unwrap_or(serde_json::Value::Null)
+            }
+            Outcome::Config(c) => {
+                let mut v = serde_json::json!({
+                    "ok": c.error.is_none(),
+                    "status": c.status,
+                    "message": c.message,
+                });
+                if let Some(e) = c.error {
+                    v["error"] = serde_json::json!(e);
+                }
+                if let Some(id) = &c.id {
+                    v["id"] = serde_json::json!(id);
+                }
+                if let Some(h) = &c.hash {
+                    v["config"] = serde_json::json!(h);
+                }
+                v
             }
             Outcome::Scan(ScanOutcome::Refused {
                 bus,

@@ -97,6 +97,16 @@ impl Topics {
         ]
     }
 
+    /// `<root>/config/set`: a config pushed from the broker (`[remote] config = true`).
+    pub fn config_set(&self) -> String {
+        format!("{}/config/set", self.root)
+    }
+
+    /// `<root>/config/result`: what became of a pushed config.
+    pub fn config_result(&self) -> String {
+        format!("{}/config/result", self.root)
+    }
+
     /// Reads a command topic: `<root>/<device>/<channel>/cmd` or `<root>/<device>/cmd`. The
     /// one reader of command topics (the router asks it).
     pub fn parse_command<'a>(&self, topic: &'a str) -> Option<(&'a str, Option<&'a str>)> {

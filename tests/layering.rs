@@ -108,6 +108,8 @@ const FLOORS: &[(&str, &[&str])] = &[
     ("driver::mbus", &[]),
     ("driver", &["bus", "config", "driver::modbus", "scan"]),
     // Commands in, messages out.
+    // A pushed config: read, guarded, watched (pure).
+    ("remote", &["config"]),
     (
         "dispatch",
         &[
@@ -119,6 +121,7 @@ const FLOORS: &[(&str, &[&str])] = &[
             "log_budget",
             "outcome",
             "reading",
+            "remote",
             "scan",
             "topics",
         ],

@@ -102,6 +102,10 @@ impl Metrics {
     /// A command or scan was answered: counted, and its refusal by code.
     pub fn command_result(&self, outcome: &crate::outcome::Outcome) {
         let Some(e) = &self.inner else { return };
+        // A pushed config is no command (its steps are in the log and on config/result).
+        if matches!(outcome, crate::outcome::Outcome::Config(_)) {
+            return;
+        }
         let f = &e.families;
         f.commands_received.inc();
         if let Some(code) = outcome.refusal() {

@@ -26,10 +26,14 @@ impl Fanout {
     /// Until every sender of `events` (the buses, the router) is gone; then the outputs'
     /// channels close too. `answers` (what the outputs answer themselves) does not keep it
     /// running: the outputs hold its senders until they end, which they do when it ends.
+    /// `swaps` hands it the channels of a new set of outputs (a pushed config rebuilt them):
+    /// the old ones are dropped, so their tasks end, and every event from then on goes to the
+    /// new ones (which keep it until they run).
     pub async fn run(
-        self,
+        mut self,
         mut events: UnboundedReceiver<Output>,
         mut answers: UnboundedReceiver<Output>,
+        mut swaps: UnboundedReceiver<Vec<UnboundedSender<Output>>>,
     ) {
         loop {
             tokio::select! {
@@ -38,6 +42,7 @@ impl Fanout {
                     None => return,
                 },
                 Some(answer) = answers.recv() => self.hand(answer),
+                Some(outputs) = swaps.recv() => self.outputs = outputs,
             }
         }
     }

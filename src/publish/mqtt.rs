@@ -143,8 +143,14 @@ impl Shell {
         for m in stage.connected() {
             self.publish_direct(m);
         }
-        if link.commands {
-            let filters = self.topics.command_filters();
+        if link.commands || link.remote {
+            let mut filters: Vec<String> = Vec::new();
+            if link.commands {
+                filters.extend(self.topics.command_filters());
+            }
+            if link.remote {
+                filters.push(self.topics.config_set());
+            }
             if let Err(e) = self.client.subscribe_commands(&filters) {
                 tracing::error!("cannot subscribe to command topics: {e}");
             }
@@ -192,6 +198,8 @@ pub struct Task {
     pub controls: UnboundedSender<Control>,
     /// The hash of the config in force (`Config::hash`), in the boot marker.
     pub config_hash: String,
+    /// This connection takes pushed configs (the voice's home, with `[remote] config`).
+    pub remote_config: bool,
 }
 
 /// Runs MQTT until the bus output closes (after `shutdown`), then spools what is left, publishes
@@ -234,6 +242,7 @@ pub async fn run(
         client_id: task.config.client_id.clone(),
         commands: task.voice && task.config.commands,
         voice: task.voice,
+        remote: task.remote_config,
         boot: task.boot.clone(),
         config_hash: task.config_hash.clone(),
     };
@@ -848,6 +857,8 @@ struct Connection {
     commands: bool,
     /// Carries the gateway's voice: publishes and watches the boot marker.
     voice: bool,
+    /// Takes pushed configs (`<root>/config/set`, `[remote] config = true`).
+    remote: bool,
     /// This run's boot id, published retained on `<root>/gateway`.
     boot: crate::boot::Boot,
     /// The hash of the config in force, in that marker.

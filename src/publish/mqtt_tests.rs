@@ -107,6 +107,7 @@ fn task(name: &str) -> Task {
         answers: tokio::sync::mpsc::unbounded_channel().0,
         controls: tokio::sync::mpsc::unbounded_channel().0,
         config_hash: String::new(),
+        remote_config: false,
     }
 }
 
@@ -125,6 +126,7 @@ fn publisher<'t>(task: &'t Task, name: &str) -> (Publisher<'t>, Sender<Polled>, 
         client_id: "t".into(),
         commands: true,
         voice: true,
+        remote: false,
         boot: task.boot.clone(),
         config_hash: String::new(),
     };

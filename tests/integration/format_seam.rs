@@ -58,6 +58,7 @@ fn run_toy(port: u16, dir: &std::path::Path, stop: std::sync::mpsc::Receiver<()>
             answers: tokio::sync::mpsc::unbounded_channel().0,
             controls: tokio::sync::mpsc::unbounded_channel().0,
             config_hash: String::new(),
+            remote_config: false,
         };
         let (_out, output) = tokio::sync::mpsc::unbounded_channel();
         let (incoming, _commands) = tokio::sync::mpsc::channel(8);
