@@ -8,6 +8,7 @@ pub mod channel;
 mod check;
 mod connection;
 mod error;
+pub mod hash;
 mod metering;
 mod metrics;
 mod model;
@@ -25,6 +26,7 @@ use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
+pub use hash::ConfigHash;
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{OutputConfig, OutputKind, Outputs};
 
