@@ -43,5 +43,6 @@ pub mod scan;
 pub mod setreading;
 pub mod sim;
 pub mod state;
+pub mod status;
 pub mod systemd;
 pub mod topics;

@@ -11,6 +11,7 @@
 //! of a thousand devices pays no memory for series nobody scrapes.
 
 mod families;
+mod look;
 pub mod server;
 
 use std::collections::{BTreeSet, HashMap};
@@ -23,6 +24,7 @@ use crate::bus_health::WireCounters;
 use crate::config::Config;
 use crate::reading::Reading;
 use families::{Families, Gone};
+pub use look::{BusLook, DeviceLook};
 
 /// The gateway's metrics: one registry, handed to the buses and the MQTT task; or nothing.
 #[derive(Clone, Default)]
@@ -238,6 +240,7 @@ impl BusMetrics {
                 garbled: f.device_garbled.with_label_values(&l),
                 exceptions: f.device_exceptions.with_label_values(&l),
                 latency: f.device_latency.with_label_values(&l),
+                live: f.live.of(&b.name, device),
                 request_limit: f.device_request_limit.with_label_values(&l),
                 requests_per_poll: f.device_requests_per_poll.with_label_values(&l),
                 channels: HashMap::new(),
@@ -310,6 +313,8 @@ struct DeviceHandles {
     garbled: IntCounter,
     exceptions: IntCounter,
     latency: Histogram,
+    /// The last good answer, for the status page.
+    live: Arc<look::Live>,
     request_limit: IntGauge,
     requests_per_poll: IntGauge,
     channels: HashMap<Arc<str>, ChannelMetrics>,
@@ -335,6 +340,7 @@ impl DeviceMetrics {
     pub fn latency(&self, d: Duration) {
         if let Some(h) = &self.inner {
             h.latency.observe(d.as_secs_f64());
+            h.live.answered(d);
         }
     }
 

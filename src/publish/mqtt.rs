@@ -604,6 +604,7 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
+        self.task.heart.set_error(why.to_string());
         if matches!(why, Failure::ProtocolRefused) {
             self.task.heart.set_problem(Some(why.to_string()));
         }
@@ -642,6 +643,7 @@ impl Publisher<'_> {
         let outbox = &self.shell.outbox;
         let spool = outbox.store();
         let chatter = outbox.chatter();
+        self.task.heart.set_spool(spool.len(), spool.total_bytes());
         self.task.metrics.sample(&crate::metrics::OutputSample {
             connected: up,
             held: held.is_some(),
