@@ -42,7 +42,15 @@ pub async fn run_with_reloads(
         Some(_) => Metrics::new(),
         None => Metrics::disabled(),
     };
-    let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
+    // The status page's board: fed by the fan-out, read by the HTTP endpoint.
+    let status = config.metrics.as_ref().map(|_| {
+        Arc::new(crate::status::Live::new(
+            &config,
+            health.clone(),
+            metrics.clone(),
+        ))
+    });
+    let endpoint = start_http(&config, &metrics, &health, status.clone(), &shutdown).await;
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
     for bus in config.buses.iter().filter(|b| b.enabled) {
@@ -55,7 +63,8 @@ pub async fn run_with_reloads(
     *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
     let router = tokio::spawn(router.run(incoming_rx));
 
-    let north = Northbound::start(&config, &health, &metrics, incoming_tx, out_rx, &shutdown).await;
+    let wires = (health.clone(), metrics.clone(), status.clone());
+    let north = Northbound::start(&config, wires, incoming_tx, out_rx, &shutdown).await;
 
     let mut current = config;
     loop {
@@ -69,6 +78,9 @@ pub async fn run_with_reloads(
                 // The output stages (Home Assistant discovery describes the config).
                 north.reload(&new);
                 apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
+                if let Some(board) = &status {
+                    board.reconfigure(&current);
+                }
                 Router::set_targets(&targets, &current, &senders(&running));
                 *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
             }
@@ -100,8 +112,7 @@ impl Northbound {
     /// One task per output and the fan-out from `events` (the buses' and the router's output).
     async fn start(
         config: &Config,
-        health: &Arc<Health>,
-        metrics: &Metrics,
+        (health, metrics, status): (Arc<Health>, Metrics, Option<Arc<crate::status::Live>>),
         incoming: tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
         events: UnboundedReceiver<Output>,
         shutdown: &CancellationToken,
@@ -112,8 +123,8 @@ impl Northbound {
             .unwrap_or_default();
         let (answers, answers_rx) = unbounded_channel();
         let wiring = Wiring {
-            health,
-            metrics,
+            health: &health,
+            metrics: &metrics,
             boot,
             answers,
             incoming,
@@ -124,6 +135,7 @@ impl Northbound {
             outputs: outputs.iter().map(|o| o.events.clone()).collect(),
             health: health.clone(),
             metrics: metrics.clone(),
+            status,
         };
         Northbound {
             reloads: outputs.iter().map(|o| o.reloads.clone()).collect(),
@@ -285,24 +297,35 @@ async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state::lock::St
     }
 }
 
-/// Serves `/metrics` and `/healthz` when `[metrics]` is configured. A port that cannot be bound
-/// is logged and the gateway runs on without the endpoint: polling matters more.
-async fn start_metrics(
+/// Serves `/metrics`, `/healthz` and the status page when `[metrics]` is configured. A port
+/// that cannot be bound is logged and the gateway runs on without the endpoint: polling matters
+/// more.
+async fn start_http(
     config: &Config,
     metrics: &Metrics,
     health: &Arc<Health>,
+    status: Option<Arc<crate::status::Live>>,
     shutdown: &CancellationToken,
 ) -> Option<JoinHandle<()>> {
-    let listen = config.metrics.as_ref()?.listen;
+    let m = config.metrics.as_ref()?;
+    let listen = m.listen;
     if !listen.ip().is_loopback() {
-        tracing::warn!(%listen, "metrics endpoint is not on loopback: keep it behind a firewall");
+        tracing::warn!(%listen, "HTTP endpoint is not on loopback: the status page asks for metrics.token, /metrics and /healthz do not; keep it behind a firewall");
     }
-    match crate::metrics::server::bind(listen).await {
+    match crate::http::bind(listen).await {
         Ok(l) => {
-            tracing::info!(%listen, "metrics endpoint: /metrics, /healthz");
-            let serve =
-                crate::metrics::server::serve(l, metrics.clone(), health.clone(), shutdown.clone());
-            Some(tokio::spawn(serve))
+            tracing::info!(%listen, "HTTP endpoint: the status page at http://{listen}/, /api/v1/status, /metrics, /healthz");
+            let endpoint = crate::http::Endpoint {
+                metrics: metrics.clone(),
+                health: health.clone(),
+                status,
+                token: m.token.clone(),
+            };
+            Some(tokio::spawn(crate::http::serve(
+                l,
+                endpoint,
+                shutdown.clone(),
+            )))
         }
         Err(e) => {
             tracing::error!("{e}; running without it");

@@ -28,6 +28,7 @@ pub mod dispatch;
 pub mod driver;
 pub mod event;
 pub mod health;
+pub mod http;
 pub mod log_budget;
 pub mod metering;
 pub mod metrics;

@@ -40,12 +40,13 @@ pub(super) fn check(table: Option<Table<'_>>, errs: &mut Errors) -> Option<Metri
         }
     }
     if let Some(token) = t.opt::<String>("token", errs) {
-        if token.chars().count() < MIN_TOKEN_CHARS || token.chars().any(char::is_whitespace) {
+        let fits = |c: char| c.is_ascii_alphanumeric() || "-._~+/=".contains(c);
+        if token.chars().count() < MIN_TOKEN_CHARS || !token.chars().all(fits) {
             errs.push(
                 &join(&t.path, "token"),
                 t.origin(),
                 format!(
-                    "must be at least {MIN_TOKEN_CHARS} characters without spaces (e.g. the output of `openssl rand -hex 16`)"
+                    "must be at least {MIN_TOKEN_CHARS} characters of A-Z, a-z, 0-9 and -._~+/= (e.g. the output of `openssl rand -hex 16`)"
                 ),
             );
         }

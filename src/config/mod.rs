@@ -10,7 +10,7 @@ mod connection;
 mod error;
 pub mod hash;
 mod metering;
-mod metrics;
+pub mod metrics;
 mod model;
 mod mqtt;
 pub mod outputs;

@@ -7,13 +7,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use super::Metrics;
-
 /// A device's last good answer: when (Unix ms; 0 before the first) and how long it took (µs).
 #[derive(Debug, Default)]
 pub(super) struct Live {
-    answered_ms: AtomicU64,
-    latency_us: AtomicU64,
+    pub(super) answered_ms: AtomicU64,
+    pub(super) latency_us: AtomicU64,
 }
 
 impl Live {
@@ -39,7 +37,7 @@ impl LiveTable {
             .clone()
     }
 
-    fn get(&self, bus: &str, device: &str) -> Option<Arc<Live>> {
+    pub(super) fn get(&self, bus: &str, device: &str) -> Option<Arc<Live>> {
         let t = self.0.lock().unwrap_or_else(|e| e.into_inner());
         t.get(&(bus.to_string(), device.to_string())).cloned()
     }
@@ -73,39 +71,4 @@ pub struct BusLook {
     pub line_faults: u64,
     /// The share of the last stats interval the line was busy.
     pub utilisation: f64,
-}
-
-impl Metrics {
-    /// A device's counters and last answer; `None` without metrics or before its bus made
-    /// its handles.
-    pub fn device_look(&self, bus: &str, device: &str) -> Option<DeviceLook> {
-        let f = &self.inner.as_ref()?.families;
-        let live = f.live.get(bus, device)?;
-        let l = [bus, device];
-        let latency = f.device_latency.with_label_values(&l);
-        let answered = live.answered_ms.load(Ordering::Relaxed);
-        let count = latency.get_sample_count();
-        Some(DeviceLook {
-            transactions: f.device_transactions.with_label_values(&l).get(),
-            timeouts: f.device_timeouts.with_label_values(&l).get(),
-            garbled: f.device_garbled.with_label_values(&l).get(),
-            exceptions: f.device_exceptions.with_label_values(&l).get(),
-            last_answer_ms: (answered > 0).then_some(answered),
-            last_latency_ms: (answered > 0)
-                .then(|| live.latency_us.load(Ordering::Relaxed) as f64 / 1000.0),
-            mean_latency_ms: (count > 0).then(|| latency.get_sample_sum() / count as f64 * 1000.0),
-        })
-    }
-
-    /// A bus's counters; `None` without metrics.
-    pub fn bus_look(&self, bus: &str) -> Option<BusLook> {
-        let f = &self.inner.as_ref()?.families;
-        let l = [bus];
-        Some(BusLook {
-            transactions: f.bus_transactions.with_label_values(&l).get(),
-            reconnects: f.bus_reconnects.with_label_values(&l).get(),
-            line_faults: f.bus_line_faults.with_label_values(&l).get(),
-            utilisation: f.bus_utilisation.with_label_values(&l).get(),
-        })
-    }
 }

@@ -12,7 +12,6 @@
 
 mod families;
 mod look;
-pub mod server;
 
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
@@ -133,6 +132,42 @@ impl Metrics {
         // Encoding our own, well-formed families into a Vec cannot fail.
         let _ = TextEncoder::new().encode(&e.registry.gather(), &mut out);
         String::from_utf8(out).unwrap_or_default()
+    }
+}
+
+impl Metrics {
+    /// A device's counters and last answer; `None` without metrics or before its bus made
+    /// its handles.
+    pub fn device_look(&self, bus: &str, device: &str) -> Option<DeviceLook> {
+        let f = &self.inner.as_ref()?.families;
+        let live = f.live.get(bus, device)?;
+        let l = [bus, device];
+        let latency = f.device_latency.with_label_values(&l);
+        let answered = live.answered_ms.load(std::sync::atomic::Ordering::Relaxed);
+        let count = latency.get_sample_count();
+        Some(DeviceLook {
+            transactions: f.device_transactions.with_label_values(&l).get(),
+            timeouts: f.device_timeouts.with_label_values(&l).get(),
+            garbled: f.device_garbled.with_label_values(&l).get(),
+            exceptions: f.device_exceptions.with_label_values(&l).get(),
+            last_answer_ms: (answered > 0).then_some(answered),
+            last_latency_ms: (answered > 0).then(|| {
+                live.latency_us.load(std::sync::atomic::Ordering::Relaxed) as f64 / 1000.0
+            }),
+            mean_latency_ms: (count > 0).then(|| latency.get_sample_sum() / count as f64 * 1000.0),
+        })
+    }
+
+    /// A bus's counters; `None` without metrics.
+    pub fn bus_look(&self, bus: &str) -> Option<BusLook> {
+        let f = &self.inner.as_ref()?.families;
+        let l = [bus];
+        Some(BusLook {
+            transactions: f.bus_transactions.with_label_values(&l).get(),
+            reconnects: f.bus_reconnects.with_label_values(&l).get(),
+            line_faults: f.bus_line_faults.with_label_values(&l).get(),
+            utilisation: f.bus_utilisation.with_label_values(&l).get(),
+        })
     }
 }
 

@@ -77,9 +77,9 @@ impl Live {
             if let Some(look) = self.metrics.device_look(&bus, &device) {
                 measured.devices.insert(device, look);
             }
-            if !measured.buses.contains_key(&bus) {
-                if let Some(look) = self.metrics.bus_look(&bus) {
-                    measured.buses.insert(bus, look);
+            if let std::collections::btree_map::Entry::Vacant(e) = measured.buses.entry(bus) {
+                if let Some(look) = self.metrics.bus_look(e.key()) {
+                    e.insert(look);
                 }
             }
         }
