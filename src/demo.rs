@@ -129,7 +129,10 @@ pub async fn run(
     println!("status page: http://{page}/\n");
 
     let gateway = tokio::spawn(crate::app::run(config, shutdown.clone()));
-    let view = View { root, page: format!("http://{page}/") };
+    let view = View {
+        root,
+        page: format!("http://{page}/"),
+    };
     let table = tokio::spawn(live_table(host, port, view, shutdown.clone()));
     if let Some(d) = duration {
         tokio::select! {

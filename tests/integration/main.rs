@@ -24,4 +24,5 @@ mod protocol;
 mod readings_first;
 mod service;
 mod sparkplug;
+mod status_page;
 mod support;
