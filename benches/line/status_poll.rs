@@ -38,6 +38,9 @@ fn reads(plant: &Plant) -> u64 {
     modules.values().map(|m| m.reads).sum()
 }
 
+/// Bytes of the last answer (to print its size).
+static LAST_SIZE: AtomicU64 = AtomicU64::new(0);
+
 /// One `GET /api/v1/status`; whether it answered 200.
 fn ask(port: u16) -> bool {
     let Ok(mut s) = TcpStream::connect(("127.0.0.1", port)) else {
@@ -54,6 +57,7 @@ Connection: close
     }
     let mut answer = Vec::new();
     let _ = s.read_to_end(&mut answer);
+    LAST_SIZE.store(answer.len() as u64, Ordering::Relaxed);
     answer.starts_with(b"HTTP/1.1 200")
 }
 
@@ -133,10 +137,11 @@ pub async fn run(figures: &mut Vec<Figure>) {
         let (c1, t1, a1) = (cpu_ns(pid), reads(&plant), answered.load(Ordering::Relaxed));
         let per_tx_us = (c1 - c0) as f64 / 1000.0 / (t1 - t0).max(1) as f64;
         println!(
-            "status page: {} clients, {:.0} tx/s, {per_tx_us:.1} us CPU a transaction, {:.1} answers/s",
+            "status page: {} clients, {:.0} tx/s, {per_tx_us:.1} us CPU a transaction, {:.1} answers/s of {} bytes",
             if polling { CLIENTS } else { 0 },
             (t1 - t0) as f64 / secs as f64,
-            (a1 - a0) as f64 / secs as f64
+            (a1 - a0) as f64 / secs as f64,
+            LAST_SIZE.load(Ordering::Relaxed)
         );
         if polling {
             asked += a1 - a0;

@@ -405,8 +405,8 @@ impl Board {
             status_since_ms: d.status.as_ref().map(|s| s.1),
             poll_ms: d.config.poll.as_millis() as u64,
             last_answer_ms: look.last_answer_ms,
-            latency_ms: look.last_latency_ms,
-            mean_latency_ms: look.mean_latency_ms,
+            latency_ms: look.last_latency_ms.map(milli),
+            mean_latency_ms: look.mean_latency_ms.map(milli),
             latency_p50_ms: stats.and_then(|s| s.latency_p50_ms),
             latency_p99_ms: stats.and_then(|s| s.latency_p99_ms),
             transactions: look.transactions,
@@ -513,6 +513,11 @@ fn outputs(config: &Config) -> BTreeMap<String, (Option<String>, String, u64)> {
     out
 }
 
+/// `v` to three decimals: a chart needs no more, and the answer stays short.
+fn milli(v: f64) -> f64 {
+    (v * 1000.0).round() / 1000.0
+}
+
 /// A channel's last reading, history and intervals as the API shows them.
 fn channel_view(c: &ChannelEntry, clock: &Clock, now_ms: u64) -> ChannelView {
     let r = &c.last;
@@ -541,7 +546,12 @@ fn channel_view(c: &ChannelEntry, clock: &Clock, now_ms: u64) -> ChannelView {
         history: HistoryView {
             bucket_s: (BUCKET_MS / 1000) as u64,
             end_ms: History::end_ms(now_ms as i64) as u64,
-            rates: c.history.rates(now_ms as i64),
+            rates: c
+                .history
+                .rates(now_ms as i64)
+                .into_iter()
+                .map(|r| r.map(milli))
+                .collect(),
         },
         intervals: c.intervals.iter().map(|p| p.view(clock)).collect(),
     }

@@ -1,7 +1,7 @@
 //! The board of a running gateway: the fan-out hands it every event, the HTTP endpoint asks it
-//! for the API's JSON. The answer is made at most every [`FRESH`] and shared by every client
-//! asking within that time, so fifty open pages cost the gateway a few snapshots a second, not
-//! fifty.
+//! for the API's JSON. The answer is made at most every [`FRESH`] (the page asks once a second)
+//! and shared by every client asking within that time, so fifty open pages cost the gateway one
+//! snapshot a second, not fifty.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
@@ -15,7 +15,7 @@ use crate::metrics::Metrics;
 use crate::reading::{Output, unix_ms};
 
 /// How long a made answer is handed out again.
-pub const FRESH: Duration = Duration::from_millis(250);
+pub const FRESH: Duration = Duration::from_secs(1);
 
 /// A board and what it reads of the running gateway.
 pub struct Live {
