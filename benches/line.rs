@@ -11,11 +11,16 @@
 //! - side by side with mbpoll (a bare C Modbus client), all on one CPU: the gateway's CPU per
 //!   transaction over mbpoll's, Modbus TCP and RTU at 9600 baud (`sidebyside`).
 //!
+//! - the status page: CPU per transaction with 50 clients polling `/api/v1/status` against
+//!   none (`status`).
+//!
 //! `cargo bench --bench line NAME` runs only the parts whose name contains NAME (saturated,
-//! silent, cpu, mbpoll, command, thousand).
+//! silent, cpu, mbpoll, command, thousand, status).
 
 #[path = "line/sidebyside.rs"]
 mod sidebyside;
+#[path = "line/status_poll.rs"]
+mod status_poll;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -722,6 +727,9 @@ fn main() {
         }
         if want("thousand") {
             thousand_devices(&mut figures).await;
+        }
+        if want("status") {
+            status_poll::run(&mut figures).await;
         }
     });
     report(&figures);

@@ -60,8 +60,16 @@ pub async fn run_with_reloads(
         Some(_) => Metrics::new(),
         None => Metrics::disabled(),
     };
-    let endpoint = start_metrics(&config, &metrics, &health, &shutdown).await;
-    metrics.config(&config.hash());
+    // The status page's board: fed by the fan-out, read by the HTTP endpoint.
+    let status = config.metrics.as_ref().map(|_| {
+        Arc::new(crate::status::Live::new(
+            &config,
+            health.clone(),
+            metrics.clone(),
+        ))
+    });
+    let endpoint = start_http(&config, &metrics, &health, status.clone(), &shutdown).await;
+    metrics.config(&config.hash().to_string());
 
     let mut running: BTreeMap<String, Running> = BTreeMap::new();
     for bus in config.buses.iter().filter(|b| b.enabled) {
@@ -77,8 +85,7 @@ pub async fn run_with_reloads(
     let (controls_tx, mut controls) = unbounded_channel();
     let north = Northbound::start(
         &config,
-        &health,
-        &metrics,
+        (health.clone(), metrics.clone(), status.clone()),
         (incoming_tx, controls_tx),
         out_rx,
         &shutdown,
@@ -103,6 +110,9 @@ pub async fn run_with_reloads(
                 // The output stages (Home Assistant discovery describes the config).
                 north.reload(&new);
                 apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
+                if let Some(board) = &status {
+                    board.reconfigure(&current);
+                }
                 Router::set_targets(&targets, &current, &senders(&running));
                 *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
             }
@@ -149,24 +159,35 @@ async fn claim_state_dir(dir: &std::path::Path) -> Option<crate::state::lock::St
     }
 }
 
-/// Serves `/metrics` and `/healthz` when `[metrics]` is configured. A port that cannot be bound
-/// is logged and the gateway runs on without the endpoint: polling matters more.
-async fn start_metrics(
+/// Serves `/metrics`, `/healthz` and the status page when `[metrics]` is configured. A port
+/// that cannot be bound is logged and the gateway runs on without the endpoint: polling matters
+/// more.
+async fn start_http(
     config: &Config,
     metrics: &Metrics,
     health: &Arc<Health>,
+    status: Option<Arc<crate::status::Live>>,
     shutdown: &CancellationToken,
 ) -> Option<JoinHandle<()>> {
-    let listen = config.metrics.as_ref()?.listen;
+    let m = config.metrics.as_ref()?;
+    let listen = m.listen;
     if !listen.ip().is_loopback() {
-        tracing::warn!(%listen, "metrics endpoint is not on loopback: keep it behind a firewall");
+        tracing::warn!(%listen, "HTTP endpoint is not on loopback: the status page asks for metrics.token, /metrics and /healthz do not; keep it behind a firewall");
     }
-    match crate::metrics::server::bind(listen).await {
+    match crate::http::bind(listen).await {
         Ok(l) => {
-            tracing::info!(%listen, "metrics endpoint: /metrics, /healthz");
-            let serve =
-                crate::metrics::server::serve(l, metrics.clone(), health.clone(), shutdown.clone());
-            Some(tokio::spawn(serve))
+            tracing::info!(%listen, "HTTP endpoint: the status page at http://{listen}/, /api/v1/status, /metrics, /healthz");
+            let endpoint = crate::http::Endpoint {
+                metrics: metrics.clone(),
+                health: health.clone(),
+                status,
+                token: m.token.clone(),
+            };
+            Some(tokio::spawn(crate::http::serve(
+                l,
+                endpoint,
+                shutdown.clone(),
+            )))
         }
         Err(e) => {
             tracing::error!("{e}; running without it");

@@ -72,11 +72,11 @@ channels.di4 = { rate = 1.0 }
     c
 }
 
-/// The gateway config for a running plant.
+/// The gateway config for a running plant, its status page on `page`.
 fn gateway_config(
     plant: &Plant,
-    host: &str,
-    port: u16,
+    (host, port): (&str, u16),
+    page: std::net::SocketAddr,
     state_dir: &Path,
 ) -> Result<Config, DemoError> {
     let sim = plant_config();
@@ -90,7 +90,8 @@ fn gateway_config(
         serial: "baud = 9600\n",
         tcp: "",
     }
-    .render(plant, &crate::sim::gateway::every_device(&sim, "500ms"));
+    .render(plant, &crate::sim::gateway::every_device(&sim, "500ms"))
+        + &format!("[metrics]\nlisten = \"{page}\"\n");
     Ok(Config::from_toml(
         &text,
         &state_dir.join("demo.toml"),
@@ -121,12 +122,18 @@ pub async fn run(
     };
     let plant = Plant::start(&plant_config()).await?;
     let state_dir = std::env::temp_dir().join(format!("pulsegate-demo-{}", std::process::id()));
-    let config = gateway_config(&plant, &host, port, &state_dir)?;
+    let page = page_address();
+    let config = gateway_config(&plant, (&host, port), page, &state_dir)?;
     let root = config.mqtt.topic_root.clone();
     print!("{}", crate::report::poll_plan(&config));
+    println!("status page: http://{page}/\n");
 
     let gateway = tokio::spawn(crate::app::run(config, shutdown.clone()));
-    let table = tokio::spawn(live_table(host, port, root, shutdown.clone()));
+    let view = View {
+        root,
+        page: format!("http://{page}/"),
+    };
+    let table = tokio::spawn(live_table(host, port, view, shutdown.clone()));
     if let Some(d) = duration {
         tokio::select! {
             () = tokio::time::sleep(d) => shutdown.cancel(),
@@ -140,6 +147,17 @@ pub async fn run(
     plant.stop();
     let _ = std::fs::remove_dir_all(&state_dir);
     Ok(())
+}
+
+/// Where the demo serves its status page: the usual port when it is free, else any free one.
+fn page_address() -> std::net::SocketAddr {
+    let usual: std::net::SocketAddr = crate::config::metrics::DEFAULT_LISTEN
+        .parse()
+        .expect("valid default");
+    let free = std::net::TcpListener::bind(usual)
+        .or_else(|_| std::net::TcpListener::bind("127.0.0.1:0"))
+        .and_then(|l| l.local_addr());
+    free.unwrap_or(usual)
 }
 
 #[cfg(feature = "embedded-broker")]
@@ -189,8 +207,15 @@ fn start_embedded_broker(_listen: &str) -> Result<(), DemoError> {
     ))
 }
 
+/// What the table says besides the readings: the topic root and the status page's address.
+struct View {
+    root: String,
+    page: String,
+}
+
 /// Subscribes to the gateway's topics and redraws a table of the latest value per channel.
-async fn live_table(host: String, port: u16, root: String, shutdown: CancellationToken) {
+async fn live_table(host: String, port: u16, view: View, shutdown: CancellationToken) {
+    let root = view.root.clone();
     let mut options = MqttOptions::new(
         format!("pulsegate-demo-view-{}", std::process::id()),
         host,
@@ -204,7 +229,7 @@ async fn live_table(host: String, port: u16, root: String, shutdown: Cancellatio
     loop {
         tokio::select! {
             () = shutdown.cancelled() => break,
-            _ = tick.tick() => draw(&latest, &root, tty),
+            _ = tick.tick() => draw(&latest, &view, tty),
             e = eventloop.poll() => match e {
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
                     let _ = client.try_subscribe(format!("{root}/#"), QoS::AtMostOnce);
@@ -271,12 +296,16 @@ fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
     pa.len().cmp(&pb.len()).then_with(|| a.cmp(b))
 }
 
-fn draw(latest: &BTreeMap<String, String>, root: &str, tty: bool) {
+fn draw(latest: &BTreeMap<String, String>, view: &View, tty: bool) {
+    let root = &view.root;
     let mut out = String::new();
     if tty {
         out += "\x1b[2J\x1b[H";
     }
-    out += &format!("pulsegate demo: readings under {root}/ (Ctrl-C to stop)\n\n");
+    out += &format!(
+        "pulsegate demo: readings under {root}/ (Ctrl-C to stop); status page: {}\n\n",
+        view.page
+    );
     out += &format!(
         "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
         "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event"

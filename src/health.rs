@@ -32,6 +32,28 @@ pub struct Beat {
     /// Milliseconds since the gateway started at which the loop went down, or was held;
     /// [`UP`] while it is up and not held.
     down_since_ms: AtomicU64,
+    /// An output's last connection error and when it happened (Unix ms); kept after it
+    /// reconnects, for the status page.
+    last_error: Mutex<Option<(String, u64)>>,
+    /// An output's spool: messages and bytes waiting.
+    spool_messages: AtomicU64,
+    spool_bytes: AtomicU64,
+}
+
+/// One loop as the status page shows it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LoopView {
+    /// `bus/<name>` or `output/<name>`.
+    pub name: String,
+    pub up: bool,
+    pub held: Option<String>,
+    pub problem: Option<String>,
+    /// The last connection error and when (Unix ms).
+    pub last_error: Option<(String, u64)>,
+    /// How long it has been down or held, in milliseconds (`None` while up and unheld).
+    pub down_for_ms: Option<u64>,
+    pub spool_messages: u64,
+    pub spool_bytes: u64,
 }
 
 /// [`Beat::down_since_ms`] of a loop that is up.
@@ -98,6 +120,20 @@ impl Heart {
         self.mark();
     }
 
+    /// The connection failed, and why (kept until the next failure).
+    pub fn set_error(&self, why: String) {
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_millis() as u64);
+        *lock(&self.beat.last_error) = Some((why, now));
+    }
+
+    /// What the output's spool holds.
+    pub fn set_spool(&self, messages: u64, bytes: u64) {
+        self.beat.spool_messages.store(messages, Ordering::Relaxed);
+        self.beat.spool_bytes.store(bytes, Ordering::Relaxed);
+    }
+
     /// Notes when the loop stopped being up and unheld (kept while it stays so).
     fn mark(&self) {
         let well = self.beat.up.load(Ordering::Relaxed) && lock(&self.beat.held).is_none();
@@ -126,6 +162,9 @@ impl Health {
             held: Mutex::new(None),
             note: Mutex::new(None),
             down_since_ms: AtomicU64::new(now),
+            last_error: Mutex::new(None),
+            spool_messages: AtomicU64::new(0),
+            spool_bytes: AtomicU64::new(0),
         });
         lock(&self.loops).insert(name.to_string(), beat.clone());
         Heart {
@@ -147,6 +186,32 @@ impl Health {
     /// Forgets devices not in `keep` (after a reload).
     pub fn retain_devices(&self, keep: &[String]) {
         lock(&self.devices).retain(|k, _| keep.contains(k));
+    }
+
+    /// How long the gateway has run.
+    pub fn uptime(&self) -> Duration {
+        self.start.elapsed()
+    }
+
+    /// Every loop, by name.
+    pub fn loops(&self) -> Vec<LoopView> {
+        let now = self.start.elapsed().as_millis() as u64;
+        lock(&self.loops)
+            .iter()
+            .map(|(name, b)| {
+                let since = b.down_since_ms.load(Ordering::Relaxed);
+                LoopView {
+                    name: name.clone(),
+                    up: b.up.load(Ordering::Relaxed),
+                    held: lock(&b.held).clone(),
+                    problem: lock(&b.problem).clone(),
+                    last_error: lock(&b.last_error).clone(),
+                    down_for_ms: (since != UP).then(|| now.saturating_sub(since)),
+                    spool_messages: b.spool_messages.load(Ordering::Relaxed),
+                    spool_bytes: b.spool_bytes.load(Ordering::Relaxed),
+                }
+            })
+            .collect()
     }
 
     /// Loops that have not beaten within `limit`.
@@ -341,5 +406,24 @@ mod tests {
         assert!(why.contains("output/scada held for"), "{why}");
         out.set_held(None);
         assert!(h2.verdict(Duration::from_secs(3600)).is_ok(), "well again");
+    }
+
+    #[test]
+    fn an_outputs_last_error_and_spool_are_kept_for_the_page() {
+        let h = Health::default();
+        let out = h.heart("output/json");
+        out.set_up(false);
+        out.set_error("connection refused".into());
+        out.set_spool(12, 3400);
+        out.set_up(true);
+        let view = h.loops().pop().unwrap();
+        assert_eq!(view.name, "output/json");
+        assert!(view.up && view.down_for_ms.is_none());
+        assert_eq!(
+            view.last_error.unwrap().0,
+            "connection refused",
+            "kept once up again"
+        );
+        assert_eq!((view.spool_messages, view.spool_bytes), (12, 3400));
     }
 }

@@ -3,7 +3,7 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::{Config, Link};
+use crate::config::Config;
 use crate::plan::{PollPlan, Wire, line_time};
 use crate::profile::Register;
 
@@ -17,10 +17,7 @@ pub fn poll_plan(config: &Config) -> String {
     let mut out = String::new();
     for bus in &config.buses {
         let timing = bus.line_timing();
-        let link = match &bus.link {
-            Link::Rtu { port, baud, .. } => format!("RTU {} at {baud} baud", port.display()),
-            Link::Tcp { host, port } => format!("TCP {host}:{port}"),
-        };
+        let link = &bus.link;
         let _ = writeln!(out, "bus {} ({link}):", bus.name);
         let wire = Wire::for_line(timing.as_ref());
         let mut load = 0.0;

@@ -127,6 +127,22 @@ const FLOORS: &[(&str, &[&str])] = &[
         ],
     ),
     ("outbox", &[]),
+    // The status board: every event the outputs get, and what the page reads of health and
+    // the metrics.
+    (
+        "status",
+        &[
+            "bus_health",
+            "config",
+            "event",
+            "health",
+            "metering",
+            "metrics",
+            "outcome",
+            "profile",
+            "reading",
+        ],
+    ),
     (
         "publish",
         &[
@@ -145,9 +161,12 @@ const FLOORS: &[(&str, &[&str])] = &[
             "profile",
             "reading",
             "state",
+            "status",
             "topics",
         ],
     ),
+    // The HTTP endpoint: metrics, health and the status page.
+    ("http", &["config", "health", "metrics", "status"]),
     // Tools and wiring on top.
     (
         "commission",
@@ -167,8 +186,8 @@ const FLOORS: &[(&str, &[&str])] = &[
     (
         "app",
         &[
-            "boot", "bus", "config", "dispatch", "driver", "health", "metrics", "publish",
-            "reading", "scan", "state", "systemd",
+            "boot", "bus", "config", "dispatch", "driver", "health", "http", "metrics", "publish",
+            "reading", "scan", "state", "status", "systemd",
         ],
     ),
     ("demo", &["app", "config", "report", "sim"]),

@@ -65,8 +65,7 @@ impl Northbound {
     /// One task per output and the fan-out from `events` (the buses' and the router's output).
     pub async fn start(
         config: &Config,
-        health: &Arc<Health>,
-        metrics: &Metrics,
+        (health, metrics, status): (Arc<Health>, Metrics, Option<Arc<crate::status::Live>>),
         (incoming, controls): (
             tokio::sync::mpsc::Sender<crate::dispatch::Incoming>,
             UnboundedSender<Control>,
@@ -93,8 +92,9 @@ impl Northbound {
         let prepared = prepare(config, &wiring);
         let fanout = crate::publish::fanout::Fanout {
             outputs: prepared.iter().map(|p| p.events.clone()).collect(),
-            health: health.clone(),
-            metrics: metrics.clone(),
+            health,
+            metrics,
+            status,
         };
         let (tasks, reloads) = prepared.into_iter().map(|p| p.spawn(&wiring)).unzip();
         Northbound {
@@ -196,7 +196,7 @@ fn prepare_one(
         voice,
         answers: w.answers.clone(),
         controls: w.controls.clone(),
-        config_hash: config.hash(),
+        config_hash: config.hash().to_string(),
         remote_config: config.remote.config && name == home,
     };
     Prepared {

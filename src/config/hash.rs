@@ -1,33 +1,68 @@
-//! The hash of the config in force: the same config gives the same hash at every start, any
-//! change that matters gives another (a bus, a device, a channel setting, a profile file, an
-//! output, a password: secrets are hashed, never shown). For the fleet view: `<root>/gateway`,
-//! the Prometheus info metric, the Sparkplug NBIRTH.
+//! A fingerprint of the config in force: the same config gives the same hash at every start
+//! (and on every machine running the same build), any change to what the gateway does gives
+//! another, and no secret is in it.
+//!
+//! What is hashed is the checked [`Config`] (defaults filled in, environment overrides and
+//! profile files applied: what the gateway works with, not the text it was read from), written
+//! out by its `Debug` form with two things left out:
+//! - the path it was read from (the same settings under another name are the same config;
+//!   the folder counts where it is the default `profile_dir`, beside the file);
+//! - secret values (`password`, `token`): their `Debug` is `Secret(***)`, so whether a secret
+//!   is set counts and its value does not. A hash that changed with a password could be used
+//!   to test guesses of it against the published hash.
+//!
+//! Every typed config value derives or writes a deterministic `Debug` (maps are `BTreeMap`s,
+//! profiles by their contents), so the text is stable across restarts; a new field in a later
+//! build may change it, which is right: the gateway then runs another config.
+
+use std::fmt;
 
 use super::model::Config;
 
-impl Config {
-    /// 16 hex digits of SHA-256 over the checked config as the gateway uses it (not the file:
-    /// comments, key order and defaults written out change nothing).
-    pub fn hash(&self) -> String {
-        let mut ctx = ring::digest::Context::new(&ring::digest::SHA256);
-        let mut canonical = self.clone();
-        // Where it was read from is no part of what it says (nor where profiles are looked up
-        // relative to it: the profiles in force are in the devices, with their fingerprints).
-        canonical.source = std::path::PathBuf::new();
-        canonical.gateway.profile_dir = std::path::PathBuf::new();
-        ctx.update(format!("{canonical:?}").as_bytes());
-        // `Debug` hides secrets: their bytes go in apart.
-        for mqtt in std::iter::once(&self.mqtt).chain(self.outputs.list.iter().map(|o| &o.mqtt)) {
-            if let Some(p) = &mqtt.password {
-                ctx.update(&[0xff]);
-                ctx.update(p.0.as_bytes());
-            }
+/// SHA-256 of the config in force (see the module's documentation).
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct ConfigHash([u8; 32]);
+
+impl ConfigHash {
+    /// The first 12 hex digits: enough to tell two configs apart on a page or a dashboard.
+    pub fn short(&self) -> String {
+        self.to_string()[..12].to_string()
+    }
+}
+
+impl fmt::Display for ConfigHash {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for b in self.0 {
+            write!(f, "{b:02x}")?;
         }
-        let digest = ctx.finish();
-        digest.as_ref()[..8]
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect()
+        Ok(())
+    }
+}
+
+impl fmt::Debug for ConfigHash {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "ConfigHash({self})")
+    }
+}
+
+impl Config {
+    /// The hash of this config (see [`ConfigHash`]).
+    pub fn hash(&self) -> ConfigHash {
+        let Config {
+            source: _,
+            gateway,
+            mqtt,
+            metrics,
+            buses,
+            outputs,
+            remote,
+        } = self;
+        let text =
+            format!("{gateway:?}\n{mqtt:?}\n{metrics:?}\n{buses:?}\n{outputs:?}\n{remote:?}");
+        let digest = ring::digest::digest(&ring::digest::SHA256, text.as_bytes());
+        let mut bytes = [0u8; 32];
+        bytes.copy_from_slice(digest.as_ref());
+        ConfigHash(bytes)
     }
 }
 
@@ -37,35 +72,62 @@ mod tests {
 
     use super::*;
 
-    fn config(text: &str, file: &str) -> Config {
-        let base = "[gateway]\nid = \"e1\"\n[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices.d]\nunit = 1\nmodel = \"yl67\"\n";
-        let env = Some(std::collections::HashMap::new());
-        Config::from_toml(&format!("{base}{text}"), Path::new(file), env).unwrap()
+    const BASE: &str = r#"
+[gateway]
+id = "press-hall"
+state_dir = "/tmp/pulsegate-hash-test"
+[mqtt]
+host = "broker"
+password = "first secret"
+[buses.line1]
+port = "/dev/ttyUSB0"
+[buses.line1.devices.meter]
+unit = 1
+model = "yl67"
+"#;
+
+    fn hash_of(text: &str, path: &str) -> ConfigHash {
+        Config::from_toml(text, Path::new(path), Some(Default::default()))
+            .expect("valid config")
+            .hash()
     }
 
     #[test]
-    fn the_same_config_has_the_same_hash_wherever_it_was_read_from() {
-        let a = config("", "/etc/pulsegate/pulsegate.toml");
-        let b = config("\n# a comment\n", "/tmp/other.toml");
-        assert_eq!(a.hash(), b.hash());
-        assert_eq!(a.hash().len(), 16);
+    fn the_same_config_read_twice_or_from_another_path_has_the_same_hash() {
+        let a = hash_of(BASE, "/etc/pulsegate/pulsegate.toml");
+        assert_eq!(a, hash_of(BASE, "/etc/pulsegate/pulsegate.toml"));
+        assert_eq!(a, hash_of(BASE, "/etc/pulsegate/copy.toml"));
+        assert_eq!(a.to_string().len(), 64);
+        assert_eq!(a.short(), a.to_string()[..12]);
     }
 
     #[test]
-    fn any_change_that_matters_moves_the_hash() {
-        let base = config("", "x.toml").hash();
-        for change in [
-            "[buses.l.devices.d.channels.a0]\nscale = 0.001\nunit = \"kWh\"\n",
-            "[mqtt]\nhost = \"10.0.0.2\"\n",
-            "[mqtt]\npassword = \"secret\"\n",
-            "[outputs.scada]\nkind = \"sparkplug\"\n[sparkplug]\ngroup_id = \"g\"\n",
-        ] {
-            assert_ne!(config(change, "x.toml").hash(), base, "{change}");
-        }
-        assert_ne!(
-            config("[mqtt]\npassword = \"one\"\n", "x.toml").hash(),
-            config("[mqtt]\npassword = \"two\"\n", "x.toml").hash(),
-            "a new password is a new config, though it is never shown"
+    fn a_change_that_matters_changes_the_hash_and_formatting_does_not() {
+        let a = hash_of(BASE, "a.toml");
+        let poll = BASE.replace("model = \"yl67\"", "model = \"yl67\"\npoll = \"2s\"");
+        assert_ne!(a, hash_of(&poll, "a.toml"), "a device's poll interval");
+        let host = BASE.replace("host = \"broker\"", "host = \"broker2\"");
+        assert_ne!(a, hash_of(&host, "a.toml"), "the broker");
+        let reformatted = BASE.replace("unit = 1", "unit   =   1 # the first module");
+        assert_eq!(a, hash_of(&reformatted, "a.toml"), "spaces and comments");
+        let default_spelled_out = BASE.replace("[mqtt]", "[mqtt]\nport = 1883");
+        assert_eq!(
+            a,
+            hash_of(&default_spelled_out, "a.toml"),
+            "a default written out is the same config"
         );
+    }
+
+    #[test]
+    fn a_secret_counts_by_its_presence_never_by_its_value() {
+        let a = hash_of(BASE, "a.toml");
+        let other = BASE.replace("first secret", "second secret");
+        assert_eq!(a, hash_of(&other, "a.toml"));
+        let none = BASE.replace("password = \"first secret\"\n", "");
+        assert_ne!(a, hash_of(&none, "a.toml"));
+        let config = Config::from_toml(BASE, Path::new("a.toml"), Some(Default::default()))
+            .expect("valid config");
+        let text = format!("{:?}", config.mqtt);
+        assert!(!text.contains("first secret"), "{text}");
     }
 }

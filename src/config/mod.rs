@@ -8,9 +8,9 @@ pub mod channel;
 mod check;
 mod connection;
 mod error;
-mod hash;
+pub mod hash;
 mod metering;
-mod metrics;
+pub mod metrics;
 mod model;
 mod mqtt;
 pub mod outputs;
@@ -27,6 +27,7 @@ use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
+pub use hash::ConfigHash;
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{OutputConfig, OutputKind, Outputs};
 

@@ -98,6 +98,16 @@ pub enum Link {
     Tcp { host: String, port: u16 },
 }
 
+impl std::fmt::Display for Link {
+    /// How logs, `check` and the status page name the link.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Link::Rtu { port, baud, .. } => write!(f, "RTU {} at {baud} baud", port.display()),
+            Link::Tcp { host, port } => write!(f, "TCP {host}:{port}"),
+        }
+    }
+}
+
 impl Bus {
     /// Character timing of the bus's serial line; `None` for Modbus TCP.
     pub fn line_timing(&self) -> Option<crate::plan::LineTiming> {

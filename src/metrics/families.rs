@@ -55,6 +55,8 @@ pub(super) struct Families {
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
     pub build_info: IntGaugeVec,
+    /// Each device's last good answer (no series: the status page's).
+    pub live: super::look::LiveTable,
 }
 
 /// Registers `m` with `r`; our names are fixed and unique, so registering cannot fail.
@@ -249,6 +251,7 @@ impl Families {
             let _ = self.device_latency.remove_label_values(&l);
             let _ = self.device_request_limit.remove_label_values(&l);
             let _ = self.device_requests_per_poll.remove_label_values(&l);
+            self.live.forget(b, d);
         }
         for b in &gone.buses {
             let l = [b.as_str()];
@@ -308,6 +311,7 @@ impl Families {
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),
             build_info: family!(r, IntGaugeVec, BUILD_INFO, &["version"]),
+            live: Default::default(),
         }
     }
 }

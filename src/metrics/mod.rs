@@ -11,7 +11,7 @@
 //! of a thousand devices pays no memory for series nobody scrapes.
 
 mod families;
-pub mod server;
+mod look;
 
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
@@ -23,6 +23,7 @@ use crate::bus_health::WireCounters;
 use crate::config::Config;
 use crate::reading::Reading;
 use families::{Families, Gone};
+pub use look::{BusLook, DeviceLook};
 
 /// The gateway's metrics: one registry, handed to the buses and the MQTT task; or nothing.
 #[derive(Clone, Default)]
@@ -146,6 +147,42 @@ impl Metrics {
     }
 }
 
+impl Metrics {
+    /// A device's counters and last answer; `None` without metrics or before its bus made
+    /// its handles.
+    pub fn device_look(&self, bus: &str, device: &str) -> Option<DeviceLook> {
+        let f = &self.inner.as_ref()?.families;
+        let live = f.live.get(bus, device)?;
+        let l = [bus, device];
+        let latency = f.device_latency.with_label_values(&l);
+        let answered = live.answered_ms.load(std::sync::atomic::Ordering::Relaxed);
+        let count = latency.get_sample_count();
+        Some(DeviceLook {
+            transactions: f.device_transactions.with_label_values(&l).get(),
+            timeouts: f.device_timeouts.with_label_values(&l).get(),
+            garbled: f.device_garbled.with_label_values(&l).get(),
+            exceptions: f.device_exceptions.with_label_values(&l).get(),
+            last_answer_ms: (answered > 0).then_some(answered),
+            last_latency_ms: (answered > 0).then(|| {
+                live.latency_us.load(std::sync::atomic::Ordering::Relaxed) as f64 / 1000.0
+            }),
+            mean_latency_ms: (count > 0).then(|| latency.get_sample_sum() / count as f64 * 1000.0),
+        })
+    }
+
+    /// A bus's counters; `None` without metrics.
+    pub fn bus_look(&self, bus: &str) -> Option<BusLook> {
+        let f = &self.inner.as_ref()?.families;
+        let l = [bus];
+        Some(BusLook {
+            transactions: f.bus_transactions.with_label_values(&l).get(),
+            reconnects: f.bus_reconnects.with_label_values(&l).get(),
+            line_faults: f.bus_line_faults.with_label_values(&l).get(),
+            utilisation: f.bus_utilisation.with_label_values(&l).get(),
+        })
+    }
+}
+
 /// What a config polls: enabled buses, their enabled devices and those devices' enabled
 /// channels.
 struct Present {
@@ -250,6 +287,7 @@ impl BusMetrics {
                 garbled: f.device_garbled.with_label_values(&l),
                 exceptions: f.device_exceptions.with_label_values(&l),
                 latency: f.device_latency.with_label_values(&l),
+                live: f.live.of(&b.name, device),
                 request_limit: f.device_request_limit.with_label_values(&l),
                 requests_per_poll: f.device_requests_per_poll.with_label_values(&l),
                 channels: HashMap::new(),
@@ -322,6 +360,8 @@ struct DeviceHandles {
     garbled: IntCounter,
     exceptions: IntCounter,
     latency: Histogram,
+    /// The last good answer, for the status page.
+    live: Arc<look::Live>,
     request_limit: IntGauge,
     requests_per_poll: IntGauge,
     channels: HashMap<Arc<str>, ChannelMetrics>,
@@ -347,6 +387,7 @@ impl DeviceMetrics {
     pub fn latency(&self, d: Duration) {
         if let Some(h) = &self.inner {
             h.latency.observe(d.as_secs_f64());
+            h.live.answered(d);
         }
     }
 

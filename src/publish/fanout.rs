@@ -1,7 +1,8 @@
 //! Bus output to every output: each event is handed to each output's own unbounded channel, so
 //! a slow, held or disconnected output backs up only itself (vector's topology, Telegraf's
 //! outputs). What the gateway does once per event, whatever the outputs, is done here: device
-//! availability for health, command answers for the metrics.
+//! availability for health, command answers for the metrics, every event for the status
+//! board (when the status page is served).
 //!
 //! A state save's [`Checkpoint`] asks every output: the save may record a seq only once each of
 //! them has what came before it acknowledged or fsynced, so the checkpoint is split in one per
@@ -20,6 +21,8 @@ pub struct Fanout {
     pub outputs: Vec<UnboundedSender<Output>>,
     pub health: Arc<Health>,
     pub metrics: Metrics,
+    /// The status page's board, when the HTTP endpoint serves it.
+    pub status: Option<Arc<crate::status::Live>>,
 }
 
 impl Fanout {
@@ -55,6 +58,9 @@ impl Fanout {
             Output::CommandResult { outcome, .. } => self.metrics.command_result(outcome),
             Output::Checkpoint(c) => return self.checkpoint(c),
             _ => {}
+        }
+        if let Some(board) = &self.status {
+            board.hand(&event);
         }
         if let Some((last, rest)) = self.outputs.split_last() {
             for out in rest {
@@ -96,6 +102,7 @@ mod tests {
             outputs: senders,
             health: Arc::default(),
             metrics: Metrics::disabled(),
+            status: None,
         };
         (f, receivers)
     }

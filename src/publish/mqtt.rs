@@ -377,7 +377,7 @@ impl Publisher<'_> {
                     self.pump();
                     // SIGHUP reads the TLS files again too (the next connection uses them).
                     self.refresh_tls();
-                    self.new_config_hash(config.hash());
+                    self.new_config_hash(config.hash().to_string());
                 }
                 _ = beat.tick() => self.beat(Instant::now()),
                 _ = flush.tick() => self.flush(),
@@ -601,6 +601,7 @@ impl Publisher<'_> {
     fn reconnect(&mut self, why: &Failure) {
         self.watch.failed(why, &self.link);
         self.task.heart.set_up(false);
+        self.task.heart.set_error(why.to_string());
         let pinned = self.task.config.protocol != crate::config::MqttProtocol::Auto;
         if pinned && matches!(why, Failure::ProtocolRefused) {
             self.task.heart.set_problem(Some(why.to_string()));
@@ -745,6 +746,7 @@ impl Publisher<'_> {
         let outbox = &self.shell.outbox;
         let spool = outbox.store();
         let chatter = outbox.chatter();
+        self.task.heart.set_spool(spool.len(), spool.total_bytes());
         self.task.metrics.sample(&crate::metrics::OutputSample {
             connected: up,
             held: held.is_some(),

@@ -29,4 +29,5 @@ mod readings_first;
 mod service;
 mod sparkplug;
 mod spool_truth;
+mod status_page;
 mod support;

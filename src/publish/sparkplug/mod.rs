@@ -78,7 +78,7 @@ fn setup(config: &Config, output: &OutputConfig) -> Setup {
         commands: crate::topics::Topics::new(&config.mqtt.topic_root),
         output: output.name.as_str().into(),
         takes_commands: output.mqtt.commands,
-        config_hash: config.hash(),
+        config_hash: config.hash().to_string(),
         primary_host: host,
         qos: output.mqtt.qos,
         devices: shapes(config, output.mqtt.commands),

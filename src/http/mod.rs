@@ -1,14 +1,23 @@
-//! The HTTP endpoint: `GET /metrics` (Prometheus text format) and `GET /healthz` (200 only
-//! while every loop makes progress, every bus polls and no output has been held or
-//! disconnected for more than 30 s; 503 naming what is not well, see `Health::verdict`).
+//! The HTTP endpoint (`[metrics] listen`): `GET /metrics` (Prometheus text format), `GET
+//! /healthz` (200 only while every loop makes progress, every bus polls and no output has been
+//! held or disconnected for more than 30 s; 503 naming what is not well, see
+//! `Health::verdict`), and the status page: `/` and its files (`page.rs`), its data at `GET
+//! /api/v1/status` (`crate::status`). With `token` set, the page, its files and the API ask
+//! for it (`auth.rs`); `/metrics` and `/healthz` never do (a scraper and a probe carry no
+//! secret, and they show nothing a person could act on the plant with).
 //!
 //! hyper's HTTP/1 server on the gateway's own single-threaded runtime: no extra threads. It is
-//! meant for a local scraper (loopback by default), not the open network, and a client can cost
-//! it little: a few connections at a time, small request heads, and a deadline per connection.
-//! A client that holds connections open without finishing its request cannot keep a probe of
-//! `/healthz` out: every connection is accepted at once, the head must arrive within a second,
-//! and when all slots are taken the oldest connection is closed for the new one (a watchdog or a
-//! load balancer must not restart a healthy gateway because someone is slow on purpose).
+//! meant for a local scraper and a technician's laptop (loopback by default), not the open
+//! network, and a client can cost it little: a few connections at a time, small request heads,
+//! and a deadline per connection. A client that holds connections open without finishing its
+//! request cannot keep a probe of `/healthz` out: every connection is accepted at once, the head
+//! must arrive within a second, and when all slots are taken the oldest connection is closed for
+//! the new one (a watchdog or a load balancer must not restart a healthy gateway because someone
+//! is slow on purpose).
+
+mod auth;
+mod page;
+mod reply;
 
 use std::collections::BTreeMap;
 use std::convert::Infallible;
@@ -21,11 +30,14 @@ use hyper::body::{Bytes, Incoming};
 use hyper::header::{CONTENT_TYPE, HeaderValue};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
+use reply::plain;
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 
-use super::Metrics;
+use crate::config::Secret;
 use crate::health::Health;
+use crate::metrics::Metrics;
+use crate::status::Live;
 
 /// Connections served at once; a new one beyond them closes the oldest.
 const MAX_CONNECTIONS: usize = 8;
@@ -41,9 +53,9 @@ const STALE_AFTER: Duration = Duration::from_secs(10);
 
 const TEXT_FORMAT: &str = "text/plain; version=0.0.4; charset=utf-8";
 
-/// The metrics endpoint could not start.
+/// The endpoint could not start.
 #[derive(Debug, thiserror::Error)]
-#[error("metrics endpoint {addr}: {source}")]
+#[error("HTTP endpoint {addr}: {source}")]
 pub struct ServeError {
     addr: SocketAddr,
     source: std::io::Error,
@@ -56,33 +68,40 @@ pub async fn bind(addr: SocketAddr) -> Result<TcpListener, ServeError> {
         .map_err(|source| ServeError { addr, source })
 }
 
+/// What the endpoint serves.
+#[derive(Clone)]
+pub struct Endpoint {
+    pub metrics: Metrics,
+    pub health: Arc<Health>,
+    /// The status board; `None` serves no page.
+    pub status: Option<Arc<Live>>,
+    /// `metrics.token`: the page and the API ask for it.
+    pub token: Option<Secret>,
+}
+
 /// Serves until `shutdown`.
-pub async fn serve(
-    listener: TcpListener,
-    metrics: Metrics,
-    health: Arc<Health>,
-    shutdown: CancellationToken,
-) {
+pub async fn serve(listener: TcpListener, endpoint: Endpoint, shutdown: CancellationToken) {
     let slots = Arc::new(std::sync::Mutex::new(Slots::default()));
+    let endpoint = Arc::new(endpoint);
     loop {
         let stream = tokio::select! {
             () = shutdown.cancelled() => return,
             s = listener.accept() => match s {
                 Ok((s, _)) => s,
                 Err(e) => {
-                    tracing::debug!("metrics endpoint: accept failed: {e}");
+                    tracing::debug!("HTTP endpoint: accept failed: {e}");
                     tokio::time::sleep(Duration::from_millis(100)).await;
                     continue;
                 }
             },
         };
-        let (metrics, health) = (metrics.clone(), health.clone());
+        let endpoint = endpoint.clone();
         let (id, closed) = lock(&slots).admit();
         let slots = slots.clone();
         tokio::spawn(async move {
             let service = hyper::service::service_fn(move |req| {
-                let (metrics, health) = (metrics.clone(), health.clone());
-                async move { Ok::<_, Infallible>(answer(req, metrics, health).await) }
+                let endpoint = endpoint.clone();
+                async move { Ok::<_, Infallible>(answer(req, &endpoint).await) }
             });
             let conn = hyper::server::conn::http1::Builder::new()
                 .timer(TokioTimer::new())
@@ -132,18 +151,19 @@ impl Slots {
     }
 }
 
-async fn answer(
-    req: Request<Incoming>,
-    metrics: Metrics,
-    health: Arc<Health>,
-) -> Response<Full<Bytes>> {
+async fn answer(req: Request<Incoming>, endpoint: &Endpoint) -> Response<Full<Bytes>> {
+    let path = req.uri().path().to_string();
+    if req.method() == Method::POST && path == "/login" && endpoint.status.is_some() {
+        return auth::login(req, endpoint.token.as_ref()).await;
+    }
     if req.method() != Method::GET && req.method() != Method::HEAD {
         return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into());
     }
-    match req.uri().path() {
+    match path.as_str() {
         "/metrics" => {
             // Thousands of series take tens of milliseconds to encode: off the runtime thread,
             // so polling does not wait for a scrape.
+            let metrics = endpoint.metrics.clone();
             let text = tokio::task::spawn_blocking(move || metrics.encode())
                 .await
                 .unwrap_or_default();
@@ -152,22 +172,15 @@ async fn answer(
                 .insert(CONTENT_TYPE, HeaderValue::from_static(TEXT_FORMAT));
             r
         }
-        "/healthz" => match health.verdict(STALE_AFTER) {
+        "/healthz" => match endpoint.health.verdict(STALE_AFTER) {
             Ok(line) => plain(StatusCode::OK, format!("ok: {line}\n")),
             Err(why) => plain(StatusCode::SERVICE_UNAVAILABLE, format!("{why}\n")),
         },
-        _ => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
+        _ => match &endpoint.status {
+            Some(live) => page::answer(&path, &req, live, endpoint.token.as_ref()),
+            None => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
+        },
     }
-}
-
-fn plain(status: StatusCode, body: String) -> Response<Full<Bytes>> {
-    let mut r = Response::new(Full::new(Bytes::from(body)));
-    *r.status_mut() = status;
-    r.headers_mut().insert(
-        CONTENT_TYPE,
-        HeaderValue::from_static("text/plain; charset=utf-8"),
-    );
-    r
 }
 
 #[cfg(test)]
