@@ -17,6 +17,8 @@ use crate::reading::Output;
 
 #[path = "app/north.rs"]
 mod north;
+#[path = "app/pushed.rs"]
+mod pushed;
 use crate::scan::ScanRequest;
 use north::Northbound;
 
@@ -37,101 +39,184 @@ pub enum Ended {
     /// An output's protocol asked for a reboot (Sparkplug's `Node Control/Reboot`): the
     /// process exits with [`REBOOT_STATUS`] after its orderly stop, so the service restarts it.
     Reboot,
+    /// A pushed config changes what only a new start applies (`[gateway]`, `[metrics]`): the
+    /// process starts itself again on it, and its watch goes on there.
+    Restart,
 }
 
 /// The exit status of a reboot: not 0 (systemd's `Restart=on-failure` restarts on it) and not
 /// 2, which `RestartPreventExitStatus=` keeps for a bad config. `EX_TEMPFAIL`.
 pub const REBOOT_STATUS: u8 = 75;
 
+/// A running gateway: its config in force, its buses, its outputs, and what wires them.
+struct Gateway {
+    current: Config,
+    running: BTreeMap<String, Running>,
+    health: Arc<Health>,
+    metrics: Metrics,
+    out: UnboundedSender<Output>,
+    shutdown: CancellationToken,
+    targets: crate::dispatch::Targets,
+    scans: crate::dispatch::Scans,
+    north: Northbound,
+    status: Option<Arc<crate::status::Live>>,
+    router: JoinHandle<()>,
+    supervisor: JoinHandle<()>,
+    endpoint: Option<JoinHandle<()>>,
+}
+
+/// What the gateway's loop hears besides signals: its outputs' protocols' requests, pushed
+/// configs.
+struct Inbox {
+    controls: UnboundedReceiver<crate::publish::format::Control>,
+    pushes: tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
+}
+
 /// Runs the gateway until `shutdown` is cancelled. Configs arriving on `reloads` (SIGHUP) are
 /// applied: buses whose config did not change keep running with their counters; changed ones
-/// restart (their counter state goes through the state file); removed ones stop.
+/// restart (their counter state goes through the state file); removed ones stop; outputs whose
+/// connection or kind changed are rebuilt. Configs pushed from the broker (`[remote]`) are
+/// applied the same way and watched ([`pushed`]).
 pub async fn run_with_reloads(
     config: Config,
     shutdown: CancellationToken,
     mut reloads: UnboundedReceiver<Config>,
 ) -> Ended {
     let _state_lock = claim_state_dir(&config.gateway.state_dir).await;
-    let health = Arc::new(Health::default());
-    let (out_tx, out_rx) = unbounded_channel();
-    let (incoming_tx, incoming_rx) = tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
-    let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
-    let metrics = match config.metrics {
-        Some(_) => Metrics::new(),
-        None => Metrics::disabled(),
-    };
-    // The status page's board: fed by the fan-out, read by the HTTP endpoint.
-    let status = config.metrics.as_ref().map(|_| {
-        Arc::new(crate::status::Live::new(
-            &config,
-            health.clone(),
-            metrics.clone(),
-        ))
-    });
-    let endpoint = start_http(&config, &metrics, &health, status.clone(), &shutdown).await;
-    metrics.config(&config.hash().to_string());
-
-    let mut running: BTreeMap<String, Running> = BTreeMap::new();
-    for bus in config.buses.iter().filter(|b| b.enabled) {
-        let r = start_bus(bus, &config, &health, &metrics, &out_tx, &shutdown);
-        running.insert(bus.name.clone(), r);
-    }
-    let router = Router::new(&config, &senders(&running), out_tx.clone());
-    let targets = router.targets();
-    let scans = router.scans();
-    *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
-    let router = tokio::spawn(router.run(incoming_rx));
-
-    let (controls_tx, mut controls) = unbounded_channel();
-    let north = Northbound::start(
-        &config,
-        (health.clone(), metrics.clone(), status.clone()),
-        (incoming_tx, controls_tx),
-        out_rx,
-        &shutdown,
-    )
-    .await;
-
-    let mut current = config;
+    let (mut gateway, mut inbox) = Gateway::start(config, shutdown).await;
+    let mut watch = gateway.resume_watch();
+    let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
     let mut ended = Ended::Stopped;
     loop {
         tokio::select! {
-            () = shutdown.cancelled() => break,
-            Some(crate::publish::format::Control::Reboot) = controls.recv() => {
+            () = gateway.shutdown.cancelled() => break,
+            Some(crate::publish::format::Control::Reboot) = inbox.controls.recv() => {
                 tracing::warn!("rebooting as asked: an orderly stop (state saved), then exit status {REBOOT_STATUS} for the service to start the gateway again");
                 ended = Ended::Reboot;
-                shutdown.cancel();
+                gateway.shutdown.cancel();
             }
             new = reloads.recv() => {
                 let Some(new) = new else {
-                    shutdown.cancelled().await;
+                    gateway.shutdown.cancelled().await;
                     break;
                 };
-                // The output stages (Home Assistant discovery describes the config).
-                north.reload(&new);
-                apply(&mut current, new, &mut running, &health, &metrics, &out_tx, &shutdown).await;
-                if let Some(board) = &status {
-                    board.reconfigure(&current);
+                gateway.take(new).await;
+            }
+            Some(push) = inbox.pushes.recv() => {
+                if gateway.push(push, &mut watch).await {
+                    ended = Ended::Restart;
+                    gateway.shutdown.cancel();
                 }
-                Router::set_targets(&targets, &current, &senders(&running));
-                *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
+            }
+            _ = tick.tick(), if watch.is_some() => gateway.watch(&mut watch).await,
+        }
+    }
+    gateway.stop().await;
+    ended
+}
+
+impl Gateway {
+    /// Every task of `config`: the systemd supervisor, the HTTP endpoint, the buses, the
+    /// command router, the outputs.
+    async fn start(config: Config, shutdown: CancellationToken) -> (Gateway, Inbox) {
+        let health = Arc::new(Health::default());
+        let (out, out_rx) = unbounded_channel();
+        let (incoming_tx, incoming_rx) =
+            tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
+        let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
+        let metrics = match config.metrics {
+            Some(_) => Metrics::new(),
+            None => Metrics::disabled(),
+        };
+        // The status page's board: fed by the fan-out, read by the HTTP endpoint.
+        let status = config.metrics.as_ref().map(|_| {
+            Arc::new(crate::status::Live::new(
+                &config,
+                health.clone(),
+                metrics.clone(),
+            ))
+        });
+        let endpoint = start_http(&config, &metrics, &health, status.clone(), &shutdown).await;
+        metrics.config(&config.hash().to_string());
+        let mut running: BTreeMap<String, Running> = BTreeMap::new();
+        for bus in config.buses.iter().filter(|b| b.enabled) {
+            let r = start_bus(bus, &config, &health, &metrics, &out, &shutdown);
+            running.insert(bus.name.clone(), r);
+        }
+        let (pushes_tx, pushes) = tokio::sync::mpsc::channel(1);
+        let router = Router::new(&config, &senders(&running), out.clone()).with_remote(pushes_tx);
+        let (targets, scans) = (router.targets(), router.scans());
+        *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
+        let router = tokio::spawn(router.run(incoming_rx));
+        let (controls_tx, controls) = unbounded_channel();
+        let wires = (health.clone(), metrics.clone(), status.clone());
+        let lines = (incoming_tx, controls_tx);
+        let north = Northbound::start(&config, wires, lines, out_rx, &shutdown).await;
+        let gateway = Gateway {
+            current: config,
+            running,
+            health,
+            metrics,
+            out,
+            shutdown,
+            targets,
+            scans,
+            north,
+            status,
+            router,
+            supervisor,
+            endpoint,
+        };
+        (gateway, Inbox { controls, pushes })
+    }
+
+    /// A new config in force: the buses that changed restart, the outputs' formats hear it,
+    /// outputs whose connection or kind changed are rebuilt. `[gateway]` and `[metrics]` stay
+    /// as started (a new start applies them).
+    async fn take(&mut self, new: Config) {
+        let rebuild = new.mqtt != self.current.mqtt || new.outputs != self.current.outputs;
+        self.north.reload(&new);
+        let (h, m, o, s) = (&self.health, &self.metrics, &self.out, &self.shutdown);
+        apply(
+            &mut self.current,
+            new.clone(),
+            &mut self.running,
+            h,
+            m,
+            o,
+            s,
+        )
+        .await;
+        if rebuild {
+            self.current.mqtt = new.mqtt;
+            self.current.outputs = new.outputs;
+            self.north.rebuild(&self.current).await;
+        }
+        if let Some(board) = &self.status {
+            board.reconfigure(&self.current);
+        }
+        self.metrics.config(&self.current.hash().to_string());
+        Router::set_targets(&self.targets, &self.current, &senders(&self.running));
+        *self.scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&self.running);
+    }
+
+    /// The orderly stop: the buses (their state saved), the router, then the outputs (what
+    /// they hold to their spools), the supervisor and the endpoint.
+    async fn stop(mut self) {
+        drop(self.out);
+        for (_, r) in std::mem::take(&mut self.running) {
+            if let Err(e) = r.task.await {
+                tracing::error!("bus task failed: {e}");
             }
         }
-    }
-    drop(out_tx);
-    for (_, r) in std::mem::take(&mut running) {
-        if let Err(e) = r.task.await {
-            tracing::error!("bus task failed: {e}");
+        // The router holds a sender of the bus output: the fan-out ends once it is gone too.
+        self.router.abort();
+        self.north.finish().await;
+        let _ = self.supervisor.await;
+        if let Some(e) = self.endpoint {
+            let _ = e.await;
         }
     }
-    // The router holds a sender of the bus output: the fan-out ends once it is gone too.
-    router.abort();
-    north.finish().await;
-    let _ = supervisor.await;
-    if let Some(e) = endpoint {
-        let _ = e.await;
-    }
-    ended
 }
 
 /// Holds the state directory for the run (see [`crate::state_lock`]), so `pulsegate state prune
@@ -251,8 +336,8 @@ async fn apply(
     out: &UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) {
-    if new.mqtt != current.mqtt || new.gateway != current.gateway {
-        tracing::warn!("changes to [gateway] or [mqtt] take effect at the next restart");
+    if new.gateway != current.gateway || new.metrics != current.metrics {
+        tracing::warn!("changes to [gateway] or [metrics] take effect at the next start");
     }
     let mut kept = 0;
     let names: Vec<String> = running.keys().cloned().collect();

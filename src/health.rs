@@ -183,6 +183,22 @@ impl Health {
         lock(&self.devices).insert(name.to_string(), online);
     }
 
+    /// The devices online now.
+    pub fn online_devices(&self) -> Vec<String> {
+        lock(&self.devices)
+            .iter()
+            .filter(|(_, up)| **up)
+            .map(|(name, _)| name.clone())
+            .collect()
+    }
+
+    /// Whether the loop `name` (`output/<name>`, `bus/<name>`) is up now.
+    pub fn is_up(&self, name: &str) -> bool {
+        lock(&self.loops)
+            .get(name)
+            .is_some_and(|b| b.up.load(Ordering::Relaxed))
+    }
+
     /// Forgets devices not in `keep` (after a reload).
     pub fn retain_devices(&self, keep: &[String]) {
         lock(&self.devices).retain(|k, _| keep.contains(k));

@@ -165,6 +165,26 @@ fn on_hangup(path: PathBuf) -> anyhow::Result<tokio::sync::mpsc::UnboundedReceiv
     Ok(rx)
 }
 
+/// Starts this program again in this process (same arguments, same pid: systemd's notify and
+/// watchdog go on), for a pushed config only a new start applies. Returns only when that
+/// fails: then the exit status asks the service to start it.
+fn start_again() -> ExitCode {
+    use std::os::unix::process::CommandExt;
+    let exe = match std::env::current_exe() {
+        Ok(e) => e,
+        Err(e) => {
+            tracing::error!("cannot find this program to start it again: {e}");
+            return ExitCode::from(pulsegate::app::REBOOT_STATUS);
+        }
+    };
+    tracing::info!("starting again for the pushed config");
+    let e = std::process::Command::new(exe)
+        .args(std::env::args_os().skip(1))
+        .exec();
+    tracing::error!("cannot start again: {e}; exiting for the service to start the gateway");
+    ExitCode::from(pulsegate::app::REBOOT_STATUS)
+}
+
 /// Writes to stderr, ignoring failure (`eprint!` panics when stderr is closed).
 fn say_err(text: std::fmt::Arguments<'_>) {
     use std::io::Write as _;
@@ -248,6 +268,7 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             match pulsegate::app::run_with_reloads(config, shutdown, reloads).await {
                 pulsegate::app::Ended::Stopped => Ok(ExitCode::SUCCESS),
                 pulsegate::app::Ended::Reboot => Ok(ExitCode::from(pulsegate::app::REBOOT_STATUS)),
+                pulsegate::app::Ended::Restart => Ok(start_again()),
             }
         }
         Command::State { config, action } => {

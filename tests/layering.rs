@@ -186,8 +186,9 @@ const FLOORS: &[(&str, &[&str])] = &[
     (
         "app",
         &[
-            "boot", "bus", "config", "dispatch", "driver", "health", "http", "metrics", "publish",
-            "reading", "scan", "state", "status", "systemd",
+            "boot", "bus", "command", "config", "dispatch", "driver", "health", "http", "metrics",
+            "outcome", "publish", "reading", "remote", "scan", "state", "status", "systemd",
+            "topics",
         ],
     ),
     ("demo", &["app", "config", "report", "sim"]),

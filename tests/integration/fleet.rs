@@ -435,3 +435,232 @@ async fn wait_until(timeout: Duration, what: &str, mut done: impl FnMut() -> boo
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
 }
+
+/// Two YL67 counting on line1; the first config polls only `m`.
+const TWO: &str = "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 200.0 }\n[buses.line1.devices.n]\nunit = 2\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 100.0 }\n";
+
+/// The config text of a gateway on `port` polling `devices`, taking pushed configs.
+fn remote_toml(
+    plant: &pulsegate::sim::Plant,
+    port: u16,
+    dir: &Path,
+    devices: &[(&str, &str, u8, &str, &str)],
+    http: u16,
+) -> String {
+    let extra = format!(
+        "[remote]\nconfig = true\ngrace = \"5s\"\n[metrics]\nlisten = \"127.0.0.1:{http}\"\n"
+    );
+    gateway_toml(plant, port, dir, devices, &extra)
+}
+
+/// Publishes a push of `toml` with `id` on the gateway's config topic.
+async fn push(sub: &Subscriber, id: &str, toml: &str) {
+    let body = json!({"id": id, "toml": toml}).to_string();
+    sub.send("pulsegate/test/config/set", body).await;
+}
+
+/// The results of the push `id`, as they came.
+fn results(sub: &Subscriber, id: &str) -> Vec<serde_json::Value> {
+    sub.on("pulsegate/test/config/result")
+        .iter()
+        .map(|m| m.json())
+        .filter(|v| v["id"] == id)
+        .collect()
+}
+
+async fn result_with(
+    sub: &Subscriber,
+    id: &str,
+    status: &str,
+    within: Duration,
+) -> serde_json::Value {
+    let deadline = Instant::now() + within;
+    loop {
+        if let Some(r) = results(sub, id).into_iter().find(|r| r["status"] == status) {
+            return r;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no {status} result for {id} within {within:?}: {:?}",
+            results(sub, id)
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// A pushed config that adds a device: applied (the file on disk replaced, the previous kept
+/// beside it), the new device publishes, the config hash moves in `<root>/gateway` and in the
+/// metric; after its grace period it is kept. One with an unknown key is refused naming the
+/// key, and nothing changes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pushed_config_is_checked_applied_shown_and_kept() {
+    let broker = Broker::start();
+    let plant = plant(TWO).await;
+    let dir = temp_dir("fleet-push");
+    let http = free_port();
+    let one = [("line1", "m", 1, "yl67", "100ms")];
+    let both = [
+        ("line1", "m", 1, "yl67", "100ms"),
+        ("line1", "n", 2, "yl67", "100ms"),
+    ];
+    let first = remote_toml(&plant, broker.port, &dir, &one, http);
+    let config = write_config(&dir, &first);
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let gw = Gateway::start(&config);
+    sub.expect_any("pulsegate/test/m/a0", Duration::from_secs(10))
+        .await;
+    let marker = |sub: &Subscriber| {
+        sub.on("pulsegate/test/gateway")
+            .last()
+            .map(|m| m.json()["config"].clone())
+    };
+    let hash_before = marker(&sub).expect("the boot marker");
+
+    let bad = first.replacen("[gateway]\n", "[gateway]\nnope = 1\n", 1);
+    push(&sub, "bad-1", &bad).await;
+    let refused = result_with(&sub, "bad-1", "refused", Duration::from_secs(5)).await;
+    assert_eq!(refused["error"], "bad_config", "{refused}");
+    assert!(
+        refused["message"]
+            .as_str()
+            .unwrap()
+            .contains("gateway.nope"),
+        "{refused}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&config).unwrap(),
+        first,
+        "the file is untouched"
+    );
+
+    // Credentials change only with [remote] security = true.
+    let other_user = first.replacen("[mqtt]\n", "[mqtt]\nusername = \"someone\"\n", 1);
+    push(&sub, "creds", &other_user).await;
+    let forbidden = result_with(&sub, "creds", "refused", Duration::from_secs(5)).await;
+    assert_eq!(forbidden["error"], "forbidden", "{forbidden}");
+    assert!(
+        forbidden["message"]
+            .as_str()
+            .unwrap()
+            .contains("[mqtt] credentials")
+    );
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), first);
+
+    let second = remote_toml(&plant, broker.port, &dir, &both, http);
+    push(&sub, "add-n", &second).await;
+    let applied = result_with(&sub, "add-n", "applied", Duration::from_secs(10)).await;
+    assert_eq!(applied["ok"], true, "{applied}");
+    assert_eq!(
+        std::fs::read_to_string(&config).unwrap(),
+        second,
+        "the file replaced"
+    );
+    let previous = dir.join("pulsegate.toml.previous");
+    assert_eq!(
+        std::fs::read_to_string(previous).unwrap(),
+        first,
+        "the previous kept beside it"
+    );
+    sub.expect_any("pulsegate/test/n/a0", Duration::from_secs(10))
+        .await;
+    let hash_after = applied["config"].clone();
+    assert_ne!(hash_after, hash_before);
+    let series = format!("pulsegate_config_info{{hash={hash_after}}}");
+    crate::metrics::scrape_until(http, Duration::from_secs(5), "the new hash", |t| {
+        crate::metrics::sample(t, &series) == Some(1.0)
+    })
+    .await;
+    sub.wait_for("pulsegate/test/gateway", Duration::from_secs(5), |m| {
+        m.json()["config"] == hash_after
+    })
+    .await
+    .expect("the boot marker says the new hash");
+    let kept = result_with(&sub, "add-n", "kept", Duration::from_secs(15)).await;
+    assert_eq!(kept["ok"], true);
+    drop(gw);
+}
+
+/// A pushed config pointing at a dead broker: the rebuilt output cannot connect, so within its
+/// grace period plus 30 s the previous file is back and in force, the result says
+/// `rolled_back` with the reason, and a consumer sums every pulse across it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pushed_config_at_a_dead_broker_is_rolled_back_and_no_pulse_is_lost() {
+    let broker = Broker::start();
+    let plant = plant(ONE).await;
+    let dir = temp_dir("fleet-rollback");
+    let http = free_port();
+    let first = remote_toml(&plant, broker.port, &dir, &DEVICES, http);
+    let config = write_config(&dir, &first);
+    let topic = "pulsegate/test/m/a0";
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let gw = Gateway::start(&config);
+    sub.expect_any(topic, Duration::from_secs(10)).await;
+    let dead = remote_toml(&plant, free_port(), &dir, &DEVICES, http);
+    push(&sub, "dead-broker", &dead).await;
+    // Its progress result ("applied") is said on the connection to the dead broker: only the
+    // final one, after the rollback, can arrive.
+    let pushed = Instant::now();
+    let back = result_with(
+        &sub,
+        "dead-broker",
+        "rolled_back",
+        Duration::from_secs(5 + 30),
+    )
+    .await;
+    assert!(pushed.elapsed() < Duration::from_secs(35));
+    assert_eq!(back["error"], "rolled_back", "{back}");
+    assert!(
+        back["message"].as_str().unwrap().contains("not up"),
+        "{back}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(&config).unwrap(),
+        first,
+        "the previous file is back"
+    );
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    plant
+        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let (status, _) = gw.terminate();
+    assert!(status.success());
+    let generated = plant
+        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
+        .unwrap();
+    let all = readings(&sub, topic);
+    let first_count = all[0]["count"].as_i64().unwrap();
+    assert_eq!(
+        crate::hostile::consume(&all),
+        generated - first_count,
+        "summed deltas across the rollback"
+    );
+}
+
+/// A pushed config that only a new start applies (`[gateway]`): the gateway starts itself again
+/// on it (same process id) and its watch goes on there, to `kept`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pushed_config_of_the_gateway_section_restarts_it_and_is_watched_after() {
+    let broker = Broker::start();
+    let plant = plant(ONE).await;
+    let dir = temp_dir("fleet-push-restart");
+    let http = free_port();
+    let first = remote_toml(&plant, broker.port, &dir, &DEVICES, http);
+    let config = write_config(&dir, &first);
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let gw = Gateway::start(&config);
+    sub.expect_any("pulsegate/test/m/a0", Duration::from_secs(10))
+        .await;
+    let slower = first.replacen("state_flush = \"500ms\"", "state_flush = \"2s\"", 1);
+    assert_ne!(slower, first);
+    push(&sub, "flush-2s", &slower).await;
+    let kept = result_with(&sub, "flush-2s", "kept", Duration::from_secs(30)).await;
+    assert_eq!(kept["ok"], true, "{kept}");
+    let log = gw.log_text();
+    assert!(
+        log.contains("starting again for the pushed config"),
+        "{log}"
+    );
+    assert!(log.contains("watched for"), "{log}");
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), slower);
+}
