@@ -165,17 +165,9 @@ pub const MAX_CORRELATION: usize = 256;
 /// could not publish to (a wildcard, empty, too long) would otherwise sit in the spool.
 pub fn check_response_topic(topic: &str) -> Result<(), CommandError> {
     let bad = |why| Err(CommandError::BadResponseTopic(why));
-    if topic.is_empty() {
-        return bad("it is empty");
-    }
+    crate::topics::publishable(topic).map_err(CommandError::BadResponseTopic)?;
     if topic.len() > MAX_RESPONSE_TOPIC {
         return bad("it is longer than 256 bytes");
-    }
-    if topic.contains(['+', '#']) {
-        return bad("it contains a wildcard ('+' or '#')");
-    }
-    if topic.contains('\0') {
-        return bad("it contains a NUL character");
     }
     if topic.starts_with('$') {
         return bad("it starts with '$' (reserved for the broker)");

@@ -336,7 +336,7 @@ pub fn unsendable(
     correlation: usize,
     broker_max: Option<u32>,
 ) -> Option<String> {
-    if !rumqttc::valid_topic(topic) || topic.is_empty() || topic.len() > usize::from(u16::MAX) {
+    if crate::topics::publishable(topic).is_err() {
         return Some("not a topic one can publish to (empty, too long or a wildcard)".into());
     }
     // Fixed header (≤ 5), topic, packet id, properties (correlation data), payload.

@@ -11,12 +11,40 @@ pub fn is_topic_safe(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
-/// A topic that other topics are built under (`mqtt.topic_root`, Home Assistant's prefix): no
-/// wildcard, no empty level, no leading or trailing `/`.
+/// The topic rules, written once: what any topic the gateway publishes to must be, what a
+/// prefix other topics are built under must be, and what one level of a topic may hold.
+///
+/// Why `topic` cannot be published to, or `Ok`: not empty, at most 65535 bytes (MQTT's string
+/// length), no wildcard (`+`, `#`), no NUL.
+pub fn publishable(topic: &str) -> Result<(), &'static str> {
+    if topic.is_empty() {
+        return Err("it is empty");
+    }
+    if topic.len() > usize::from(u16::MAX) {
+        return Err("it is longer than MQTT's 65535 bytes");
+    }
+    if topic.contains(['+', '#']) {
+        return Err("it contains a wildcard ('+' or '#')");
+    }
+    if topic.contains('\0') {
+        return Err("it contains a NUL character");
+    }
+    Ok(())
+}
+
+/// One level of a topic (a Sparkplug id, say): 1 to `max` bytes, no `/`, no wildcard, nothing
+/// invisible.
+pub fn is_topic_level(level: &str, max: usize) -> bool {
+    (1..=max).contains(&level.len())
+        && !level
+            .chars()
+            .any(|c| matches!(c, '/' | '+' | '#') || c.is_control())
+}
+
+/// A topic that other topics are built under (`mqtt.topic_root`, Home Assistant's prefix):
+/// publishable, no empty level, no leading or trailing `/`.
 pub fn is_topic_prefix(prefix: &str) -> bool {
-    !prefix.is_empty()
-        && !prefix.contains(['+', '#', '\0'])
-        && prefix.split('/').all(|level| !level.is_empty())
+    publishable(prefix).is_ok() && prefix.split('/').all(|level| !level.is_empty())
 }
 
 /// Topics of one gateway.

@@ -126,7 +126,7 @@ const FLOORS: &[(&str, &[&str])] = &[
             "topics",
         ],
     ),
-    ("outbox", &[]),
+    ("outbox", &["topics"]),
     // The status board: every event the outputs get, and what the page reads of health and
     // the metrics.
     (

@@ -20,11 +20,7 @@ pub struct Sparkplug {
 /// A Sparkplug id (group, edge node, device, host): a topic level of its own, so no `/`, and no
 /// wildcard (spec 3.0, "Topic Namespace Elements"); nothing invisible, at most 64 bytes.
 pub fn is_sparkplug_id(id: &str) -> bool {
-    !id.is_empty()
-        && id.len() <= 64
-        && !id
-            .chars()
-            .any(|c| matches!(c, '/' | '+' | '#') || c.is_control())
+    crate::topics::is_topic_level(id, 64)
 }
 
 /// Reads `[sparkplug]`; `None` when it is absent or broken (every problem in `errs`).

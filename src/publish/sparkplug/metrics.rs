@@ -66,52 +66,56 @@ impl Aliases {
     }
 }
 
-/// The values a reading gives its channel's metrics, by metric name (`None`: null).
-pub fn values(r: &Reading, shape: &ChannelShape) -> Vec<(String, u32, Option<Value>)> {
+/// The metrics of a channel, the one list of them, with the values of reading `r` (all null
+/// without one, for a birth before any reading): name, datatype, value.
+pub fn values(r: Option<&Reading>, shape: &ChannelShape) -> Vec<(String, u32, Option<Value>)> {
     let c = &shape.name;
-    let total = match shape.kind {
+    let round = crate::publish::payload::round3;
+    let total = r.map(|r| match shape.kind {
         ChannelKind::Encoder => r.update.total as u64,
         ChannelKind::Counter => r.update.total.max(0) as u64,
-    };
-    let round = crate::publish::payload::round3;
+    });
     let mut out = vec![
         (
             format!("{c}/Total"),
             shape.total_type(),
-            Some(Value::Long(total)),
+            total.map(Value::Long),
         ),
         (
             format!("{c}/Count"),
             datatype::INT64,
-            Some(Value::Long(r.count as u64)),
+            r.map(|r| Value::Long(r.count as u64)),
         ),
         (
             format!("{c}/Delta"),
             datatype::INT64,
-            Some(Value::Long(r.update.delta as u64)),
+            r.map(|r| Value::Long(r.update.delta as u64)),
         ),
         (
             format!("{c}/Rate"),
             datatype::DOUBLE,
-            r.update.rate_hz.map(|v| Value::Double(round(v))),
+            r.and_then(|r| r.update.rate_hz)
+                .map(|v| Value::Double(round(v))),
         ),
     ];
     if shape.freq {
-        let v = r.freq_hz.map(|v| Value::Double(round(v)));
+        let v = r.and_then(|r| r.freq_hz).map(|v| Value::Double(round(v)));
         out.push((format!("{c}/Frequency"), datatype::DOUBLE, v));
     }
     if shape.rpm {
-        let v = r.rpm.map(|v| Value::Double(round(v)));
+        let v = r.and_then(|r| r.rpm).map(|v| Value::Double(round(v)));
         out.push((format!("{c}/RPM"), datatype::DOUBLE, v));
     }
     if shape.value_unit.is_some() {
-        let v = r.units.as_deref().and_then(|u| scaled(u, r.update.total));
+        let v = r.and_then(|r| r.units.as_deref().and_then(|u| scaled(u, r.update.total)));
         out.push((format!("{c}/Value"), datatype::DOUBLE, v));
     }
-    let event = r.update.event.and_then(|e| match serde_json::to_value(e) {
-        Ok(serde_json::Value::String(s)) => Some(Value::String(s)),
-        _ => None,
-    });
+    let event = r
+        .and_then(|r| r.update.event)
+        .and_then(|e| match serde_json::to_value(e) {
+            Ok(serde_json::Value::String(s)) => Some(Value::String(s)),
+            _ => None,
+        });
     out.push((format!("{c}/Event"), datatype::STRING, event));
     out
 }
@@ -124,7 +128,7 @@ fn scaled(units: &ChannelUnits, total: i64) -> Option<Value> {
 /// the reading's time, only the values it has (a missing rate is not sent as a change).
 pub fn data(r: &Reading, shape: &ChannelShape, aliases: &mut Aliases) -> Vec<Metric> {
     let ts = unix_ms(r.ts);
-    values(r, shape)
+    values(Some(r), shape)
         .into_iter()
         .filter(|(_, _, v)| v.is_some())
         .map(|(name, dt, v)| {
@@ -145,10 +149,7 @@ pub fn birth(
 ) -> Vec<Metric> {
     let mut out = Vec::new();
     for shape in shapes {
-        let mut named = match last.get(&shape.name) {
-            Some(r) => values(r, shape),
-            None => null_values(shape),
-        };
+        let mut named = values(last.get(&shape.name), shape);
         // An event belongs to its reading: a birth does not repeat it.
         for (name, _, v) in &mut named {
             if name.ends_with("/Event") {
@@ -187,27 +188,5 @@ pub fn birth(
             }
         }
     }
-    out
-}
-
-/// The metric names and types of a channel, all null.
-fn null_values(shape: &ChannelShape) -> Vec<(String, u32, Option<Value>)> {
-    let c = &shape.name;
-    let mut out = vec![
-        (format!("{c}/Total"), shape.total_type(), None),
-        (format!("{c}/Count"), datatype::INT64, None),
-        (format!("{c}/Delta"), datatype::INT64, None),
-        (format!("{c}/Rate"), datatype::DOUBLE, None),
-    ];
-    if shape.freq {
-        out.push((format!("{c}/Frequency"), datatype::DOUBLE, None));
-    }
-    if shape.rpm {
-        out.push((format!("{c}/RPM"), datatype::DOUBLE, None));
-    }
-    if shape.value_unit.is_some() {
-        out.push((format!("{c}/Value"), datatype::DOUBLE, None));
-    }
-    out.push((format!("{c}/Event"), datatype::STRING, None));
     out
 }
