@@ -232,8 +232,7 @@ async fn one_silent(figures: &mut Vec<Figure>) {
     let (outputs, _) = run_buses(&config, Duration::from_secs(3), window).await;
     let mut per_device: BTreeMap<String, Vec<SystemTime>> = BTreeMap::new();
     for o in &outputs {
-        let readings = match o {
-            Output::Reading(r) => std::slice::from_ref(r),
+        let readings: &[pulsegate::reading::Reading] = match o {
             Output::DeviceReadings { readings, .. } => readings,
             _ => &[],
         };

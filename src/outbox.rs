@@ -5,7 +5,7 @@
 //! it holds when it reconnects with a clean session, so after a connection loss the outbox hands
 //! the same messages out again, in order. The MQTT task ([`crate::publish::mqtt`]) is a shell that
 //! feeds events in (`enqueue`, `connected`, `sent`, `acked`, `lost`) and hands the client what
-//! [`Outbox::next`] returns; the store ([`crate::publish::spool::Spool`] on disk, [`MemoryStore`]
+//! [`Outbox::next`] returns; the store ([`crate::publish::spool::Spool`] on disk, a memory store
 //! in tests) only keeps messages in order within a byte bound.
 //!
 //! The window is a list of the store's oldest sequence numbers, so the bound can be enforced
@@ -22,16 +22,19 @@
 //! Time is tokio's, so outages and stalls are tested on paused time.
 
 mod chatter;
+#[cfg(test)]
+mod memory;
 mod message;
 pub mod stored;
 mod window;
 
-use std::collections::VecDeque;
 use std::time::Duration;
 
 use tokio::time::Instant;
 
 pub use chatter::{CHATTER_BYTES, CHATTER_MESSAGES, CHATTER_WINDOW, Chatter};
+#[cfg(test)]
+pub use memory::MemoryStore;
 pub use message::{Class, Content, Message, Properties, Will};
 use window::{Held, Window};
 
@@ -347,70 +350,6 @@ pub fn unsendable(
             "{size} bytes, more than the broker's maximum packet size of {max}"
         )),
         _ => None,
-    }
-}
-
-/// A store in memory only, bounded in bytes (tests, and a gateway without a spool directory).
-#[derive(Debug, Default)]
-pub struct MemoryStore {
-    entries: VecDeque<Entry>,
-    bytes: u64,
-    max_bytes: u64,
-    next_seq: u64,
-}
-
-impl MemoryStore {
-    pub fn new(max_bytes: u64) -> MemoryStore {
-        MemoryStore {
-            max_bytes,
-            next_seq: 1,
-            ..MemoryStore::default()
-        }
-    }
-
-    /// Sequence numbers stored, oldest first.
-    pub fn seqs(&self) -> Vec<u64> {
-        self.entries.iter().map(|e| e.seq).collect()
-    }
-}
-
-impl Store for MemoryStore {
-    type Error = std::convert::Infallible;
-
-    fn push(&mut self, m: Message) -> Result<u64, Self::Error> {
-        let entry = Entry::of(self.next_seq, m);
-        self.next_seq += 1;
-        self.bytes += entry.size();
-        self.entries.push_back(entry);
-        Ok(self.next_seq - 1)
-    }
-
-    fn get(&mut self, i: usize) -> Option<&Entry> {
-        self.entries.get(i)
-    }
-
-    fn ack_front(&mut self, n: usize) {
-        for e in self.entries.drain(..n.min(self.entries.len())) {
-            self.bytes -= e.size();
-        }
-    }
-
-    fn evict(&mut self, keep: usize) -> u64 {
-        let mut dropped = 0;
-        while self.bytes > self.max_bytes && self.entries.len() > keep {
-            let e = self.entries.remove(keep).expect("index checked");
-            self.bytes -= e.size();
-            dropped += 1;
-        }
-        dropped
-    }
-
-    fn len(&self) -> u64 {
-        self.entries.len() as u64
-    }
-
-    fn next_seq(&self) -> u64 {
-        self.next_seq
     }
 }
 

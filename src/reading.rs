@@ -70,8 +70,6 @@ impl Reading {
 /// Everything a bus task reports.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output {
-    /// One channel's reading on its own.
-    Reading(Reading),
     /// The readings of one device's poll (or command) that its publish policy lets through;
     /// the format decides whether they go as one message (`payload = "device"`) or one each.
     DeviceReadings {
@@ -109,6 +107,16 @@ pub enum Output {
     Checkpoint(Checkpoint),
     /// A closed interval record: owed like a reading (spooled, in order).
     Interval(Box<IntervalRecord>),
+}
+
+impl Output {
+    /// The readings of one poll of `r`'s device that has only `r`.
+    pub fn single(r: Reading) -> Output {
+        Output::DeviceReadings {
+            device: r.device.clone(),
+            readings: vec![r],
+        }
+    }
 }
 
 /// A state save's question to the MQTT task: "is everything sent before me durable?" Answered

@@ -27,7 +27,7 @@ impl<P> DeviceRt<P> {
             .collect();
         for ch in channels {
             let kept = old.remove(&ch.name);
-            let saved = self.saved.remove(&self.state_key(&ch.name));
+            let saved = self.saved.remove(&self.channel_key(&ch.name));
             let counter = ch.counting.spec().map(|spec| match (kept, saved) {
                 (Some(c), _) => c.with_spec(spec),
                 (None, Some(saved)) => Counter::resume(spec, saved),
@@ -41,7 +41,7 @@ impl<P> DeviceRt<P> {
         }
         for (name, gone) in old {
             tracing::info!(device = %self.name, channel = %name, total = gone.state.total, "channel no longer declared (a work mode changed); its state is kept");
-            let key = self.state_key(&name);
+            let key = self.channel_key(&name);
             self.saved.insert(key, gone.state);
         }
     }

@@ -90,7 +90,7 @@ impl DeviceState for Heard {
         state.holes.insert("scripted".into(), heard);
     }
 
-    fn state_key(&self) -> Option<String> {
+    fn saved_key(&self) -> Option<String> {
         Some("scripted".into())
     }
 }
@@ -306,10 +306,8 @@ async fn the_core_books_a_scripted_drivers_samples_into_readings_and_saves_the_t
     bus.task.await.unwrap();
     let mut readings = Vec::new();
     while let Ok(o) = bus.out.try_recv() {
-        match o {
-            Output::DeviceReadings { readings: r, .. } => readings.extend(r),
-            Output::Reading(r) => readings.push(r),
-            _ => {}
+        if let Output::DeviceReadings { readings: r, .. } = o {
+            readings.extend(r);
         }
     }
     let got: Vec<(i64, i64, i64, u64)> = readings
@@ -458,7 +456,7 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
         out.try_recv().unwrap()
     };
     assert!(
-        matches!(first_out(true), Output::Reading(_)),
+        matches!(first_out(true), Output::DeviceReadings { .. }),
         "sent at once"
     );
     assert!(
@@ -468,7 +466,7 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
 }
 
 fn reading_of(seq: u64) -> Output {
-    Output::Reading(Reading::sample("d", "enc0", seq))
+    Output::single(Reading::sample("d", "enc0", seq))
 }
 
 /// A record saved as closed is in the state file as unsent until it has gone out: a crash
@@ -570,12 +568,7 @@ async fn the_start_after_a_crash_sends_the_unsent_records_of_the_file_first() {
     }
     let first = outs
         .iter()
-        .position(|o| {
-            matches!(
-                o,
-                Output::Interval(_) | Output::Reading(_) | Output::DeviceReadings { .. }
-            )
-        })
+        .position(|o| matches!(o, Output::Interval(_) | Output::DeviceReadings { .. }))
         .expect("something was sent");
     let Output::Interval(i) = &outs[first] else {
         panic!("the unsent record goes first: {:?}", outs[first])
@@ -642,7 +635,7 @@ async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
     let reading = |seq: u64, total: i64| {
         let mut r = Reading::sample("d", "enc0", seq);
         r.update.total = total;
-        Output::Reading(r)
+        Output::single(r)
     };
     let held = vec![reading(1006, 120), reading(1007, 130)];
     let (out_tx, mut out) = unbounded_channel();
@@ -657,9 +650,10 @@ async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
         assert!(std::time::Instant::now() < deadline, "never released");
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
-    let Ok(Output::Reading(first)) = out.try_recv() else {
+    let Ok(Output::DeviceReadings { mut readings, .. }) = out.try_recv() else {
         panic!("the first held reading")
     };
+    let first = readings.remove(0);
     assert_eq!(
         first.after_seq,
         Some(5),

@@ -175,7 +175,7 @@ impl<P> DeviceRt<P> {
     }
 
     /// The state file's key of `channel` (the file's format: unit, model, channel).
-    pub(crate) fn state_key(&self, channel: &str) -> String {
+    pub(crate) fn channel_key(&self, channel: &str) -> String {
         channel_key(self.config.unit, &self.config.model, channel)
     }
 
@@ -185,7 +185,7 @@ impl<P> DeviceRt<P> {
         let mut out = self.saved.clone();
         for ch in &self.channels {
             if let Some(c) = &ch.counter {
-                out.insert(self.state_key(&ch.name), c.state.clone());
+                out.insert(self.channel_key(&ch.name), c.state.clone());
             }
         }
         out

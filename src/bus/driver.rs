@@ -144,7 +144,7 @@ pub trait DeviceState {
     /// Adds what the protocol keeps across restarts to the bus's state (Modbus: the holes).
     fn save(&self, _state: &mut BusState) {}
     /// The key of that state in the state file, so saved state no device claims is kept.
-    fn state_key(&self) -> Option<String> {
+    fn saved_key(&self) -> Option<String> {
         None
     }
 }

@@ -170,7 +170,7 @@ impl BusTask {
     fn resend<D: Driver>(&mut self, core: &mut Core<D>, mut unsent: saver::Unsent) {
         for from in 0..core.devices.len() {
             let d = &core.devices[from];
-            let prefix = d.state_key("");
+            let prefix = d.channel_key("");
             let mut outputs = Vec::new();
             for key in unsent
                 .keys()
@@ -548,7 +548,7 @@ fn unclaimed<P: DeviceState>(bus: &str, saved: &BusState, devices: &[DeviceRt<P>
         .flat_map(|d| d.counter_states().into_keys())
         .collect();
     let holes: std::collections::BTreeSet<String> =
-        devices.iter().filter_map(|d| d.proto.state_key()).collect();
+        devices.iter().filter_map(|d| d.proto.saved_key()).collect();
     let mut out = BusState::default();
     for (key, state) in &saved.channels {
         if !claimed.contains(key) {

@@ -227,7 +227,6 @@ use crate::reading::{Output, Reading};
 /// The readings an output carries (none for statuses and stats).
 fn readings_of(o: &Output) -> &[Reading] {
     match o {
-        Output::Reading(r) => std::slice::from_ref(r),
         Output::DeviceReadings { readings, .. } => readings,
         _ => &[],
     }
@@ -235,7 +234,6 @@ fn readings_of(o: &Output) -> &[Reading] {
 
 fn readings_of_mut(o: &mut Output) -> &mut [Reading] {
     match o {
-        Output::Reading(r) => std::slice::from_mut(r),
         Output::DeviceReadings { readings, .. } => readings,
         _ => &mut [],
     }
@@ -307,11 +305,11 @@ impl Durable {
         out: &tokio::sync::mpsc::UnboundedSender<Output>,
     ) {
         let d = &devices[from];
-        let key = |r: &Reading| d.state_key(&r.channel);
+        let key = |r: &Reading| d.channel_key(&r.channel);
         for o in outputs {
             let keys = match &o {
                 Output::Interval(i) => vec![(
-                    super::ledger::record_key(&d.state_key(&i.channel), &i.period),
+                    super::ledger::record_key(&d.channel_key(&i.channel), &i.period),
                     i.record.seq,
                 )],
                 _ => readings_of(&o)
@@ -407,7 +405,7 @@ impl Durable {
             let Some(d) = devices.iter().find(|d| d.name == i.device) else {
                 continue;
             };
-            if let Some(ch) = s.channels.get_mut(&d.state_key(&i.channel)) {
+            if let Some(ch) = s.channels.get_mut(&d.channel_key(&i.channel)) {
                 let st = ch.intervals.entry(i.period.to_string()).or_default();
                 st.unsent.push(i.record.clone());
             }

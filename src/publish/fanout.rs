@@ -117,11 +117,11 @@ mod tests {
     #[tokio::test]
     async fn every_output_gets_every_reading() {
         let (f, mut rx) = fanout(2);
-        f.hand(Output::Reading(crate::reading::Reading::sample(
+        f.hand(Output::single(crate::reading::Reading::sample(
             "d", "enc0", 1,
         )));
         for r in &mut rx {
-            assert!(matches!(r.try_recv(), Ok(Output::Reading(_))));
+            assert!(matches!(r.try_recv(), Ok(Output::DeviceReadings { .. })));
         }
     }
 

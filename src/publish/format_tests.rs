@@ -66,7 +66,7 @@ fn config() -> crate::config::Config {
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
     let mut json = build(&config(), OutputKind::Json);
-    let m = json.render(&Output::Reading(reading(42)));
+    let m = json.render(&Output::single(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
     assert_eq!((m[0].qos, m[0].retain, m[0].transient), (0, true, false));
@@ -148,14 +148,15 @@ struct PackedTotals {
 
 impl Format for PackedTotals {
     fn messages(&mut self, event: &Output) -> Vec<Message> {
-        match event {
-            Output::Reading(r) => {
-                let topic = format!("{}/total", self.topics.reading(&r.device, &r.channel));
-                let payload = r.update.total.to_be_bytes().to_vec();
-                vec![Message::new(topic, payload, 1, false)]
-            }
-            _ => Vec::new(),
-        }
+        let Output::DeviceReadings { readings, .. } = event else {
+            return Vec::new();
+        };
+        let total = |r: &crate::reading::Reading| {
+            let topic = format!("{}/total", self.topics.reading(&r.device, &r.channel));
+            let payload = r.update.total.to_be_bytes().to_vec();
+            Message::new(topic, payload, 1, false)
+        };
+        readings.iter().map(total).collect()
     }
 }
 
@@ -167,7 +168,7 @@ fn a_second_format_is_one_type_and_its_binary_payload_reaches_the_client_unchang
     let now = tokio::time::Instant::now();
     let mut outbox = Outbox::new(MemoryStore::new(1 << 20), 10, now);
     outbox.connected(None, now);
-    for m in packed.messages(&Output::Reading(reading(-2))) {
+    for m in packed.messages(&Output::single(reading(-2))) {
         outbox.enqueue(m).unwrap();
     }
     assert_eq!(outbox.store().len(), 1);
@@ -194,7 +195,7 @@ fn every_output_kind_the_config_takes_is_built_and_publishes_a_reading() {
         let mut built = build(&c, kind);
         let mut r = reading(1);
         (r.device, r.channel) = ("d".into(), "a0".into());
-        assert!(!built.render(&Output::Reading(r)).is_empty(), "{kind}");
+        assert!(!built.render(&Output::single(r)).is_empty(), "{kind}");
     }
 }
 

@@ -61,7 +61,6 @@ impl Format for Json {
     fn messages(&mut self, event: &Output) -> Vec<Message> {
         let t = &self.topics;
         match event {
-            Output::Reading(r) => self.readings([r]),
             Output::DeviceReadings { device, readings } if self.per_device.contains(&**device) => {
                 let body = payload::device(readings);
                 vec![Message::new(t.device(device), body, self.qos, self.retain)]

@@ -394,7 +394,7 @@ impl Publisher<'_> {
         for m in self.stage.render(&out) {
             self.shell.queue(m);
         }
-        if !matches!(out, Output::Reading(_) | Output::DeviceReadings { .. }) {
+        if !matches!(out, Output::DeviceReadings { .. }) {
             self.pump(); // never held, and takes held readings along
             return;
         }

@@ -76,11 +76,12 @@ async fn a_minute_long_outage_keeps_every_reading_and_no_result_in_the_spool() {
 }
 
 fn payload_of(seq: u64) -> &'static [u8] {
-    let Output::Reading(r) = reading(seq) else {
+    let Output::DeviceReadings { readings, .. } = reading(seq) else {
         unreachable!()
     };
+    let r = &readings[0];
     Box::leak(
-        crate::publish::payload::reading(&r)
+        crate::publish::payload::reading(r)
             .into_bytes()
             .into_boxed_slice(),
     )

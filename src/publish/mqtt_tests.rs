@@ -221,7 +221,7 @@ async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs
 }
 
 fn reading(seq: u64) -> Output {
-    Output::Reading(crate::reading::Reading::sample("d", "enc0", seq))
+    Output::single(crate::reading::Reading::sample("d", "enc0", seq))
 }
 
 /// Readings wait for their batch (an acknowledgement of something else does not send them);

@@ -143,7 +143,6 @@ impl Board {
     /// One event, as it passes to the outputs.
     pub fn hand(&mut self, event: &Output, now_ms: u64) {
         match event {
-            Output::Reading(r) => self.reading(r),
             Output::DeviceReadings { readings, .. } => {
                 readings.iter().for_each(|r| self.reading(r))
             }

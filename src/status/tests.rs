@@ -67,7 +67,7 @@ fn a_reading_shows_as_published_with_its_units_as_plain_values() {
     let mut board = Board::new(&c, T0);
     let mut r = reading("press", "a0", T0 + 1000, 1234, 4, 7);
     r.units = Some(Arc::new(c.buses[0].devices[0].channels["a0"].units.clone()));
-    board.hand(&Output::Reading(r), T0 + 1000);
+    board.hand(&Output::single(r), T0 + 1000);
     let s = status(&board, T0 + 2000);
     let press = &s.devices[0];
     assert_eq!(
@@ -119,7 +119,7 @@ fn a_device_going_offline_is_its_status_and_an_event_once() {
 #[test]
 fn events_of_devices_not_configured_are_left_out() {
     let mut board = Board::new(&config(CONFIG), T0);
-    board.hand(&Output::Reading(reading("ghost", "a0", T0, 1, 1, 1)), T0);
+    board.hand(&Output::single(reading("ghost", "a0", T0, 1, 1, 1)), T0);
     board.hand(
         &Output::DeviceStatus {
             device: "ghost".into(),
@@ -137,12 +137,12 @@ fn channels_per_device_and_events_are_bounded() {
     let mut board = Board::new(&config(CONFIG), T0);
     for i in 0..(MAX_CHANNELS + 20) {
         let r = reading("spindle", &format!("c{i}"), T0 + i as u64, 1, 1, 1);
-        board.hand(&Output::Reading(r), T0);
+        board.hand(&Output::single(r), T0);
     }
     for i in 0..150 {
         let mut r = reading("press", "a0", T0 + i, 1, 1, i);
         r.update.event = Some(Event::Reset);
-        board.hand(&Output::Reading(r), T0);
+        board.hand(&Output::single(r), T0);
     }
     let s = status(&board, T0 + 100);
     assert_eq!(s.devices[1].channels.len(), MAX_CHANNELS);
@@ -156,11 +156,11 @@ fn the_interval_in_progress_sums_its_readings_and_starts_over_at_the_boundary() 
     let period = 15 * 60 * 1000;
     let start = T0 / period * period;
     board.hand(
-        &Output::Reading(reading("press", "a0", start + 1000, 10, 10, 1)),
+        &Output::single(reading("press", "a0", start + 1000, 10, 10, 1)),
         0,
     );
     board.hand(
-        &Output::Reading(reading("press", "a0", start + 2000, 15, 5, 2)),
+        &Output::single(reading("press", "a0", start + 2000, 15, 5, 2)),
         0,
     );
     let i = &status(&board, start + 3000).devices[0].channels[0].intervals[0];
@@ -170,7 +170,7 @@ fn the_interval_in_progress_sums_its_readings_and_starts_over_at_the_boundary() 
     );
     assert_eq!(i.end_ms, (start + period) as i64);
     board.hand(
-        &Output::Reading(reading("press", "a0", start + period + 5, 18, 3, 3)),
+        &Output::single(reading("press", "a0", start + period + 5, 18, 3, 3)),
         0,
     );
     let i = &status(&board, start + period + 10).devices[0].channels[0].intervals[0];
@@ -182,7 +182,7 @@ fn the_rate_chart_holds_fifteen_minutes_of_buckets() {
     let mut board = Board::new(&config(CONFIG), T0);
     for s in 0..120 {
         let r = reading("press", "a0", T0 + s * 1000, s as i64 * 20, 20, s + 1);
-        board.hand(&Output::Reading(r), 0);
+        board.hand(&Output::single(r), 0);
     }
     let h = &status(&board, T0 + 120_000).devices[0].channels[0].history;
     assert_eq!(h.bucket_s, 30);
@@ -195,11 +195,8 @@ fn the_rate_chart_holds_fifteen_minutes_of_buckets() {
 #[test]
 fn a_reload_keeps_what_stays_and_forgets_what_went() {
     let mut board = Board::new(&config(CONFIG), T0);
-    board.hand(&Output::Reading(reading("press", "a0", T0, 5, 5, 1)), T0);
-    board.hand(
-        &Output::Reading(reading("spindle", "enc0", T0, 5, 5, 1)),
-        T0,
-    );
+    board.hand(&Output::single(reading("press", "a0", T0, 5, 5, 1)), T0);
+    board.hand(&Output::single(reading("spindle", "enc0", T0, 5, 5, 1)), T0);
     let without_spindle = CONFIG.replace(
         "[buses.line1.devices.spindle]\nunit = 2\nmodel = \"wj157\"\n",
         "",

@@ -305,7 +305,7 @@ impl DeviceState for ModbusDevice {
         }
     }
 
-    fn state_key(&self) -> Option<String> {
+    fn saved_key(&self) -> Option<String> {
         Some(self.holes_key())
     }
 }

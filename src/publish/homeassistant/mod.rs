@@ -301,7 +301,6 @@ impl Format for Discovery {
     /// The first reading of each channel announces its entities (none for other events).
     fn messages(&mut self, event: &Output) -> Vec<Message> {
         match event {
-            Output::Reading(r) => messages(self.reading(r)),
             Output::DeviceReadings { readings, .. } => {
                 let mut out = Vec::new();
                 for r in readings {

@@ -349,7 +349,7 @@ fn discovery_is_a_format_chosen_by_its_config_key_that_announces_before_the_firs
             .iter()
             .any(|m| m.topic == gateway && m.retain && m.qos == 1)
     );
-    let out = stage.render(&Output::Reading(reading("meter", "a0")));
+    let out = stage.render(&Output::single(reading("meter", "a0")));
     let (last, configs) = out.split_last().unwrap();
     assert_eq!(last.topic, "pulsegate/edge/meter/a0", "the reading last");
     assert!(
@@ -362,14 +362,14 @@ fn discovery_is_a_format_chosen_by_its_config_key_that_announces_before_the_firs
             .iter()
             .all(|m| m.topic.starts_with("homeassistant/") && m.retain)
     );
-    let again = stage.render(&Output::Reading(reading("meter", "a0")));
+    let again = stage.render(&Output::single(reading("meter", "a0")));
     assert_eq!(again.len(), 1, "announced once");
     // Without the key the payload format runs alone.
     let off = CONFIG.replace("discovery = true", "discovery = false");
     let mut plain = Stage::new(chosen(&config(&off)));
     assert!(plain.subscriptions().is_empty() && plain.start().is_empty());
     assert_eq!(
-        plain.render(&Output::Reading(reading("meter", "a0"))).len(),
+        plain.render(&Output::single(reading("meter", "a0"))).len(),
         1
     );
 }
@@ -378,7 +378,7 @@ fn discovery_is_a_format_chosen_by_its_config_key_that_announces_before_the_firs
 fn what_arrives_on_its_subscriptions_and_a_reload_reach_the_discovery_format() {
     let mut stage = Stage::new(chosen(&config(CONFIG)));
     let mut announced = stage.start().len();
-    announced += stage.render(&Output::Reading(reading("press", "a0"))).len() - 1;
+    announced += stage.render(&Output::single(reading("press", "a0"))).len() - 1;
     let again = stage.received("homeassistant/status", b"online").messages;
     assert_eq!(
         again.len(),

@@ -316,7 +316,6 @@ impl Node {
     /// The messages of one event of the buses.
     pub fn event(&mut self, event: &Output, now_ms: u64) -> Vec<Message> {
         match event {
-            Output::Reading(r) => self.readings(&r.device, std::slice::from_ref(r), now_ms),
             Output::DeviceReadings { device, readings } => self.readings(device, readings, now_ms),
             Output::DeviceStatus { device, online } => {
                 if *online {

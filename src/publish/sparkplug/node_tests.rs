@@ -169,7 +169,7 @@ fn a_dbirth_declares_every_metric_with_its_type_and_ddata_sends_aliases_only() {
     for w in ["a0/Clear", "a0/Preset", "enc0/Clear"] {
         assert!(value_of(&dbirth, w).is_some(), "{w} is writable");
     }
-    let data = node.event(&Output::Reading(reading("press", "enc0", -5, 1000)), 2);
+    let data = node.event(&Output::single(reading("press", "enc0", -5, 1000)), 2);
     let (topic, p) = wire(&mut node, &data, false).remove(0);
     assert_eq!(topic, "spBv1.0/plant/DDATA/e1/press");
     assert_eq!(p.seq, Some(3));
@@ -193,7 +193,7 @@ fn seq_runs_over_every_message_of_the_node_and_wraps_after_255() {
     let mut seqs: Vec<u64> = births.iter().map(|m| decode(m).seq.unwrap()).collect();
     for i in 0..300 {
         let device = if i % 2 == 0 { "press" } else { "pump" };
-        let out = node.event(&Output::Reading(reading(device, "a0", i, 5)), 5);
+        let out = node.event(&Output::single(reading(device, "a0", i, 5)), 5);
         seqs.extend(
             wire(&mut node, &out, false)
                 .iter()
@@ -212,7 +212,7 @@ fn readings_spooled_while_away_go_out_after_the_rebirth_historical_with_their_ti
     let spooled: Vec<Message> = (0..3)
         .flat_map(|i| {
             node.event(
-                &Output::Reading(reading("press", "a0", i, 100 + i as u64)),
+                &Output::single(reading("press", "a0", i, 100 + i as u64)),
                 9,
             )
         })
@@ -247,7 +247,7 @@ fn an_alias_the_session_did_not_declare_goes_out_as_a_name() {
         },
         1,
     );
-    let old = node.event(&Output::Reading(reading("pump", "a0", 1, 1)), 1);
+    let old = node.event(&Output::single(reading("pump", "a0", 1, 1)), 1);
     node.event(
         &Output::DeviceStatus {
             device: "pump".into(),
@@ -276,7 +276,7 @@ fn a_device_going_offline_dies_and_is_born_again_when_it_answers() {
     assert_eq!(death.len(), 1);
     assert_eq!(death[0].topic, "spBv1.0/plant/DDEATH/e1/press");
     assert!(node.event(&off, 5).is_empty(), "one death");
-    let back = node.event(&Output::Reading(reading("press", "a0", 3, 7)), 7);
+    let back = node.event(&Output::single(reading("press", "a0", 3, 7)), 7);
     let topics: Vec<&str> = back.iter().map(|m| m.topic.as_str()).collect();
     assert_eq!(
         topics,
@@ -311,7 +311,7 @@ fn a_channel_changing_kind_is_born_again_with_its_new_type() {
     session(&mut node, 0);
     let mut r = reading("press", "a0", -2, 5);
     r.kind = ChannelKind::Encoder;
-    let out = node.event(&Output::Reading(r), 5);
+    let out = node.event(&Output::single(r), 5);
     assert_eq!(out.len(), 2);
     let dbirth = decode(&out[0]);
     let total = dbirth
@@ -326,7 +326,7 @@ fn a_channel_changing_kind_is_born_again_with_its_new_type() {
 fn ncmd_rebirth_births_everything_again_from_seq_zero_with_the_same_bdseq() {
     let mut node = Node::new(setup(None));
     session(&mut node, 4);
-    let data = node.event(&Output::Reading(reading("press", "a0", 1, 5)), 5);
+    let data = node.event(&Output::single(reading("press", "a0", 1, 5)), 5);
     wire(&mut node, &data, false);
     let ask = dcmd(vec![Metric::new(
         REBIRTH,
@@ -460,7 +460,7 @@ fn with_a_primary_host_births_wait_for_its_state_online_and_follow_it() {
     );
     let state = "spBv1.0/STATE/scada";
     assert!(node.holding(), "connected, waiting: the outbox is held");
-    let held = node.event(&Output::Reading(reading("press", "a0", 1, 3)), 3);
+    let held = node.event(&Output::single(reading("press", "a0", 1, 3)), 3);
     assert!(
         decode(&held[0])
             .metrics
@@ -491,7 +491,7 @@ fn events_and_writes_show_up_in_the_next_ddata() {
     session(&mut node, 0);
     let mut r = reading("press", "a0", 0, 5);
     r.update.event = Some(Event::Cleared);
-    let out = node.event(&Output::Reading(r), 5);
+    let out = node.event(&Output::single(r), 5);
     let p = decode(&out[0]);
     assert_eq!(
         value_of(&p, "a0/Event"),
@@ -503,7 +503,7 @@ fn events_and_writes_show_up_in_the_next_ddata() {
 fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
     let mut node = Node::new(setup(None));
     session(&mut node, 0);
-    let data = node.event(&Output::Reading(reading("press", "a0", 1, 5)), 5);
+    let data = node.event(&Output::single(reading("press", "a0", 1, 5)), 5);
     let first = node
         .outgoing(&data[0].topic, &data[0].payload, false)
         .unwrap();
@@ -512,7 +512,7 @@ fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
         .outgoing(&data[0].topic, &data[0].payload, false)
         .unwrap();
     assert_eq!(first, again);
-    let next = node.event(&Output::Reading(reading("press", "a0", 2, 6)), 6);
+    let next = node.event(&Output::single(reading("press", "a0", 2, 6)), 6);
     let (_, p) = wire(&mut node, &next, false).remove(0);
     assert_eq!(
         p.seq,
@@ -527,7 +527,7 @@ fn a_message_offered_again_after_the_client_refused_it_keeps_its_number() {
 fn two_identical_messages_sent_one_after_the_other_take_two_numbers() {
     let mut node = Node::new(setup(None));
     session(&mut node, 0);
-    let data = node.event(&Output::Reading(reading("press", "a0", 1, 5)), 5);
+    let data = node.event(&Output::single(reading("press", "a0", 1, 5)), 5);
     let first = node
         .outgoing(&data[0].topic, &data[0].payload, false)
         .unwrap();
@@ -564,7 +564,7 @@ fn a_rebirth_behind_waiting_readings_is_numbered_when_it_leaves() {
     let mut node = Node::new(setup(None));
     session(&mut node, 0);
     let sent: Vec<Message> = (0..3)
-        .flat_map(|i| node.event(&Output::Reading(reading("press", "a0", i, 5 + i as u64)), 5))
+        .flat_map(|i| node.event(&Output::single(reading("press", "a0", i, 5 + i as u64)), 5))
         .collect();
     let on_the_wire: Vec<u64> = wire(&mut node, &sent, false)
         .iter()
@@ -574,7 +574,7 @@ fn a_rebirth_behind_waiting_readings_is_numbered_when_it_leaves() {
     let waiting: Vec<Message> = (0..5)
         .flat_map(|i| {
             node.event(
-                &Output::Reading(reading("press", "a0", i, 10 + i as u64)),
+                &Output::single(reading("press", "a0", i, 10 + i as u64)),
                 10,
             )
         })
@@ -586,7 +586,7 @@ fn a_rebirth_behind_waiting_readings_is_numbered_when_it_leaves() {
         Some(Value::Boolean(true)),
     )]);
     let births = node.received("spBv1.0/plant/NCMD/e1", &ask, 99).messages;
-    let after = node.event(&Output::Reading(reading("press", "a0", 9, 100)), 100);
+    let after = node.event(&Output::single(reading("press", "a0", 9, 100)), 100);
     let mut all = waiting;
     all.extend(births);
     all.extend(after);

@@ -259,7 +259,9 @@ impl Spool {
     }
 
     /// Adds a message; returns its sequence number. Drops the oldest messages while over the
-    /// bound: stand-alone use, with nothing in flight (the outbox evicts around its window).
+    /// bound: stand-alone use, with nothing in flight (the outbox evicts around its window;
+    /// the gateway stores through it, `Store::push`).
+    #[cfg(test)]
     pub fn push(
         &mut self,
         topic: String,
