@@ -145,16 +145,7 @@ async fn a_dead_broker_is_left_for_the_next_and_no_pulse_is_lost() {
         "on B after {:?}",
         gone.elapsed()
     );
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    plant
-        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
-        .unwrap();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    let (status, _) = gw.terminate();
-    assert!(status.success());
-    let generated = plant
-        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
-        .unwrap();
+    let generated = stop_counting_and_gateway(&plant, gw, Duration::from_secs(2)).await;
     let mut all = readings(&sub_a, topic);
     all.extend(readings(&sub_b, topic));
     let first = all[0]["count"].as_i64().unwrap();
@@ -240,107 +231,6 @@ async fn reboot_stops_cleanly_with_a_status_the_service_restarts_on() {
     assert!(saved.contains("a0"), "{saved}");
 }
 
-/// A CA, a server certificate for 127.0.0.1 and a client certificate for `cn`, valid `days`.
-fn certificates(dir: &Path, cn: &str, days: u32, prefix: &str) {
-    let run = |args: &[&str]| {
-        let ok = Command::new("openssl")
-            .args(args)
-            .current_dir(dir)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .expect("openssl");
-        assert!(ok.success(), "openssl {args:?}");
-    };
-    if !dir.join("ca.pem").exists() {
-        run(&[
-            "req",
-            "-x509",
-            "-newkey",
-            "rsa:2048",
-            "-nodes",
-            "-keyout",
-            "ca.key",
-            "-out",
-            "ca.pem",
-            "-days",
-            "30",
-            "-subj",
-            "/CN=fleet test CA",
-        ]);
-        run(&[
-            "req",
-            "-newkey",
-            "rsa:2048",
-            "-nodes",
-            "-keyout",
-            "server.key",
-            "-out",
-            "server.csr",
-            "-subj",
-            "/CN=127.0.0.1",
-        ]);
-        std::fs::write(dir.join("san.ext"), "subjectAltName=IP:127.0.0.1\n").unwrap();
-        run(&[
-            "x509",
-            "-req",
-            "-in",
-            "server.csr",
-            "-CA",
-            "ca.pem",
-            "-CAkey",
-            "ca.key",
-            "-CAcreateserial",
-            "-out",
-            "server.pem",
-            "-days",
-            "30",
-            "-extfile",
-            "san.ext",
-        ]);
-    }
-    let (key, csr, pem) = (
-        format!("{prefix}.key"),
-        format!("{prefix}.csr"),
-        format!("{prefix}.pem"),
-    );
-    run(&[
-        "req",
-        "-newkey",
-        "rsa:2048",
-        "-nodes",
-        "-keyout",
-        &key,
-        "-out",
-        &csr,
-        "-subj",
-        &format!("/CN={cn}"),
-    ]);
-    // With an extension the certificate is X.509 v3 (a v1 one is refused by rustls).
-    std::fs::write(dir.join("client.ext"), "extendedKeyUsage=clientAuth\n").unwrap();
-    run(&[
-        "x509",
-        "-req",
-        "-in",
-        &csr,
-        "-CA",
-        "ca.pem",
-        "-CAkey",
-        "ca.key",
-        "-CAcreateserial",
-        "-out",
-        &pem,
-        "-days",
-        &days.to_string(),
-        "-extfile",
-        "client.ext",
-    ]);
-    use std::os::unix::fs::PermissionsExt;
-    for f in ["server.key", "ca.pem", "server.pem"] {
-        std::fs::set_permissions(dir.join(f), std::fs::Permissions::from_mode(0o644)).unwrap();
-    }
-}
-
 /// The certificate's notAfter, seconds since the epoch, as openssl reads it.
 fn not_after(pem: &Path) -> i64 {
     let out = Command::new("openssl")
@@ -361,8 +251,9 @@ fn not_after(pem: &Path) -> i64 {
 async fn client_certificates_rotate_without_a_restart() {
     let dir = temp_dir("fleet-certs");
     std::fs::set_permissions(&dir, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
-    certificates(&dir, "gw-old", 10, "client");
-    certificates(&dir, "gw-new", 20, "next");
+    make_certs(&dir);
+    client_certificate(&dir, "gw-old", 10, "client");
+    client_certificate(&dir, "gw-new", 20, "next");
     let (plain, tls, http) = (free_port(), free_port(), free_port());
     let log = dir.join("mosquitto.log");
     std::fs::write(&log, "").unwrap();
@@ -618,16 +509,7 @@ async fn a_pushed_config_at_a_dead_broker_is_rolled_back_and_no_pulse_is_lost() 
         first,
         "the previous file is back"
     );
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    plant
-        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
-        .unwrap();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    let (status, _) = gw.terminate();
-    assert!(status.success());
-    let generated = plant
-        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
-        .unwrap();
+    let generated = stop_counting_and_gateway(&plant, gw, Duration::from_secs(2)).await;
     let all = readings(&sub, topic);
     let first_count = all[0]["count"].as_i64().unwrap();
     assert_eq!(

@@ -13,23 +13,8 @@ use crate::metrics::{http_get, sample, scrape_until};
 use crate::sparkplug::{Host, assert_seq_unbroken, metric, no_errors, of_type};
 use crate::support::*;
 
-/// Two modules counting on line1.
-const PLANT: &str = r#"
-[buses.line1.devices.yl]
-unit = 1
-model = "yl67"
-channels.enc0 = { rate = 50.0 }
-[buses.line1.devices.wj]
-unit = 2
-model = "wj157"
-modes = [1]
-channels.a0 = { count = 100000, rate = 10.0 }
-"#;
-
-const DEVICES: [(&str, &str, u8, &str, &str); 2] = [
-    ("line1", "yl", 1, "yl67", "100ms"),
-    ("line1", "wj", 2, "wj157", "100ms"),
-];
+/// Two modules counting on line1, as the Sparkplug tests have them.
+use crate::sparkplug::{DEVICES, PLANT};
 
 /// JSON with Home Assistant discovery to the `[mqtt]` broker (`json_port`), Sparkplug to the
 /// broker on `scada_port`, plus `extra`.

@@ -239,16 +239,7 @@ async fn a_crash_after_a_broker_stall_loses_no_pulse_for_a_sparkplug_host() {
     gw.kill();
     signal("-CONT");
     let gw = Gateway::start(&config);
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    plant
-        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
-        .unwrap();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    let (status, _) = gw.terminate();
-    assert!(status.success());
-    let generated = plant
-        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
-        .unwrap();
+    let generated = stop_counting_and_gateway(&plant, gw, Duration::from_secs(2)).await;
     let lines = host.lines();
     no_errors(&lines);
     // A host files values by their timestamps: what the restart sent again of the crashed

@@ -12,7 +12,7 @@ use serde_json::{Value, json};
 
 use crate::support::*;
 
-const PLANT: &str = r#"
+pub(crate) const PLANT: &str = r#"
 [buses.line1.devices.yl]
 unit = 1
 model = "yl67"
@@ -24,7 +24,7 @@ modes = [1]
 channels.a0 = { count = 100000, rate = 10.0 }
 "#;
 
-const DEVICES: [(&str, &str, u8, &str, &str); 2] = [
+pub(crate) const DEVICES: [(&str, &str, u8, &str, &str); 2] = [
     ("line1", "yl", 1, "yl67", "100ms"),
     ("line1", "wj", 2, "wj157", "100ms"),
 ];

@@ -495,3 +495,133 @@ pub fn start_gateway(
         &gateway_toml(plant, broker_port, dir, devices, extra),
     ))
 }
+
+/// Stops the pulses of `a0` on unit 1 of line1 (after `settle` of counting), lets the gateway
+/// read that, stops the gateway cleanly, and returns the pulses the module generated.
+pub async fn stop_counting_and_gateway(plant: &Plant, gw: Gateway, settle: Duration) -> i64 {
+    tokio::time::sleep(settle).await;
+    plant
+        .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
+        .unwrap();
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let (status, _) = gw.terminate();
+    assert!(status.success());
+    plant
+        .with_module("line1", 1, |m, now| m.channel("a0").unwrap().generated(now))
+        .unwrap()
+}
+
+/// Runs openssl in `dir` (scripts/test installs it).
+fn openssl(dir: &Path, args: &[&str]) {
+    let ok = Command::new("openssl")
+        .args(args)
+        .current_dir(dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .expect("openssl (scripts/test installs it)");
+    assert!(ok.success(), "openssl {args:?}");
+}
+
+/// A CA (`ca.pem`, `ca.key`) and a server certificate for 127.0.0.1 (`server.pem`,
+/// `server.key`, readable by Mosquitto's own user), valid 30 days, made with openssl.
+pub fn make_certs(dir: &Path) {
+    openssl(
+        dir,
+        &[
+            "req",
+            "-x509",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-keyout",
+            "ca.key",
+            "-out",
+            "ca.pem",
+            "-days",
+            "30",
+            "-subj",
+            "/CN=pulsegate test CA",
+        ],
+    );
+    openssl(
+        dir,
+        &[
+            "req",
+            "-newkey",
+            "rsa:2048",
+            "-nodes",
+            "-keyout",
+            "server.key",
+            "-out",
+            "server.csr",
+            "-subj",
+            "/CN=127.0.0.1",
+        ],
+    );
+    std::fs::write(dir.join("san.ext"), "subjectAltName=IP:127.0.0.1\n").unwrap();
+    openssl(
+        dir,
+        &[
+            "x509",
+            "-req",
+            "-in",
+            "server.csr",
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-out",
+            "server.pem",
+            "-days",
+            "30",
+            "-extfile",
+            "san.ext",
+        ],
+    );
+    use std::os::unix::fs::PermissionsExt;
+    for f in ["server.key", "ca.pem", "server.pem"] {
+        std::fs::set_permissions(dir.join(f), std::fs::Permissions::from_mode(0o644)).unwrap();
+    }
+}
+
+/// A client certificate for `cn` signed by [`make_certs`]'s CA, valid `days`:
+/// `<name>.pem` and `<name>.key` (X.509 v3: rustls refuses v1).
+pub fn client_certificate(dir: &Path, cn: &str, days: u32, name: &str) {
+    let (key, csr, pem) = (
+        format!("{name}.key"),
+        format!("{name}.csr"),
+        format!("{name}.pem"),
+    );
+    let subject = format!("/CN={cn}");
+    openssl(
+        dir,
+        &[
+            "req", "-newkey", "rsa:2048", "-nodes", "-keyout", &key, "-out", &csr, "-subj",
+            &subject,
+        ],
+    );
+    std::fs::write(dir.join("client.ext"), "extendedKeyUsage=clientAuth\n").unwrap();
+    let days = days.to_string();
+    openssl(
+        dir,
+        &[
+            "x509",
+            "-req",
+            "-in",
+            &csr,
+            "-CA",
+            "ca.pem",
+            "-CAkey",
+            "ca.key",
+            "-CAcreateserial",
+            "-out",
+            &pem,
+            "-days",
+            &days,
+            "-extfile",
+            "client.ext",
+        ],
+    );
+}
