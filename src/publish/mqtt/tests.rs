@@ -1,7 +1,8 @@
 //! The MQTT task without a broker: its shell, publisher and batch, their connection scripted.
 
 use super::*;
-use crate::publish::session::Settings;
+use crate::outbox::Message;
+use crate::publish::session::{EventLoop, Options, Settings};
 
 #[test]
 fn a_wildcard_topic_can_never_be_sent() {
@@ -273,7 +274,7 @@ async fn a_batch_sent_with_a_reading_leaves_no_timer_behind() {
     assert!(p.batch_due.is_none(), "and the timer with them");
 }
 
-#[path = "mqtt_paused_tests.rs"]
+#[path = "paused_tests.rs"]
 mod paused;
 
 /// rumqttc's queue refuses a publish outside the outbox (full): it is not counted as sent by
