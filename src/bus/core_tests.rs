@@ -448,7 +448,7 @@ async fn after_a_clean_stop_the_first_readings_go_out_before_any_save() {
     let first_out = |trusted: bool| {
         let (out_tx, mut out) = unbounded_channel();
         let saver = saver::Saver::new(std::env::temp_dir().join("never-written"), "l".into());
-        let mut durable = saver::Durable::new(saver, &Default::default(), Default::default());
+        let mut durable = durable::Durable::new(saver, &Default::default(), Default::default());
         if trusted {
             durable.trust(&saved);
         }
@@ -486,7 +486,7 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
     saved.channels.insert("1/yl67/enc0".into(), state);
     let devices = one_device(bus, &saved.channels);
     let (path, saver) = saver_in(&config);
-    let mut durable = saver::Durable::new(saver, &Default::default(), Default::default());
+    let mut durable = durable::Durable::new(saver, &Default::default(), Default::default());
     let (out_tx, mut out) = unbounded_channel();
     let record = closed_record(1, Status::Complete, crate::event::Event::Reset);
     let output = Output::Interval(Box::new(IntervalRecord {
@@ -514,7 +514,7 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
 
     // A crash now: the file holds the record, and the next start takes it out to send again.
     let mut file = BusState::load(&path).unwrap();
-    let unsent = saver::take_unsent(&mut file.channels);
+    let unsent = durable::take_unsent(&mut file.channels);
     assert_eq!(unsent["1/yl67/enc0"], vec![("10s".to_string(), record)]);
     assert!(
         file.channels["1/yl67/enc0"].intervals["10s"]
@@ -533,7 +533,7 @@ async fn a_record_saved_closed_stays_in_the_file_as_unsent_until_it_went_out() {
     loop {
         durable.collect(&devices, &out_tx).await;
         let file = BusState::load(&path).unwrap();
-        if saver::take_unsent(&mut file.channels.clone()).is_empty() {
+        if durable::take_unsent(&mut file.channels.clone()).is_empty() {
             break;
         }
         assert!(std::time::Instant::now() < deadline, "still unsent");
@@ -584,7 +584,7 @@ async fn the_start_after_a_crash_sends_the_unsent_records_of_the_file_first() {
     assert_eq!(again, 1, "sent once");
     let mut after = BusState::load(&path).unwrap();
     assert!(
-        saver::take_unsent(&mut after.channels).is_empty(),
+        durable::take_unsent(&mut after.channels).is_empty(),
         "none left after a clean stop"
     );
 }
@@ -628,7 +628,7 @@ async fn a_save_with_readings_held_writes_the_last_reading_handed_over() {
     // After a crash (no trust): the first readings wait for a save.
     let mut resumed = saved.clone();
     let resume = super::ledger::resume(&mut resumed, true);
-    let mut durable = saver::Durable::new(saver, &resumed, resume);
+    let mut durable = durable::Durable::new(saver, &resumed, resume);
     // Two readings of this run, seq 1006 and 1007, total 130: held, the counter moved on.
     let live = devices[0].saved.get_mut(&key).unwrap();
     (live.seq, live.total) = (1007, 130);

@@ -5,6 +5,7 @@ mod availability;
 mod book;
 pub mod device;
 pub mod driver;
+mod durable;
 mod emit;
 mod ledger;
 mod meter;
@@ -131,9 +132,9 @@ impl BusTask {
         let bus = &self.bus;
         let name: Arc<str> = Arc::from(bus.name.as_str());
         let mut saved = self.load_state(&name, shutdown).await?;
-        let unsent = saver::take_unsent(&mut saved.channels);
+        let unsent = durable::take_unsent(&mut saved.channels);
         let resume = ledger::resume(&mut saved.channels, !saved.clean);
-        let mut durable = saver::Durable::new(
+        let mut durable = durable::Durable::new(
             saver::Saver::new(self.state_path.clone(), name.clone()),
             &saved.channels,
             resume,
@@ -167,7 +168,7 @@ impl BusTask {
     /// Sends again the interval records the state file held as unsent (a crash came between
     /// their save and their hand-over to the MQTT side): same seq, same content, before
     /// anything of this run; a consumer that has one already knows it by its seq.
-    fn resend<D: Driver>(&mut self, core: &mut Core<D>, mut unsent: saver::Unsent) {
+    fn resend<D: Driver>(&mut self, core: &mut Core<D>, mut unsent: durable::Unsent) {
         for from in 0..core.devices.len() {
             let d = &core.devices[from];
             let prefix = d.channel_key("");
@@ -396,7 +397,7 @@ struct Core<D: Driver> {
     driver: D,
     devices: Vec<DeviceRt<D::Device>>,
     slots: Vec<Slot>,
-    durable: saver::Durable,
+    durable: durable::Durable,
     flush_at: Instant,
     stats_at: Instant,
     stats_since: Instant,
@@ -417,7 +418,7 @@ impl<D: Driver> Core<D> {
         name: Arc<str>,
         driver: D,
         devices: Vec<DeviceRt<D::Device>>,
-        durable: saver::Durable,
+        durable: durable::Durable,
         state_flush: Duration,
         stats_interval: Duration,
     ) -> Core<D> {
