@@ -55,5 +55,37 @@ pub fn poll_plan(config: &Config) -> String {
             }
         }
     }
+    out + &outputs(config)
+}
+
+/// Where readings go: each output, its kind, its broker and client id, and where the gateway's
+/// own voice is said.
+fn outputs(config: &Config) -> String {
+    use crate::config::outputs::{VOICE_NAME, VoiceHome};
+    let mut out = String::new();
+    for (i, o) in config.outputs.list.iter().enumerate() {
+        let voice = match config.outputs.voice {
+            VoiceHome::Output(v) if v == i => ", with the gateway's status and commands",
+            _ if o.kind.carries_gateway_topics() => ", with the gateway's status",
+            _ => "",
+        };
+        let _ = writeln!(
+            out,
+            "output {} ({}): {} as {}{voice}",
+            o.name,
+            o.kind,
+            o.mqtt.broker(),
+            o.mqtt.client_id
+        );
+    }
+    if config.outputs.voice == VoiceHome::Own {
+        let m = &config.mqtt;
+        let _ = writeln!(
+            out,
+            "{VOICE_NAME} (the gateway's status and commands): {} as {}",
+            m.broker(),
+            m.client_id
+        );
+    }
     out
 }

@@ -82,7 +82,27 @@ async fn each_broker_gets_its_own_output_and_its_own_will() {
     let dir = temp_dir("outputs-wills");
     let sub = Subscriber::start(local.port, "#").await;
     let scada_sub = Subscriber::start(scada.port, "pulsegate/#").await;
-    let gw = Gateway::start(&two_brokers(&plant, local.port, scada.port, &dir, ""));
+    let config = two_brokers(&plant, local.port, scada.port, &dir, "");
+    // `check` says where readings go, and which connection carries the gateway's voice.
+    let checked = std::process::Command::new(bin())
+        .args(["check", "--config"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&checked.stdout);
+    let local_line = format!(
+        "output local (homeassistant): 127.0.0.1:{} as pulsegate-test-local, with the gateway's status and commands",
+        local.port
+    );
+    let scada_line = format!(
+        "output scada (sparkplug): 127.0.0.1:{} as pulsegate-test-scada",
+        scada.port
+    );
+    assert!(
+        said.contains(&local_line) && said.contains(&scada_line),
+        "{said}"
+    );
+    let gw = Gateway::start(&config);
     host.wait(Duration::from_secs(15), "both devices born", |l| {
         of_type(l, "DBIRTH").count() >= 2 && of_type(l, "DDATA").count() >= 5
     })
