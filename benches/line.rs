@@ -303,6 +303,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
                     units: None,
                     after_seq: None,
                     meter: None,
+                    measured: None,
                 };
                 let body = pulsegate::publish::payload::reading(&r);
                 std::hint::black_box(body);

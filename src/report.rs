@@ -3,7 +3,7 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::{Config, Link};
+use crate::config::{Config, Device, Link, MbusLine, MeterAddress};
 use crate::plan::{PollPlan, Wire, line_time};
 use crate::profile::Register;
 
@@ -20,6 +20,10 @@ pub fn poll_plan(config: &Config) -> String {
         let link = match &bus.link {
             Link::Rtu { port, baud, .. } => format!("RTU {} at {baud} baud", port.display()),
             Link::Tcp { host, port } => format!("TCP {host}:{port}"),
+            Link::Mbus(line) => {
+                let _ = writeln!(out, "{}", meters(&bus.name, line, &bus.devices));
+                continue;
+            }
         };
         let _ = writeln!(out, "bus {} ({link}):", bus.name);
         let wire = Wire::for_line(timing.as_ref());
@@ -57,6 +61,35 @@ pub fn poll_plan(config: &Config) -> String {
                 );
             }
         }
+    }
+    out
+}
+
+/// An M-Bus bus in words: its line and each meter's address and poll interval (a meter's
+/// channels are its answer's records, known when it answers).
+fn meters(bus: &str, line: &MbusLine, devices: &[Device]) -> String {
+    let mut out = match line {
+        MbusLine::Serial { port, baud, parity } => {
+            format!("bus {bus} (M-Bus {} at {baud} baud, parity {parity:?}):", port.display())
+        }
+        MbusLine::Tcp { host, port } => format!("bus {bus} (M-Bus over TCP {host}:{port}):"),
+    };
+    for d in devices {
+        let address = match &d.meter {
+            Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
+            Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
+            None => format!("unit {}", d.unit),
+        };
+        let picked = d.channels.values().filter(|c| c.record.is_some()).count();
+        let records = match picked {
+            0 => "every record a channel".to_string(),
+            n => format!("{n} records picked"),
+        };
+        out += &format!(
+            "\n  {:<16} {address:<22} every {:<8} {records}",
+            d.name,
+            humantime::format_duration(d.poll).to_string()
+        );
     }
     out
 }

@@ -6,6 +6,7 @@
 
 pub mod channel;
 mod check;
+mod meter;
 mod connection;
 mod error;
 mod metering;
@@ -25,6 +26,7 @@ use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
+pub use meter::{DEFAULT_METER_POLL, MAX_PRIMARY, MBUS_BAUDS};
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{OutputConfig, OutputKind, Outputs};
 

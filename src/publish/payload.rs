@@ -168,6 +168,7 @@ mod tests {
             meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
+            measured: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["ts"], "2026-11-21T22:38:43.123Z");
@@ -199,6 +200,7 @@ mod tests {
             meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
+            measured: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);
@@ -232,6 +234,7 @@ mod tests {
             })),
             after_seq: None,
             meter: None,
+            measured: None,
         }
     }
 

@@ -35,7 +35,7 @@ use crate::state::BusState;
 pub use device::{ModbusDevice, ModbusError};
 use identity::Identity;
 use link::Link;
-use survey::Survey;
+use crate::scan::Survey;
 
 /// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
 pub struct Modbus {

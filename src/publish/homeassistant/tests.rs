@@ -78,6 +78,7 @@ fn reading(device: &str, channel: &str) -> Reading {
         units: None,
         after_seq: None,
         meter: None,
+        measured: None,
     }
 }
 

@@ -61,6 +61,7 @@ fn reading(device: &str, channel: &str, total: i64, ms: u64) -> Reading {
             ChannelKind::Counter
         },
         units: None,
+        measured: None,
     }
 }
 
