@@ -291,6 +291,12 @@ impl Device {
         }
     }
 
+    /// Whether the device's channels are what it answers (an M-Bus meter's records, found
+    /// when it answers) rather than its profile's list.
+    pub fn channels_from_device(&self) -> bool {
+        self.meter.is_some()
+    }
+
     /// Whether the device's counts can be cleared or preset (a Modbus module's can; an M-Bus
     /// meter's registers cannot, only its reading can be set).
     pub fn writable_counts(&self) -> bool {

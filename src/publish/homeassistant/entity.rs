@@ -78,7 +78,7 @@ pub struct Module<'a> {
 impl Module<'_> {
     /// The module's place on the wire, stable across renames.
     pub(super) fn key(&self) -> String {
-        format!("{}_u{}", self.bus, self.device.unit)
+        format!("{}_{}", self.bus, self.device.place_tag())
     }
 
     pub(super) fn payload(&self, site: &Site) -> PayloadMode {
@@ -102,6 +102,16 @@ pub(super) fn availability(site: &Site, device: &str) -> Value {
     ])
 }
 
+/// Where the module is, for its device's `serial_number`: `line1 unit 3`, `mbus1 address 5`,
+/// `mbus1 id 12345678`.
+fn serial(m: Module<'_>) -> String {
+    match &m.device.meter {
+        Some(crate::config::MeterAddress::Primary(a)) => format!("{} address {a}", m.bus),
+        Some(crate::config::MeterAddress::Secondary { id, .. }) => format!("{} id {id}", m.bus),
+        None => format!("{} unit {}", m.bus, m.device.unit),
+    }
+}
+
 pub(super) fn module_device(site: &Site, m: Module<'_>) -> Value {
     let profile = &m.device.profile;
     let mut device = json!({
@@ -109,7 +119,7 @@ pub(super) fn module_device(site: &Site, m: Module<'_>) -> Value {
         "name": m.device.name,
         "model": profile.title,
         "model_id": profile.model,
-        "serial_number": format!("{} unit {}", m.bus, m.device.unit),
+        "serial_number": serial(m),
         "via_device": site.gateway_identifier(),
     });
     // The profile's maker is that of its own model; an alias (IBF67 on the YL67 map) may be

@@ -14,6 +14,7 @@ fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
         rpm: false,
         value_unit: None,
         writable: true,
+        gauge: None,
     }
 }
 
