@@ -12,6 +12,7 @@ pub mod gateway;
 pub mod line;
 pub mod mbus;
 pub mod model;
+pub mod segments;
 mod server;
 
 use std::collections::BTreeMap;
@@ -22,7 +23,8 @@ use std::time::Instant;
 
 use tokio_util::sync::CancellationToken;
 
-pub use config::{SimBusConfig, SimConfig, SimDeviceConfig};
+pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
+pub use segments::PlantSegment;
 pub use error::SimError;
 pub use model::SimModule;
 
@@ -63,6 +65,8 @@ impl Drop for Wire {
 /// A running simulated plant.
 pub struct Plant {
     pub buses: Vec<PlantBus>,
+    /// M-Bus segments.
+    pub segments: Vec<PlantSegment>,
     start: Instant,
     cancel: CancellationToken,
 }
@@ -197,11 +201,27 @@ impl Plant {
                 link: bus.link.clone(),
             });
         }
+        let mut segments = Vec::new();
+        for (name, c) in &config.mbus {
+            let segment = segments::serve(name, c, start, &cancel)
+                .await
+                .map_err(|message| SimError::Bus {
+                    bus: name.clone(),
+                    message,
+                })?;
+            segments.push(segment);
+        }
         Ok(Plant {
             buses,
+            segments,
             start,
             cancel,
         })
+    }
+
+    /// An M-Bus segment by name.
+    pub fn segment(&self, name: &str) -> Option<&PlantSegment> {
+        self.segments.iter().find(|s| s.name == name)
     }
 
     /// Seconds since the plant started (the modules' clock).
@@ -268,7 +288,7 @@ impl Plant {
 }
 
 /// Points `link` at `target`, replacing what was there.
-fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<()> {
+pub(crate) fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<()> {
     let _ = std::fs::remove_file(link);
     if let Some(dir) = link.parent() {
         std::fs::create_dir_all(dir)?;
