@@ -70,7 +70,10 @@ pub fn poll_plan(config: &Config) -> String {
 fn meters(bus: &str, line: &MbusLine, devices: &[Device]) -> String {
     let mut out = match line {
         MbusLine::Serial { port, baud, parity } => {
-            format!("bus {bus} (M-Bus {} at {baud} baud, parity {parity:?}):", port.display())
+            format!(
+                "bus {bus} (M-Bus {} at {baud} baud, parity {parity:?}):",
+                port.display()
+            )
         }
         MbusLine::Tcp { host, port } => format!("bus {bus} (M-Bus over TCP {host}:{port}):"),
     };

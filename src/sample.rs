@@ -9,8 +9,8 @@
 use std::sync::Arc;
 use std::time::SystemTime;
 
-pub use crate::counter::Direction;
 use crate::config::units::ChannelUnits;
+pub use crate::counter::Direction;
 use crate::counter::{CounterSpec, Restart, Stamp};
 use crate::profile::ChannelKind;
 pub use crate::reading::Measure;

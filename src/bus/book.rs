@@ -9,11 +9,11 @@ use std::sync::Arc;
 use super::device::{ChannelRt, DeviceRt};
 use super::driver::{DeviceState, Executed, Written};
 use crate::command::CommandError;
+use crate::config::units::ChannelUnits;
 use crate::counter::Counter;
 use crate::event::Event;
-use crate::reading::Reading;
-use crate::config::units::ChannelUnits;
 use crate::metering::meter::MeterOffset;
+use crate::reading::Reading;
 use crate::sample::{Channel, Sample, Value};
 
 /// A meter register read for the first time, with its step and unit known and no meter
@@ -34,8 +34,7 @@ fn first_meter_reading(
         return;
     }
     let shown = scale.times(count);
-    counter.state.meter =
-        MeterOffset::to_show(&shown, &scale, counter.state.total, at_ms as i64);
+    counter.state.meter = MeterOffset::to_show(&shown, &scale, counter.state.total, at_ms as i64);
 }
 
 impl<P> DeviceRt<P> {

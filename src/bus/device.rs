@@ -7,11 +7,11 @@ use std::sync::Arc;
 
 use tokio::time::Instant;
 
+use crate::config::units::ChannelUnits;
 use crate::config::{Bus, Device};
 use crate::counter::{Counter, CounterState, Update};
 use crate::metrics::DeviceMetrics;
 use crate::profile::{ChannelKind, Profile};
-use crate::config::units::ChannelUnits;
 use crate::reading::{Measure, Reading};
 use crate::sample::Sample;
 use crate::state::{channel_key, is_channel_of};

@@ -11,7 +11,7 @@ use std::time::Duration;
 use config::Value;
 
 use super::channel::ChannelConfig;
-use super::model::{Device, Link, MbusLine, MeterAddress, Parity, METER_MODEL};
+use super::model::{Device, Link, METER_MODEL, MbusLine, MeterAddress, Parity};
 use super::walk::{Errors, Table, join};
 use crate::profile::{MAX_TIMEOUT, Profile};
 

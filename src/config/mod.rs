@@ -6,9 +6,9 @@
 
 pub mod channel;
 mod check;
-mod meter;
 mod connection;
 mod error;
+mod meter;
 mod metering;
 mod metrics;
 mod model;

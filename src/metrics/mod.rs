@@ -185,8 +185,7 @@ impl Present {
 
     fn has_channel(&self, key: &(String, String, String)) -> bool {
         self.channels.contains(key)
-            || (self.open.contains(&(key.0.clone(), key.1.clone()))
-                && !self.disabled.contains(key))
+            || (self.open.contains(&(key.0.clone(), key.1.clone())) && !self.disabled.contains(key))
     }
 }
 

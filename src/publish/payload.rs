@@ -149,7 +149,8 @@ fn measure_json(m: &crate::reading::Measure) -> Box<RawValue> {
         Measure::Real(_) => "null".into(),
         Measure::Text(t) => serde_json::to_string(&**t).unwrap_or_default(),
     };
-    RawValue::from_string(text).unwrap_or_else(|_| RawValue::from_string("null".into()).expect("null is JSON"))
+    RawValue::from_string(text)
+        .unwrap_or_else(|_| RawValue::from_string("null".into()).expect("null is JSON"))
 }
 
 fn count_json(r: &Reading) -> ReadingJson {
@@ -182,7 +183,9 @@ fn count_json(r: &Reading) -> ReadingJson {
         rate,
         reading,
         reading_since,
-        unit: units.filter(|u| u.scale.is_some()).and_then(|u| u.unit.clone()),
+        unit: units
+            .filter(|u| u.scale.is_some())
+            .and_then(|u| u.unit.clone()),
     }
 }
 

@@ -24,9 +24,9 @@ use std::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
-pub use segments::PlantSegment;
 pub use error::SimError;
 pub use model::SimModule;
+pub use segments::PlantSegment;
 
 pub use server::Modules;
 

@@ -52,7 +52,9 @@ impl PlantSegment {
 pub fn build_meter(name: &str, c: &SimMeterConfig) -> Result<SimMeter, String> {
     let letters = c.manufacturer.as_bytes();
     if letters.len() != 3 || !letters.iter().all(u8::is_ascii_uppercase) {
-        return Err(format!("meter {name}: manufacturer must be three letters A-Z"));
+        return Err(format!(
+            "meter {name}: manufacturer must be three letters A-Z"
+        ));
     }
     if c.id > 99_999_999 {
         return Err(format!("meter {name}: an id has at most 8 digits"));

@@ -51,10 +51,7 @@ impl Shape {
             kind: r.kind,
             freq: r.freq_hz.is_some(),
             rpm: r.rpm.is_some(),
-            gauge: r
-                .measured
-                .as_ref()
-                .map(|m| !matches!(m, Measure::Text(_))),
+            gauge: r.measured.as_ref().map(|m| !matches!(m, Measure::Text(_))),
             declared: r.units.as_deref().cloned(),
         }
     }

@@ -17,12 +17,7 @@ use crate::profile::ChannelKind;
 
 /// The meter-reading and interval sensors of channel `spec` of `m` (none for an encoder, whose
 /// position is not a meter, and no reading without a scale).
-pub fn entities(
-    site: &Site,
-    m: Module<'_>,
-    spec: &Shape,
-    units: &ChannelUnits,
-) -> Vec<Entity> {
+pub fn entities(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) -> Vec<Entity> {
     if spec.kind == ChannelKind::Encoder {
         return Vec::new();
     }

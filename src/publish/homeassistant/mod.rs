@@ -133,7 +133,12 @@ impl Discovery {
         else {
             return Vec::new();
         };
-        let key = (bus.name.clone(), device.place_tag(), r.channel.to_string(), r.kind);
+        let key = (
+            bus.name.clone(),
+            device.place_tag(),
+            r.channel.to_string(),
+            r.kind,
+        );
         let m = Module {
             bus: &bus.name,
             device,
@@ -174,7 +179,10 @@ impl Discovery {
     fn refresh_unwanted(&mut self) {
         let mut unwanted = BTreeSet::new();
         for (bus, device) in self.config.enabled_devices() {
-            if !self.settled.contains(&(bus.name.clone(), device.place_tag())) {
+            if !self
+                .settled
+                .contains(&(bus.name.clone(), device.place_tag()))
+            {
                 continue;
             }
             let m = Module {

@@ -245,7 +245,9 @@ impl MeterDevice {
     ) -> Result<(), MeterError> {
         match self.ask(link, request, select).await? {
             Frame::Ack => Ok(()),
-            other => Err(self.unexpected(format!("{other:?} where an acknowledgement (E5) was due"))),
+            other => {
+                Err(self.unexpected(format!("{other:?} where an acknowledgement (E5) was due")))
+            }
         }
     }
 

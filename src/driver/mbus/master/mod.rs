@@ -76,7 +76,11 @@ impl Driver for Mbus {
     }
 
     /// A meter's registers cannot be written: only `set_reading` (the core's) applies.
-    async fn execute(&mut self, device: &mut DeviceRt<MeterDevice>, _request: &Request) -> Executed {
+    async fn execute(
+        &mut self,
+        device: &mut DeviceRt<MeterDevice>,
+        _request: &Request,
+    ) -> Executed {
         Executed {
             failed: Some(CommandError::NotWritable {
                 device: device.name.to_string(),

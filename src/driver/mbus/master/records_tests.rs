@@ -35,7 +35,14 @@ fn every_record_with_a_value_is_a_channel_by_its_default_name() {
     let names: Vec<&str> = picked.iter().map(|p| &*p.channel.name).collect();
     assert_eq!(
         names,
-        ["energy", "on_time", "power", "power_max", "energy_t1_u1", "energy_t2_u1"],
+        [
+            "energy",
+            "on_time",
+            "power",
+            "power_max",
+            "energy_t1_u1",
+            "energy_t2_u1"
+        ],
         "the manufacturer's bytes are no channel"
     );
     assert!(matches!(
@@ -55,7 +62,10 @@ fn a_volume_register_counts_litres_and_its_value_is_in_cubic_metres() {
     assert_eq!(units.rate_unit.as_deref(), Some("m³/h"));
     assert!(matches!(
         picked[0].channel.counting,
-        Counting::Register { rollover: 100_000_000, .. }
+        Counting::Register {
+            rollover: 100_000_000,
+            ..
+        }
     ));
     let samples = samples(&water(), &picked, at(), false);
     assert_eq!(samples[0].value.count(), Some(12345));

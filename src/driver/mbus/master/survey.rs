@@ -61,7 +61,11 @@ pub(super) async fn idle_step(mbus: &mut Mbus, idle: Idle<'_>) -> bool {
                 };
                 send(idle.out, &req.reply, busy);
             } else {
-                tracing::info!(bus = idle.bus, addresses = req.units.len(), "M-Bus scan requested; asking primary addresses in idle line time");
+                tracing::info!(
+                    bus = idle.bus,
+                    addresses = req.units.len(),
+                    "M-Bus scan requested; asking primary addresses in idle line time"
+                );
                 mbus.survey = Some(Survey::new(req, &configured, Instant::now()));
             }
         }
