@@ -156,7 +156,7 @@ impl<P> DeviceRt<P> {
             let update = counter.rebase_from(expected, got, back.at.stamp, event);
             (update, Ok(()))
         };
-        Some((ch.reading(&self.name, &back, got, update), checked))
+        Some((ch.reading(&self.name, back, got, update), checked))
     }
 }
 

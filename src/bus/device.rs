@@ -170,7 +170,7 @@ impl<P> DeviceRt<P> {
             channels: Vec::new(),
             saved: saved
                 .iter()
-                .filter(|(k, _)| is_channel_of(k, &config.place(), &config.model))
+                .filter(|(k, _)| is_channel_of(k, config.place(), &config.model))
                 .map(|(k, v)| (k.clone(), v.clone()))
                 .collect(),
             availability: super::availability::Availability::new(
@@ -196,7 +196,7 @@ impl<P> DeviceRt<P> {
 
     /// The state file's key of `channel` (the file's format: unit, model, channel).
     pub(crate) fn state_key(&self, channel: &str) -> String {
-        channel_key(&self.config.place(), &self.config.model, channel)
+        channel_key(self.config.place(), &self.config.model, channel)
     }
 
     /// Counter state of every channel, keyed for the state file (channels not discovered yet

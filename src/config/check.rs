@@ -384,7 +384,7 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    device_name(&t, &path, name, errs);
+    super::names::device_name(&t, &path, name, errs);
     if !t.has("unit") {
         errs.push(&join(&path, "unit"), t.origin(), "missing");
     }
@@ -450,18 +450,6 @@ fn device(
         intervals,
         meter: None,
     })
-}
-
-/// A device name becomes a topic level: refused when it cannot be one.
-pub(super) fn device_name(t: &Table<'_>, path: &str, name: &str, errs: &mut Errors) {
-    if !crate::topics::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
-        errs.push(
-            path,
-            t.origin(),
-            "device name must be letters, digits, '-' or '_' and not status, bus, cmd or gateway \
-             (it is a topic level)",
-        );
-    }
 }
 
 /// The profile of `model`; an unknown model is an error naming the known ones.

@@ -117,7 +117,7 @@ fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<MbusLine> {
 fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    super::check::device_name(&t, &path, name, errs);
+    super::names::device_name(&t, &path, name, errs);
     for key in ["unit", "model", "baud"] {
         if t.has(key) {
             let _ = t.raw(key);

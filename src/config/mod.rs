@@ -13,6 +13,7 @@ mod metering;
 mod metrics;
 mod model;
 mod mqtt;
+mod names;
 pub mod outputs;
 pub mod policy;
 pub mod publish;

@@ -7,6 +7,7 @@
 mod comm;
 mod config;
 mod datasheet;
+mod endpoint;
 mod error;
 pub mod gateway;
 pub mod line;
@@ -16,7 +17,6 @@ pub mod segments;
 mod server;
 
 use std::collections::BTreeMap;
-use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -24,19 +24,13 @@ use std::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
+pub use endpoint::Endpoint;
+use endpoint::relink;
 pub use error::SimError;
 pub use model::SimModule;
 pub use segments::PlantSegment;
 
 pub use server::Modules;
-
-/// Where a simulated bus can be reached.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Endpoint {
-    /// A pseudo-terminal: open this path as a serial port.
-    Serial(PathBuf),
-    Tcp(SocketAddr),
-}
 
 /// A simulated bus.
 pub struct PlantBus {
@@ -285,15 +279,6 @@ impl Plant {
     pub fn stop(&self) {
         self.cancel.cancel();
     }
-}
-
-/// Points `link` at `target`, replacing what was there.
-pub(crate) fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<()> {
-    let _ = std::fs::remove_file(link);
-    if let Some(dir) = link.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
-    std::os::unix::fs::symlink(target, link)
 }
 
 impl Drop for Plant {

@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use tokio_util::sync::CancellationToken;
 
-use super::Endpoint;
 use super::config::{SimMeterConfig, SimSegmentConfig};
+use super::endpoint::{Endpoint, relink};
 use super::mbus::shell::{self, SharedSegment};
 use super::mbus::{Behaviour, Gauge, Quantity, Register, Segment, SimMeter, Width};
 
@@ -121,7 +121,7 @@ pub async fn serve(
                 .map_err(|e| format!("cannot create a pseudo-terminal: {e}"))?;
             let path = match link {
                 Some(link) => {
-                    super::relink(&path, link)
+                    relink(&path, link)
                         .map_err(|e| format!("cannot link {}: {e}", link.display()))?;
                     link.clone()
                 }

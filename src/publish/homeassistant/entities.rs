@@ -9,53 +9,12 @@ use std::collections::BTreeSet;
 
 use serde_json::json;
 
+pub use super::entity::Shape;
 use super::entity::{Entity, Module, Site, State, common, merge, origin, sensor};
 use crate::config::Config;
 use crate::config::units::ChannelUnits;
 use crate::config::units::rate_device_class;
-use crate::profile::{ChannelKind, ChannelSpec};
-use crate::reading::{Measure, Reading};
-
-/// What a channel's entities are made of: its name and kind, whether the module measures its
-/// frequency and speed (from the profile); for a channel its device declares (an M-Bus
-/// meter's record), the units it declared and whether it is a gauge (a value, not a count).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Shape {
-    pub name: String,
-    pub kind: ChannelKind,
-    pub freq: bool,
-    pub rpm: bool,
-    /// `Some(numeric)` for a gauge (text, such as a date, is not numeric).
-    pub gauge: Option<bool>,
-    /// The units the device declared (a `scale` in the config wins).
-    pub declared: Option<ChannelUnits>,
-}
-
-impl Shape {
-    /// A profile's channel.
-    pub fn of_spec(spec: &ChannelSpec) -> Shape {
-        Shape {
-            name: spec.name.clone(),
-            kind: spec.kind,
-            freq: spec.freq.is_some(),
-            rpm: spec.rpm.is_some(),
-            gauge: None,
-            declared: None,
-        }
-    }
-
-    /// A channel its device declared, as its reading shows it.
-    pub fn of_reading(r: &Reading) -> Shape {
-        Shape {
-            name: r.channel.to_string(),
-            kind: r.kind,
-            freq: r.freq_hz.is_some(),
-            rpm: r.rpm.is_some(),
-            gauge: r.measured.as_ref().map(|m| !matches!(m, Measure::Text(_))),
-            declared: r.units.as_deref().cloned(),
-        }
-    }
-}
+use crate::profile::ChannelKind;
 
 /// The gateway's own device, with its status as a diagnostic sensor so `via_device` resolves.
 pub fn gateway_entities(site: &Site) -> Vec<Entity> {

@@ -10,8 +10,7 @@
 
 use serde_json::{Value, json};
 
-use super::entities::Shape;
-use super::entity::{Entity, Module, Site, State, sensor};
+use super::entity::{Entity, Module, Shape, Site, State, sensor};
 use crate::config::units::ChannelUnits;
 use crate::profile::ChannelKind;
 

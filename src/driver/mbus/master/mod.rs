@@ -104,7 +104,13 @@ impl Driver for Mbus {
     }
 
     async fn idle(&mut self, idle: Idle<'_>) -> bool {
-        survey::idle_step(self, idle).await
+        let scanning = survey::Scanning {
+            link: &mut self.link,
+            survey: &mut self.survey,
+            requests: &mut self.requests,
+            configured: &self.configured,
+        };
+        survey::idle_step(scanning, idle).await
     }
 
     fn close(&mut self) {

@@ -6,9 +6,10 @@
 
 use tokio::time::Instant;
 
-use super::Mbus;
+use tokio::sync::mpsc::Receiver;
+
 use super::device::Address;
-use super::link::char_time;
+use super::link::{Link, char_time};
 use super::search::{FoundMeter, Probe, probe_primary};
 use crate::bus::driver::Idle;
 use crate::command::Reply;
@@ -18,7 +19,16 @@ use crate::driver::mbus::channel;
 use crate::driver::mbus::frame::MAX_FRAME;
 use crate::outcome::{Found, MeterFound, Outcome, ScanOutcome};
 use crate::reading::Output;
-use crate::scan::Survey;
+use crate::scan::{ScanRequest, Survey};
+
+/// What a scan needs of the driver, lent for one step.
+pub(super) struct Scanning<'a> {
+    pub link: &'a mut Link,
+    pub survey: &'a mut Option<Survey>,
+    pub requests: &'a mut Option<Receiver<ScanRequest>>,
+    /// The configured meters (their primary addresses are not asked).
+    pub configured: &'a [Address],
+}
 
 /// How a found meter is reported.
 pub fn found(m: &FoundMeter, baud: Option<u32>) -> Found {
@@ -41,7 +51,7 @@ pub fn found(m: &FoundMeter, baud: Option<u32>) -> Found {
 
 /// One step of the bus's scan, if any: takes new requests (one at a time; others are answered
 /// "busy") and, when the line is idle long enough, asks one primary address.
-pub(super) async fn idle_step(mbus: &mut Mbus, idle: Idle<'_>) -> bool {
+pub(super) async fn idle_step(mbus: Scanning<'_>, idle: Idle<'_>) -> bool {
     let configured: Vec<u8> = mbus
         .configured
         .iter()
@@ -66,7 +76,7 @@ pub(super) async fn idle_step(mbus: &mut Mbus, idle: Idle<'_>) -> bool {
                     addresses = req.units.len(),
                     "M-Bus scan requested; asking primary addresses in idle line time"
                 );
-                mbus.survey = Some(Survey::new(req, &configured, Instant::now()));
+                *mbus.survey = Some(Survey::new(req, &configured, Instant::now()));
             }
         }
     }
@@ -85,7 +95,7 @@ pub(super) async fn idle_step(mbus: &mut Mbus, idle: Idle<'_>) -> bool {
         && !idle.shutdown.is_cancelled()
     {
         used = true;
-        let heard = match probe_primary(&mut mbus.link, address).await {
+        let heard = match probe_primary(mbus.link, address).await {
             Ok(Probe::Found(m)) => Some(found(&m, baud)),
             _ => None,
         };
@@ -101,7 +111,7 @@ pub(super) async fn idle_step(mbus: &mut Mbus, idle: Idle<'_>) -> bool {
     if s.finished(now) {
         tracing::info!(bus = idle.bus, found = s.found_count(), "scan finished");
         send(idle.out, s.reply(), s.result(idle.bus, now));
-        mbus.survey = None;
+        *mbus.survey = None;
     }
     used
 }
