@@ -181,6 +181,8 @@ const FLOORS: &[(&str, &[&str])] = &[
             "bus",
             "command",
             "config",
+            "driver::mbus",
+            "driver::mbus::master",
             "driver::modbus",
             "outcome",
             "plan",

@@ -131,6 +131,11 @@ impl MeterDevice {
             .meter
             .as_ref()
             .map_or(Address::Primary(config.unit), Address::of);
+        MeterDevice::at(address)
+    }
+
+    /// The meter at `address`, its link not reset yet.
+    pub fn at(address: Address) -> MeterDevice {
         MeterDevice {
             what: address.describe(),
             address,
@@ -190,9 +195,10 @@ impl DeviceRt<MeterDevice> {
 }
 
 impl MeterDevice {
-    /// `SND_NKE` (after selecting a meter found by its secondary address, which the
-    /// `SND_NKE` to 253 deselects again), then every telegram of one readout.
-    async fn read_out(&mut self, link: &mut Link) -> Result<(Header, Vec<Record>), MeterError> {
+    /// `SND_NKE` when the link is new (after selecting a meter found by its secondary
+    /// address, which the `SND_NKE` to 253 deselects again), then every telegram of one
+    /// readout: the header of the answer and its records, numbered across the telegrams.
+    pub async fn read_out(&mut self, link: &mut Link) -> Result<(Header, Vec<Record>), MeterError> {
         if !self.linked {
             self.select(link).await?;
             self.reset_link(link).await?;
