@@ -335,3 +335,155 @@ async fn a_meter_answering_garbage_or_nothing_goes_offline_and_the_others_keep_t
         assert!(on.is_some(), "{d} did not come back");
     }
 }
+
+/// Runs `pulsegate ARGS` to the end: (stdout, stderr, success).
+async fn pg(args: &[&str]) -> (String, String, bool) {
+    let o = tokio::process::Command::new(bin())
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .await
+        .expect("run pulsegate");
+    (
+        String::from_utf8_lossy(&o.stdout).into(),
+        String::from_utf8_lossy(&o.stderr).into(),
+        o.status.success(),
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_secondary_scan_finds_every_meter_through_collisions_and_its_toml_passes_check() {
+    let plant = plant(PLANT).await;
+    let host = match &plant.segment("field").unwrap().endpoint {
+        pulsegate::sim::Endpoint::Tcp(a) => a.to_string(),
+        other => panic!("{other:?}"),
+    };
+    let scan = ["scan", "--protocol", "mbus", "--host", &host, "--secondary"];
+    let (out, err, ok) = pg(&[&scan[..], &["--timeout", "100ms", "--json"]].concat()).await;
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let ids: Vec<&str> = v["found"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|m| m["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, ["12345678", "19876543", "55500001"], "{out}");
+    assert!(
+        v["collisions"].as_u64().unwrap() >= 1,
+        "ids starting with 1 collide: {out}"
+    );
+    let kam = &v["found"][0];
+    assert_eq!(
+        (
+            kam["manufacturer"].as_str(),
+            kam["version"].as_u64(),
+            kam["medium"].as_u64()
+        ),
+        (Some("KAM"), Some(1), Some(4))
+    );
+    assert_eq!(
+        (kam["address"].as_u64(), v["found"][2]["address"].as_u64()),
+        (Some(0), Some(5))
+    );
+
+    // The table names them, and --toml gives a config `pulsegate check` accepts.
+    let (table, _, _) = pg(&[&scan[..], &["--timeout", "100ms"]].concat()).await;
+    assert!(
+        table.contains("12345678") && table.contains("KAM") && table.contains("3 meter(s)"),
+        "{table}"
+    );
+    let (toml, err, ok) = pg(&[&scan[..], &["--timeout", "100ms", "--toml"]].concat()).await;
+    assert!(ok, "{err}");
+    assert!(
+        toml.contains("id = \"12345678\"") && toml.contains("address = 5"),
+        "{toml}"
+    );
+    let dir = temp_dir("mbus-scan-toml");
+    let file = write_config(
+        &dir,
+        &toml.replace("# id = \"<host name>\"", "id = \"edge\""),
+    );
+    let (out, err, ok) = pg(&["check", "--config", file.to_str().unwrap()]).await;
+    assert!(ok, "check refused the scan's config: {out}{err}\n{toml}");
+
+    // The serial meter, read at 2400 8E1 over the pty.
+    let port = match &plant.segment("cellar").unwrap().endpoint {
+        pulsegate::sim::Endpoint::Serial(p) => p.display().to_string(),
+        other => panic!("{other:?}"),
+    };
+    let read = [
+        "read",
+        "--protocol",
+        "mbus",
+        "--port",
+        &port,
+        "--address",
+        "7",
+        "--json",
+    ];
+    let (out, err, ok) = pg(&read).await;
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    for key in [
+        "id",
+        "manufacturer",
+        "version",
+        "medium",
+        "access",
+        "status",
+        "records",
+    ] {
+        assert!(v.get(key).is_some(), "no {key} in {out}");
+    }
+    assert_eq!(
+        (v["id"].as_str(), v["medium"].as_u64()),
+        (Some("77700001"), Some(3))
+    );
+    let volume = &v["records"][0];
+    for key in [
+        "index", "quantity", "function", "storage", "tariff", "subunit", "unit", "value",
+    ] {
+        assert!(volume.get(key).is_some(), "no {key} in {volume}");
+    }
+    assert_eq!(
+        (volume["quantity"].as_str(), volume["unit"].as_str()),
+        (Some("volume"), Some("m³"))
+    );
+    assert!(volume["value"].as_f64().unwrap() >= 0.3, "{volume}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_scan_over_mqtt_finds_a_meter_on_an_mbus_bus_with_progress() {
+    let broker = Broker::start();
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("mbus-service-scan");
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let meters: &[MeterLine<'_>] = &[("field", "heat_a", "heat_a", "1s")];
+    let text = meters_toml(&plant, broker.port, &dir, meters, "timeout = \"100ms\"\n");
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    sub.expect_any("pulsegate/test/heat_a/energy", Duration::from_secs(10))
+        .await;
+    sub.send(
+        "pulsegate/test/bus/field/scan",
+        r#"{"units":"1-10","id":"s1"}"#,
+    )
+    .await;
+    let result = sub
+        .wait_for(
+            "pulsegate/test/bus/field/scan/result",
+            Duration::from_secs(30),
+            |_| true,
+        )
+        .await
+        .expect("a scan result");
+    let v = result.json();
+    let found = v["found"].as_array().expect("found");
+    assert_eq!(found.len(), 1, "{v}");
+    assert_eq!(
+        (found[0]["unit"].as_u64(), found[0]["meter"]["id"].as_str()),
+        (Some(5), Some("55500001"))
+    );
+    let progress = sub.on("pulsegate/test/bus/field/scan/progress");
+    assert_eq!(progress.len(), 1, "one meter found, one progress message");
+}
