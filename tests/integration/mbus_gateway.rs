@@ -487,3 +487,147 @@ async fn a_scan_over_mqtt_finds_a_meter_on_an_mbus_bus_with_progress() {
     let progress = sub.on("pulsegate/test/bus/field/scan/progress");
     assert_eq!(progress.len(), 1, "one meter found, one progress message");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_meter_register_is_discovered_counted_in_intervals_and_born_in_sparkplug() {
+    use crate::dashboards::valid_config;
+    use crate::sparkplug::{Host, metric, no_errors, of_type};
+    let broker = Broker::start();
+    let host = Host::start(broker.port, false);
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("mbus-dashboards");
+    let ha = Subscriber::start(broker.port, "homeassistant/#").await;
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let meters: &[MeterLine<'_>] = &[
+        ("field", "heat_a", "heat_a", "500ms"),
+        ("field", "water", "water", "500ms"),
+    ];
+    let text = meters_toml(&plant, broker.port, &dir, meters, "")
+        .replacen("[gateway]\n", "[gateway]\nintervals = [\"2s\"]\n", 1)
+        .replacen(
+            "[mqtt]\n",
+            "[mqtt]\nformat = [\"json\", \"sparkplug\"]\n",
+            1,
+        )
+        + "[homeassistant]\ndiscovery = true\n[sparkplug]\ngroup_id = \"plant\"\n";
+    let _gw = Gateway::start(&write_config(&dir, &text));
+
+    // Intervals of a meter register: records whose value is the delta in the register's unit.
+    let interval = "pulsegate/test/heat_a/energy/interval/2s";
+    let record = sub
+        .wait_for(interval, Duration::from_secs(15), |m| {
+            m.json()["delta"].as_i64() > Some(0)
+        })
+        .await
+        .expect("an interval record of the energy register");
+    let r = record.json();
+    assert_eq!(r["value"].as_i64(), r["delta"].as_i64(), "1 Wh steps: {r}");
+    assert_eq!(
+        r["total_end"].as_i64().unwrap() - r["total_start"].as_i64().unwrap(),
+        r["delta"].as_i64().unwrap()
+    );
+
+    // Home Assistant: the register a total_increasing energy sensor, the gauges measurements
+    // with their classes, every config valid, no clear button for a meter.
+    let prefix = "homeassistant/sensor/test/field_id12345678";
+    let want = [
+        (
+            format!("{prefix}_energy_total/config"),
+            "energy",
+            "total_increasing",
+            "Wh",
+        ),
+        (
+            format!("{prefix}_power/config"),
+            "power",
+            "measurement",
+            "W",
+        ),
+        (
+            format!("{prefix}_flow_temperature/config"),
+            "temperature",
+            "measurement",
+            "°C",
+        ),
+        (
+            "homeassistant/sensor/test/field_a5_volume_total/config".to_string(),
+            "water",
+            "total_increasing",
+            "m³",
+        ),
+    ];
+    for (topic, class, state_class, unit) in &want {
+        let m = ha
+            .wait_for(topic, Duration::from_secs(10), |m| !m.payload.is_empty())
+            .await
+            .unwrap_or_else(|| panic!("no config {topic}"));
+        let v = valid_config(topic, &m.payload);
+        assert_eq!(
+            (
+                v["device_class"].as_str(),
+                v["state_class"].as_str(),
+                v["unit_of_measurement"].as_str()
+            ),
+            (Some(*class), Some(*state_class), Some(*unit)),
+            "{topic}: {v}"
+        );
+        assert_eq!(v["availability_mode"], "all", "{topic}");
+        assert_eq!(v["device"]["via_device"], "pulsegate_test", "{topic}");
+    }
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    for m in ha
+        .all()
+        .iter()
+        .filter(|m| !m.payload.is_empty() && m.topic.ends_with("/config"))
+    {
+        if m.topic.contains("field_") {
+            valid_config(&m.topic, &m.payload);
+            assert!(
+                !m.topic.contains("/button/"),
+                "a meter cannot be cleared: {}",
+                m.topic
+            );
+        }
+    }
+    let reading = ha.on(&format!("{prefix}_energy_reading/config"));
+    assert!(!reading.is_empty(), "the meter reading sensor");
+    let totals: Vec<i64> = readings(&sub, "pulsegate/test/heat_a/energy")
+        .iter()
+        .filter_map(|r| r["total"].as_i64())
+        .collect();
+    assert!(totals.windows(2).all(|w| w[0] <= w[1]), "{totals:?}");
+
+    // Sparkplug: the register's metrics with its unit, the gauges as values with theirs.
+    host.wait(
+        Duration::from_secs(15),
+        "heat_a born with its records",
+        |l| {
+            of_type(l, "DBIRTH")
+                .any(|b| b["device"] == "heat_a" && metric(b, "power/Value").is_some())
+        },
+    )
+    .await;
+    host.wait(Duration::from_secs(10), "heat_a's data", |l| {
+        of_type(l, "DDATA").any(|d| d["device"] == "heat_a" && metric(d, "energy/Total").is_some())
+    })
+    .await;
+    let lines = host.lines();
+    no_errors(&lines);
+    let birth = of_type(&lines, "DBIRTH")
+        .filter(|b| b["device"] == "heat_a")
+        .last()
+        .unwrap();
+    assert_eq!(
+        metric(birth, "energy/Value").unwrap()["properties"]["engUnit"],
+        "Wh"
+    );
+    assert_eq!(metric(birth, "energy/Total").unwrap()["datatype"], "UINT64");
+    assert_eq!(
+        metric(birth, "power/Value").unwrap()["properties"]["engUnit"],
+        "W"
+    );
+    assert!(
+        metric(birth, "energy/Clear").is_none(),
+        "a meter register is not writable"
+    );
+}

@@ -40,9 +40,9 @@ pub fn gateway_entities(site: &Site) -> Vec<Entity> {
     }]
 }
 
-/// The device-wide clear button, where commands are enabled.
+/// The device-wide clear button, where commands are enabled and counts can be written.
 pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
-    if !m.device.commands {
+    if !m.device.commands || !m.device.writable_counts() {
         return Vec::new();
     }
     let object = "clear_all";
