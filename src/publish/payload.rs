@@ -308,4 +308,36 @@ mod tests {
         assert_eq!(v["b0"]["value"], 5);
         assert_eq!(v.as_object().unwrap().len(), 2);
     }
+
+    #[test]
+    fn a_gauge_publishes_its_exact_value_and_unit_and_nothing_counted() {
+        use crate::config::units::ChannelUnits;
+        use crate::decimal::Decimal;
+        use crate::reading::Measure;
+        let mut r = metered(0, "1", 0.0);
+        r.channel = "flow_temperature".into();
+        r.units = Some(std::sync::Arc::new(ChannelUnits {
+            unit: Some("°C".into()),
+            ..ChannelUnits::default()
+        }));
+        r.measured = Some(Measure::Exact(Decimal::parse("60.25").unwrap()));
+        let text = reading(&r);
+        assert_eq!(
+            text,
+            r#"{"ts":"1970-01-01T00:00:00.000Z","value":60.25,"unit":"°C"}"#
+        );
+        r.measured = Some(Measure::Text("2024-01-31".into()));
+        let v: serde_json::Value = serde_json::from_str(&device(&[r])).unwrap();
+        assert_eq!(v["flow_temperature"]["value"], "2024-01-31");
+    }
+
+    #[test]
+    fn a_register_names_the_unit_of_its_value() {
+        let mut r = metered(12_345, "0.001", 0.0);
+        std::sync::Arc::make_mut(r.units.as_mut().unwrap()).unit = Some("m³".into());
+        let text = reading(&r);
+        assert!(text.contains(r#""value":12.345,"#), "{text}");
+        assert!(text.contains(r#""unit":"m³""#), "{text}");
+        assert!(text.contains(r#""total":12345"#), "{text}");
+    }
 }
