@@ -122,6 +122,8 @@ pub struct MeterDevice {
     last_id: Option<SecondaryAddress>,
     /// The channels declared to the core, from which records.
     picked: Vec<Picked>,
+    /// The meter's own answer time (its `timeout`), where the config gives one.
+    timeout: Option<Duration>,
 }
 
 impl MeterDevice {
@@ -131,7 +133,10 @@ impl MeterDevice {
             .meter
             .as_ref()
             .map_or(Address::Primary(config.unit), Address::of);
-        MeterDevice::at(address)
+        MeterDevice {
+            timeout: config.timeout,
+            ..MeterDevice::at(address)
+        }
     }
 
     /// The meter at `address`, its link not reset yet.
@@ -143,6 +148,7 @@ impl MeterDevice {
             linked: false,
             last_id: None,
             picked: Vec::new(),
+            timeout: None,
         }
     }
 }
@@ -283,7 +289,7 @@ impl MeterDevice {
     ) -> Result<Frame, MeterError> {
         let mut last = Heard::Nothing;
         for _ in 0..TRIES {
-            match link.exchange(request).await? {
+            match link.exchange_within(request, self.timeout).await? {
                 Heard::Frame(f) => return Ok(f),
                 heard => last = heard,
             }
@@ -298,7 +304,7 @@ impl MeterDevice {
             },
             _ => MeterError::Silent {
                 what,
-                waited: link.answer_time(),
+                waited: self.timeout.unwrap_or(link.answer_time()),
             },
         })
     }

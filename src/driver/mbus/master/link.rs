@@ -109,17 +109,17 @@ impl Link {
         self.answer
     }
 
-    /// The times an exchange on this line waits.
-    fn timing(&self) -> Timing {
+    /// The times an exchange on this line waits for an answer in `answer`.
+    fn timing(&self, answer: Duration) -> Timing {
         match &self.line {
             MbusLine::Serial { baud, .. } => Timing {
-                answer: self.answer,
+                answer,
                 per_char: char_time(*baud, 1),
                 slack: Duration::from_millis(50),
                 settle: char_time(*baud, 3).max(Duration::from_millis(30)),
             },
             MbusLine::Tcp { .. } => Timing {
-                answer: self.answer,
+                answer,
                 per_char: Duration::ZERO,
                 slack: Duration::from_millis(200),
                 settle: Duration::from_millis(40),
@@ -162,10 +162,19 @@ impl Link {
 
     /// Sends `request` and reads what comes back.
     pub async fn exchange(&mut self, request: &[u8]) -> Result<Heard, LinkError> {
+        self.exchange_within(request, None).await
+    }
+
+    /// The same, the answer awaited for `answer` where given (a meter's own `timeout`).
+    pub async fn exchange_within(
+        &mut self,
+        request: &[u8],
+        answer: Option<Duration>,
+    ) -> Result<Heard, LinkError> {
         self.open().await?;
         let started = Instant::now();
         let what = self.what();
-        let timing = self.timing();
+        let timing = self.timing(answer.unwrap_or(self.answer));
         let result = match self.stream.as_mut() {
             Some(Stream::Serial(s)) => transact(s, request, &timing).await,
             Some(Stream::Tcp(s)) => transact(s, request, &timing).await,
@@ -213,7 +222,7 @@ async fn transact<S: AsyncRead + AsyncWrite + Unpin>(
 ) -> io::Result<Heard> {
     let mut chunk = [0u8; 512];
     // A late answer to an earlier request must not be read as this one's.
-    while let Ok(read) = tokio::time::timeout(Duration::ZERO, s.read(&mut chunk)).await {
+    while let Some(read) = read_now(s, &mut chunk).await {
         if read? == 0 {
             return Err(io::ErrorKind::UnexpectedEof.into());
         }
@@ -245,6 +254,19 @@ async fn transact<S: AsyncRead + AsyncWrite + Unpin>(
             Err(e) => return settle(s, buf, e.to_string(), timing.settle).await,
         }
     }
+}
+
+/// What the stream holds now, without waiting (`None`: nothing). Not a zero timeout: a timer
+/// of zero still waits for the runtime's next millisecond tick, once per exchange.
+async fn read_now<S: AsyncRead + Unpin>(s: &mut S, buf: &mut [u8]) -> Option<io::Result<usize>> {
+    std::future::poll_fn(|cx| {
+        let mut b = tokio::io::ReadBuf::new(buf);
+        match std::pin::Pin::new(&mut *s).poll_read(cx, &mut b) {
+            std::task::Poll::Ready(r) => std::task::Poll::Ready(Some(r.map(|()| b.filled().len()))),
+            std::task::Poll::Pending => std::task::Poll::Ready(None),
+        }
+    })
+    .await
 }
 
 /// Reads what else arrives until the line is quiet: the rest of a garbled answer.
