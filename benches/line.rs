@@ -12,10 +12,12 @@
 //!   transaction over mbpoll's, Modbus TCP and RTU at 9600 baud (`sidebyside`).
 //!
 //! - the status page: CPU per transaction with 50 clients polling `/api/v1/status` against
-//!   none (`status`).
+//!   none (`status`);
+//! - M-Bus: 250 meters on one TCP segment read as fast as they answer, CPU a transaction and
+//!   peak RSS beside the Modbus TCP figure (`mbus`).
 //!
 //! `cargo bench --bench line NAME` runs only the parts whose name contains NAME (saturated,
-//! silent, cpu, mbpoll, command, thousand, status).
+//! silent, cpu, mbpoll, command, outputs, thousand, status, mbus).
 
 #[path = "line/sidebyside.rs"]
 mod sidebyside;
@@ -307,6 +309,7 @@ fn pipeline_cpu(figures: &mut Vec<Figure>) {
                     units: None,
                     after_seq: None,
                     meter: None,
+                    measured: None,
                 };
                 let body = pulsegate::publish::payload::reading(&r);
                 std::hint::black_box(body);
@@ -584,6 +587,65 @@ fn subscribe_count(port: u16, topic: &str) -> StatsTap {
     StatsTap(store, pid)
 }
 
+/// An M-Bus segment on TCP with `meters` meters at primary addresses 1.. (an energy register,
+/// power and flow temperature each, as a heat meter answers).
+fn mbus_plant(meters: u8) -> SimConfig {
+    let mut t = String::from("[mbus.field]\nlisten = \"127.0.0.1:0\"\n");
+    for a in 1..=meters {
+        t += &format!(
+            "[mbus.field.meters.m{a}]\nid = {}\naddress = {a}\nmedium = 4\n\
+             registers = [{{ quantity = \"energy_wh\", start = 1000, rate = 10.0 }}]\n\
+             gauges = {{ power_w = 2300, flow_temperature_centi = 6025 }}\n",
+            10_000_000 + u32::from(a)
+        );
+    }
+    SimConfig::from_toml(&t).unwrap()
+}
+
+/// CPU a transaction of the whole gateway process reading 250 M-Bus meters on one TCP segment
+/// as fast as they answer (one `REQ_UD2` a poll, three channels a meter), and its peak RSS:
+/// beside the Modbus TCP figure of `cpu`, measured the same way.
+async fn mbus_cpu(figures: &mut Vec<Figure>) {
+    let mosquitto = Mosquitto::start();
+    let sim = mbus_plant(250);
+    let plant = Plant::start(&sim).await.unwrap();
+    let dir = temp_dir("mbus");
+    let t = pulsegate::sim::gateway::GatewayToml {
+        id: "bench",
+        state_dir: &dir,
+        gateway: "stats_interval = \"5s\"\n",
+        mqtt_host: "127.0.0.1",
+        mqtt_port: Some(mosquitto.1),
+        mqtt: "",
+        serial: "",
+        tcp: "",
+    };
+    let meters = pulsegate::sim::gateway::every_meter(&sim, "1ms");
+    let text = t.render(&plant, &[]) + &t.meters(&plant, &meters, "timeout = \"100ms\"\n");
+    let path = dir.join("g.toml");
+    std::fs::write(&path, text).unwrap();
+    let counts = subscribe_count(mosquitto.1, "pulsegate/bench/bus/field/stats");
+    let window = Duration::from_secs(10);
+    let (cpu, _wall, rss) = measure_gateway(&path, Duration::from_secs(5), window).await;
+    let tx = counts.transactions_in(window);
+    let per = cpu / tx.max(1) as f64;
+    figures.push(Figure {
+        what: "CPU a transaction, whole process, 250 M-Bus meters on TCP".into(),
+        value: format!("{:.1} us ({tx} tx)", per * 1e6),
+        target: "(beside the Modbus TCP figure)".into(),
+        ratio: per / 10e-6,
+        pass: true,
+    });
+    figures.push(Figure {
+        what: "250 M-Bus meters on TCP, as fast as answered: peak RSS".into(),
+        value: format!("{:.1} MB", rss as f64 / 1024.0),
+        target: "< 30 MB".into(),
+        ratio: rss as f64 / 1024.0 / 30.0,
+        pass: (rss as f64 / 1024.0) < 30.0,
+    });
+    drop(plant);
+}
+
 async fn thousand_devices(figures: &mut Vec<Figure>) {
     let mosquitto = Mosquitto::start();
     let sim = tcp_plant(10, 100);
@@ -714,6 +776,12 @@ fn main() {
         if want("cpu") {
             pipeline_cpu(&mut figures);
             process_cpu_per_tx(&mut figures).await;
+        }
+        if want("mbus") {
+            if !want("cpu") {
+                process_cpu_per_tx(&mut figures).await;
+            }
+            mbus_cpu(&mut figures).await;
         }
         if want("mbpoll") {
             sidebyside::run(&mut figures).await;

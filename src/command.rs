@@ -118,6 +118,9 @@ pub enum CommandError {
     BadResponseTopic(&'static str),
     #[error("device {device} is busy: {why}; try again later")]
     Busy { device: String, why: &'static str },
+    /// The device's counts cannot be written (an M-Bus meter's registers).
+    #[error("device {device} cannot be cleared or preset: {why}")]
+    NotWritable { device: String, why: &'static str },
     /// Refused by the protocol it came in with before it became a command (a Sparkplug
     /// DCMD that cannot be read, a metric that cannot be written).
     #[error("{message}")]
@@ -148,6 +151,7 @@ impl CommandError {
             CommandError::TooLarge { .. } => "too_large",
             CommandError::BadResponseTopic(_) => "bad_response_topic",
             CommandError::Busy { .. } => "busy",
+            CommandError::NotWritable { .. } => "not_writable",
             CommandError::Protocol { code, .. } => code,
         }
     }

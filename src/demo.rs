@@ -28,7 +28,8 @@ pub enum DemoError {
 }
 
 /// The simulated plant: two RTU lines on pseudo-terminals and one Modbus TCP hall, all four
-/// models (IBF67 shares the YL67 profile).
+/// models (IBF67 shares the YL67 profile), and an M-Bus heat meter on a TCP converter (its
+/// energy register rolls over at 10^8 within the first minutes).
 fn plant_config() -> SimConfig {
     let mut c = SimConfig::from_toml(
         r#"
@@ -65,6 +66,15 @@ modes = [2, 0, 0, 0, 0, 0, 0, 0]
 channels.di1 = { rate = 50.0 }
 channels.di3 = { count = 100000, rate = 7.0 }
 channels.di4 = { rate = 1.0 }
+[mbus.cellar]
+listen = "127.0.0.1:0"
+[mbus.cellar.meters.heat1]
+id = 12345678
+manufacturer = "KAM"
+medium = 4
+address = 1
+registers = [{ quantity = "energy_wh", width = "bcd8", start = 99990000, rate = 120.0 }]
+gauges = { power_w = 432000, flow_temperature_centi = 6025 }
 "#,
     )
     .expect("demo plant config is valid");
@@ -80,7 +90,7 @@ fn gateway_config(
     state_dir: &Path,
 ) -> Result<Config, DemoError> {
     let sim = plant_config();
-    let text = crate::sim::gateway::GatewayToml {
+    let t = crate::sim::gateway::GatewayToml {
         id: "demo",
         state_dir,
         gateway: "stats_interval = \"30s\"\n",
@@ -89,8 +99,10 @@ fn gateway_config(
         mqtt: "",
         serial: "baud = 9600\n",
         tcp: "",
-    }
-    .render(plant, &crate::sim::gateway::every_device(&sim, "500ms"))
+    };
+    let meters = crate::sim::gateway::every_meter(&sim, "2s");
+    let text = t.render(plant, &crate::sim::gateway::every_device(&sim, "500ms"))
+        + &t.meters(plant, &meters, "")
         + &format!("[metrics]\nlisten = \"{page}\"\n");
     Ok(Config::from_toml(
         &text,
@@ -307,14 +319,19 @@ fn draw(latest: &BTreeMap<String, String>, view: &View, tty: bool) {
         view.page
     );
     out += &format!(
-        "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
-        "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "event"
+        "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7} {:>16}  {}\n",
+        "device/channel", "count", "delta", "total", "freq_hz", "rpm", "seq", "value", "event"
     );
     for (topic, body) in reading_rows(latest) {
         let v: serde_json::Value = serde_json::from_str(body).unwrap_or_default();
         let f = |k: &str| v.get(k).map(|x| x.to_string()).unwrap_or_default();
+        // A value in its unit: a meter register's or gauge's (M-Bus), a scaled channel's.
+        let value = match v.get("unit").and_then(|u| u.as_str()) {
+            Some(unit) => format!("{} {unit}", f("value")),
+            None => f("value"),
+        };
         out += &format!(
-            "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7}  {}\n",
+            "{:<24} {:>12} {:>8} {:>14} {:>10} {:>9} {:>7} {:>16}  {}\n",
             topic,
             f("count"),
             f("delta"),
@@ -322,6 +339,7 @@ fn draw(latest: &BTreeMap<String, String>, view: &View, tty: bool) {
             f("freq_hz"),
             f("rpm"),
             f("seq"),
+            value,
             v.get("event").and_then(|e| e.as_str()).unwrap_or("")
         );
     }

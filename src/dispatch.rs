@@ -41,6 +41,7 @@ fn targets_of(
                     .into_iter()
                     .map(|c| c.name)
                     .collect(),
+                channels_from_device: d.channels_from_device(),
             };
             Some((d.name.clone(), target))
         })
@@ -69,6 +70,9 @@ pub struct Target {
     scanned: bool,
     commands: bool,
     channels: BTreeSet<String>,
+    /// The device's channels are what it answers (an M-Bus meter's records): the bus knows
+    /// them, not the config.
+    channels_from_device: bool,
 }
 
 /// Command messages between the MQTT connection and the router: when full, the connection
@@ -290,6 +294,7 @@ impl Router {
             return refuse(CommandError::Disabled(device.into()));
         }
         if let Some(ch) = channel
+            && !target.channels_from_device
             && !target.channels.contains(ch)
         {
             return refuse(CommandError::UnknownChannel {

@@ -293,6 +293,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             for bus in &plant.buses {
                 println!("bus {}: {:?}", bus.name, bus.endpoint);
             }
+            for seg in &plant.segments {
+                println!("M-Bus segment {}: {:?}", seg.name, seg.endpoint);
+            }
             let shutdown = CancellationToken::new();
             on_signals(shutdown.clone())?;
             shutdown.cancelled().await;

@@ -21,6 +21,22 @@ pub struct Found {
     /// Anything worth knowing (unknown model, modes not readable).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+    /// An M-Bus meter's secondary address (`unit` is then its primary address).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meter: Option<MeterFound>,
+}
+
+/// Who an M-Bus meter a scan found is: its secondary address.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct MeterFound {
+    /// The 8-digit identification number.
+    pub id: String,
+    /// Three letters.
+    pub manufacturer: String,
+    pub version: u8,
+    pub medium: u8,
+    /// The medium's name by the standard's table.
+    pub medium_name: String,
 }
 
 /// A module the scan found, reported as it answers (the result lists it again).

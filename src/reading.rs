@@ -27,6 +27,47 @@ pub struct Reading {
     pub units: Option<Arc<crate::config::units::ChannelUnits>>,
     /// The offset `set_reading` gave the channel's meter reading, if any.
     pub meter: Option<crate::metering::meter::MeterOffset>,
+    /// A gauge's value (a temperature, a power, a date), in the unit of `units`; `None` for a
+    /// count, whose `count` and `update` are what it says. A gauge's `count` is 0 and its
+    /// `update` books nothing.
+    pub measured: Option<Measure>,
+}
+
+/// A measured value as the device gave it: an exact decimal where it sent one (an M-Bus
+/// record's raw value × 10^exponent), a real number, or text (a date, an identification).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Measure {
+    Exact(crate::decimal::Decimal),
+    Real(f64),
+    Text(Arc<str>),
+}
+
+impl Measure {
+    /// The value as a number, where it is one.
+    pub fn to_f64(&self) -> Option<f64> {
+        match self {
+            Measure::Exact(d) => Some(d.to_f64()),
+            Measure::Real(v) => Some(*v),
+            Measure::Text(_) => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Measure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Measure::Exact(d) => write!(f, "{d}"),
+            Measure::Real(v) => write!(f, "{v}"),
+            Measure::Text(t) => f.write_str(t),
+        }
+    }
+}
+
+impl Reading {
+    /// Whether this is a gauge's value rather than a count.
+    pub fn is_gauge(&self) -> bool {
+        self.measured.is_some()
+    }
 }
 
 /// A closed interval of one channel and period (`<root>/<device>/<channel>/interval/<period>`).
@@ -63,6 +104,7 @@ impl Reading {
             meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
+            measured: None,
         }
     }
 }

@@ -3,7 +3,7 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::Config;
+use crate::config::{Config, Device, Link, MeterAddress};
 use crate::plan::{PollPlan, Wire, line_time};
 use crate::profile::Register;
 
@@ -18,6 +18,10 @@ pub fn poll_plan(config: &Config) -> String {
     for bus in &config.buses {
         let timing = bus.line_timing();
         let link = &bus.link;
+        if let Link::Mbus(_) = link {
+            let _ = writeln!(out, "{}", meters(&bus.name, link, &bus.devices));
+            continue;
+        }
         let _ = writeln!(out, "bus {} ({link}):", bus.name);
         let wire = Wire::for_line(timing.as_ref());
         let mut load = 0.0;
@@ -85,6 +89,30 @@ fn outputs(config: &Config) -> String {
             "{VOICE_NAME} (the gateway's status and commands): {} as {}",
             m.broker(),
             m.client_id
+        );
+    }
+    out
+}
+
+/// An M-Bus bus in words: its line and each meter's address and poll interval (a meter's
+/// channels are its answer's records, known when it answers).
+fn meters(bus: &str, link: &Link, devices: &[Device]) -> String {
+    let mut out = format!("bus {bus} ({link}):");
+    for d in devices {
+        let address = match &d.meter {
+            Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
+            Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
+            None => format!("unit {}", d.unit),
+        };
+        let picked = d.channels.values().filter(|c| c.record.is_some()).count();
+        let records = match picked {
+            0 => "every record a channel".to_string(),
+            n => format!("{n} records picked"),
+        };
+        out += &format!(
+            "\n  {:<16} {address:<22} every {:<8} {records}",
+            d.name,
+            humantime::format_duration(d.poll).to_string()
         );
     }
     out

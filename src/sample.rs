@@ -9,9 +9,11 @@
 use std::sync::Arc;
 use std::time::SystemTime;
 
+use crate::config::units::ChannelUnits;
 pub use crate::counter::Direction;
 use crate::counter::{CounterSpec, Restart, Stamp};
 use crate::profile::ChannelKind;
+pub use crate::reading::Measure;
 
 /// When an answer arrived: the wall clock for `ts`, both clocks for the counter.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -97,10 +99,14 @@ pub struct Channel {
     /// input counter in one mode and an encoder in another); a meter register is a counter.
     pub kind: ChannelKind,
     pub counting: Counting,
+    /// What one step of a count is worth and its unit, where the device says so (an M-Bus
+    /// register in 10^-3 m³ steps: scale 0.001, unit m³); a gauge's unit (no scale). A
+    /// `scale` in the channel's config wins. `None`: raw pulses.
+    pub units: Option<ChannelUnits>,
 }
 
 /// What the wire said about a channel.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Value {
     /// A pulse count as the device holds it (signed for encoders), and the range it wraps in
     /// now (a ZH-YX1600 counter's direction follows its command word).
@@ -108,28 +114,28 @@ pub enum Value {
     /// An absolute meter register and the value it rolls over at.
     Register { value: i64, rollover: i64 },
     /// A measured value.
-    Gauge(f64),
+    Gauge(Measure),
 }
 
 impl Value {
     /// The count or register value; `None` for a gauge.
-    pub fn count(self) -> Option<i64> {
+    pub fn count(&self) -> Option<i64> {
         match self {
-            Value::Count { count, .. } => Some(count),
-            Value::Register { value, .. } => Some(value),
+            Value::Count { count, .. } => Some(*count),
+            Value::Register { value, .. } => Some(*value),
             Value::Gauge(_) => None,
         }
     }
 
     /// Counts `spec` under this value's wrap (a changed run direction, a register's roll-over).
-    pub(crate) fn shape(self, spec: &mut CounterSpec) {
+    pub(crate) fn shape(&self, spec: &mut CounterSpec) {
         match self {
             Value::Count { wrap, .. } => {
                 spec.modulus = wrap.modulus();
                 spec.direction = wrap.direction;
             }
             Value::Register { rollover, .. } => {
-                spec.modulus = rollover;
+                spec.modulus = *rollover;
                 spec.direction = Direction::Up;
             }
             Value::Gauge(_) => {}
@@ -138,7 +144,7 @@ impl Value {
 }
 
 /// One channel's raw reading from one poll.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Sample {
     /// The channel's place in the list its device's discovery declared.
     pub channel: usize,
@@ -166,7 +172,7 @@ impl Sample {
     }
 
     /// A gauge value of `channel` that arrived `at`.
-    pub fn gauge(channel: usize, at: At, value: f64) -> Sample {
+    pub fn gauge(channel: usize, at: At, value: Measure) -> Sample {
         Sample::of(channel, at, Value::Gauge(value))
     }
 

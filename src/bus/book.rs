@@ -9,10 +9,33 @@ use std::sync::Arc;
 use super::device::{ChannelRt, DeviceRt};
 use super::driver::{DeviceState, Executed, Written};
 use crate::command::CommandError;
+use crate::config::units::ChannelUnits;
 use crate::counter::Counter;
 use crate::event::Event;
+use crate::metering::meter::MeterOffset;
 use crate::reading::Reading;
-use crate::sample::{Channel, Sample};
+use crate::sample::{Channel, Sample, Value};
+
+/// A meter register read for the first time, with its step and unit known and no meter
+/// reading set: the channel's meter reading starts at what the meter shows (its total starts
+/// at 0 like every count's), so `reading` is the meter's own register from the first poll and
+/// moves with the total from there (a replaced meter's reading goes on from the old one's,
+/// until `set_reading` says otherwise).
+fn first_meter_reading(
+    counter: &mut Counter,
+    units: Option<&ChannelUnits>,
+    count: i64,
+    at_ms: u64,
+) {
+    let Some(scale) = units.and_then(|u| u.scale) else {
+        return;
+    };
+    if counter.state.meter.is_some() {
+        return;
+    }
+    let shown = scale.times(count);
+    counter.state.meter = MeterOffset::to_show(&shown, &scale, counter.state.total, at_ms as i64);
+}
 
 impl<P> DeviceRt<P> {
     /// The channels the device has now, in the order its samples name them, as the driver's
@@ -37,6 +60,7 @@ impl<P> DeviceRt<P> {
                 name: ch.name,
                 kind: ch.kind,
                 counter,
+                units: ch.units.map(Arc::new),
             });
         }
         for (name, gone) in old {
@@ -47,18 +71,21 @@ impl<P> DeviceRt<P> {
     }
 
     /// Books one sample into its channel's counter: its reading, or `None` for a read the
-    /// counter holds as suspect (not published: the next read says what it was), a gauge, or a
-    /// channel not declared.
+    /// counter holds as suspect (not published: the next read says what it was), or a
+    /// channel not declared. A gauge's sample is its reading as it is.
     fn book(&mut self, s: &Sample) -> Option<Reading> {
         let Some(ch) = self.channels.get_mut(s.channel) else {
             tracing::debug!(device = %self.name, channel = s.channel, "a sample of a channel not declared; ignored");
             return None;
         };
-        // A gauge counts nothing, and no reading carries a value yet.
+        if let Value::Gauge(value) = &s.value {
+            return Some(ch.measured(&self.name, s, value.clone()));
+        }
         let (Some(counter), Some(count)) = (ch.counter.as_mut(), s.value.count()) else {
             return None;
         };
         s.value.shape(&mut counter.spec);
+        let first = counter.state.count.is_none();
         let update = if s.starts_over {
             // The total stays; the count before the start was never this channel's to count.
             counter.rebase(count, s.at.stamp, Event::Reset)
@@ -69,6 +96,9 @@ impl<P> DeviceRt<P> {
             };
             update
         };
+        if first && matches!(s.value, Value::Register { .. }) {
+            first_meter_reading(counter, ch.units.as_deref(), count, s.at.stamp.wall_ms);
+        }
         Some(ch.reading(&self.name, s, count, update))
     }
 
@@ -111,7 +141,7 @@ impl<P> DeviceRt<P> {
     /// Rebases the channel `w` wrote on what was read back: its reading, and whether the
     /// read-back is what was written.
     fn rebase(&mut self, w: &Written) -> Option<(Reading, Result<(), CommandError>)> {
-        let back = w.read_back?;
+        let back = w.read_back.as_ref()?;
         let ch = self.channels.get_mut(w.channel)?;
         let (counter, got) = (ch.counter.as_mut()?, back.value.count()?);
         let (expected, event) = (w.wrote.value(), w.wrote.event());
@@ -126,7 +156,7 @@ impl<P> DeviceRt<P> {
             let update = counter.rebase_from(expected, got, back.at.stamp, event);
             (update, Ok(()))
         };
-        Some((ch.reading(&self.name, &back, got, update), checked))
+        Some((ch.reading(&self.name, back, got, update), checked))
     }
 }
 

@@ -78,6 +78,7 @@ fn meter(rollover: i64) -> DeviceRt<Told> {
             rollover,
             max_rate_hz: 100.0,
         },
+        units: None,
     }]);
     d
 }
@@ -168,6 +169,7 @@ fn input() -> DeviceRt<Told> {
             wrap: UP_32,
             max_rate_hz: 1000.0,
         },
+        units: None,
     }]);
     d
 }
@@ -225,6 +227,7 @@ fn a_channel_resumes_its_saved_state_and_one_no_longer_declared_keeps_it() {
         name: Arc::from("di1"),
         kind: ChannelKind::Counter,
         counting,
+        units: None,
     };
     let count = Counting::Count {
         wrap: UP_32,
@@ -246,16 +249,56 @@ fn a_channel_resumes_its_saved_state_and_one_no_longer_declared_keeps_it() {
 }
 
 #[test]
-fn a_gauge_is_counted_by_no_one() {
+fn a_gauge_is_counted_by_no_one_and_published_as_its_value_in_its_unit() {
+    use crate::config::units::ChannelUnits;
+    use crate::decimal::Decimal;
+    use crate::sample::Measure;
     let mut d = device(&BTreeMap::new());
     d.declare(vec![Channel {
         name: Arc::from("flow_temperature"),
         kind: ChannelKind::Counter,
         counting: Counting::Gauge,
+        units: Some(ChannelUnits {
+            unit: Some("°C".into()),
+            ..ChannelUnits::default()
+        }),
     }]);
-    assert!(d.book_poll(vec![Sample::gauge(0, at(0), 61.5)]).is_empty());
+    let value = Measure::Exact(Decimal::parse("61.5").unwrap());
+    let r = d.book_poll(vec![Sample::gauge(0, at(0), value.clone())]);
+    assert_eq!(r[0].measured, Some(value));
+    assert!(r[0].is_gauge());
     assert!(d.counter_states().is_empty(), "nothing to save");
-    assert!(d.book_poll(vec![Sample::gauge(7, at(0), 1.0)]).is_empty());
+    let stray = Measure::Real(1.0);
+    assert!(d.book_poll(vec![Sample::gauge(7, at(0), stray)]).is_empty());
+}
+
+#[test]
+fn a_meter_registers_reading_starts_at_the_register_and_its_total_at_zero() {
+    use crate::config::units::ChannelUnits;
+    use crate::decimal::Decimal;
+    let mut d = device(&BTreeMap::new());
+    d.declare(vec![Channel {
+        name: Arc::from("volume"),
+        kind: ChannelKind::Counter,
+        counting: Counting::Register {
+            rollover: 100_000_000,
+            max_rate_hz: 1000.0,
+        },
+        units: Some(ChannelUnits {
+            scale: Some(Decimal::parse("0.001").unwrap()),
+            unit: Some("m³".into()),
+            ..ChannelUnits::default()
+        }),
+    }]);
+    let r = d.book_poll(vec![Sample::register(0, at(0), 12_345, 100_000_000)]);
+    assert_eq!((r[0].count, r[0].update.total), (12_345, 0));
+    let meter = d.counter_states()["1/yl67/volume"].meter.clone().unwrap();
+    assert_eq!(meter.offset, "12.345");
+    // The reading moves with the total from there: 10 litres later it shows 12.355 m³.
+    let r = d.book_poll(vec![Sample::register(0, at(1000), 12_355, 100_000_000)]);
+    assert_eq!(r[0].update.total, 10);
+    let again = d.counter_states()["1/yl67/volume"].meter.clone().unwrap();
+    assert_eq!(again, meter, "set once, at the first read");
 }
 
 /// A clear of `di1` that read `before` ahead of the write and `back` after it.

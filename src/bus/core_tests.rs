@@ -119,6 +119,7 @@ impl Driver for Scripted {
                     wrap: ENCODER,
                     max_rate_hz: 1000.0,
                 },
+                units: None,
             }]);
         }
         let Some(pulses) = self.pulses else {

@@ -7,11 +7,12 @@ use std::sync::Arc;
 
 use tokio::time::Instant;
 
+use crate::config::units::ChannelUnits;
 use crate::config::{Bus, Device};
 use crate::counter::{Counter, CounterState, Update};
 use crate::metrics::DeviceMetrics;
 use crate::profile::{ChannelKind, Profile};
-use crate::reading::Reading;
+use crate::reading::{Measure, Reading};
 use crate::sample::Sample;
 use crate::state::{channel_key, is_channel_of};
 
@@ -69,6 +70,9 @@ pub(crate) struct ChannelRt {
     pub(crate) kind: ChannelKind,
     /// `None` for a gauge: nothing to count.
     pub(crate) counter: Option<Counter>,
+    /// What the driver declared of its units (a meter register's step and unit, a gauge's
+    /// unit); a `scale` in the config wins.
+    pub(crate) units: Option<Arc<ChannelUnits>>,
 }
 
 impl ChannelRt {
@@ -92,6 +96,22 @@ impl ChannelRt {
             units: None,
             after_seq: None,
             meter: None,
+            measured: None,
+        }
+    }
+
+    /// This channel's reading of a gauge's value, from `sample`.
+    pub(crate) fn measured(&self, device: &Arc<str>, sample: &Sample, value: Measure) -> Reading {
+        let update = Update {
+            delta: 0,
+            total: 0,
+            seq: 0,
+            rate_hz: None,
+            event: None,
+        };
+        Reading {
+            measured: Some(value),
+            ..self.reading(device, sample, 0, update)
         }
     }
 }
@@ -150,7 +170,7 @@ impl<P> DeviceRt<P> {
             channels: Vec::new(),
             saved: saved
                 .iter()
-                .filter(|(k, _)| is_channel_of(k, config.unit, &config.model))
+                .filter(|(k, _)| is_channel_of(k, config.place(), &config.model))
                 .map(|(k, v)| (k.clone(), v.clone()))
                 .collect(),
             availability: super::availability::Availability::new(
@@ -176,7 +196,7 @@ impl<P> DeviceRt<P> {
 
     /// The state file's key of `channel` (the file's format: unit, model, channel).
     pub(crate) fn channel_key(&self, channel: &str) -> String {
-        channel_key(self.config.unit, &self.config.model, channel)
+        channel_key(self.config.place(), &self.config.model, channel)
     }
 
     /// Counter state of every channel, keyed for the state file (channels not discovered yet

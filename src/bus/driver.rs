@@ -36,7 +36,7 @@ pub struct Executed {
 }
 
 /// One channel a clear or preset wrote.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Written {
     /// The channel's place in the list its device's discovery declared.
     pub channel: usize,

@@ -122,8 +122,10 @@ impl Durable {
                     super::ledger::record_key(&d.channel_key(&i.channel), &i.period),
                     i.record.seq,
                 )],
+                // A gauge's value has no seq to make durable: it goes with the counts.
                 _ => readings_of(&o)
                     .iter()
+                    .filter(|r| !r.is_gauge())
                     .map(|r| (key(r), r.update.seq))
                     .collect(),
             };
@@ -145,7 +147,8 @@ impl Durable {
                 break;
             }
             let (keys, mut o) = self.held.pop_front().expect("front exists");
-            for (r, (k, _)) in readings_of_mut(&mut o).iter_mut().zip(&keys) {
+            let counts = readings_of_mut(&mut o).iter_mut().filter(|r| !r.is_gauge());
+            for (r, (k, _)) in counts.zip(&keys) {
                 if let Some(resume) = self.resume.remove(k) {
                     r.after_seq = resume.after_seq;
                     r.update.delta += resume.carry;

@@ -119,9 +119,13 @@ impl Emitter {
                     .then(&d.config.publish)
                     .then(&config.map(|c| c.publish).unwrap_or_default())
                     .policy();
+                // The config's scale wins over what the driver declared (a meter register's
+                // step, a gauge's unit).
+                let declared = d.channels.iter().find(|c| c.name == *channel);
                 let units = config
                     .filter(|c| c.units.scale.is_some())
-                    .map(|c| Arc::new(c.units.clone()));
+                    .map(|c| Arc::new(c.units.clone()))
+                    .or_else(|| declared.and_then(|c| c.units.clone()));
                 let periods = d
                     .config
                     .intervals_of(all.intervals.as_deref(), channel)
@@ -148,7 +152,7 @@ impl Emitter {
             .iter()
             .map(|r| {
                 let c = self.channel(d, &r.channel);
-                c.gate.wants(&c.policy, unix_ms(r.ts), r.count, &r.update)
+                c.gate.wants(&c.policy, unix_ms(r.ts), gated(r), &r.update)
             })
             .collect();
         let all = payload == PayloadMode::Device && wants.iter().any(|w| *w);
@@ -156,7 +160,7 @@ impl Emitter {
         for (mut r, want) in readings.into_iter().zip(wants) {
             let c = self.channel(d, &r.channel);
             if want || all {
-                r.update = c.gate.publish(unix_ms(r.ts), r.count, &r.update);
+                r.update = c.gate.publish(unix_ms(r.ts), gated(&r), &r.update);
                 r.units = c.units.clone();
                 r.meter = d
                     .channels
@@ -181,6 +185,18 @@ impl Emitter {
         outputs.extend(records);
         outputs
     }
+}
+
+/// What the publish policy compares between readings: the count, or a gauge's value (so
+/// `publish = "change"` publishes a gauge when its value changes).
+fn gated(r: &Reading) -> i64 {
+    use std::hash::{Hash, Hasher};
+    let Some(m) = &r.measured else {
+        return r.count;
+    };
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    m.to_string().hash(&mut h);
+    h.finish() as i64
 }
 
 fn interval(

@@ -14,11 +14,24 @@ pub(super) fn set_reading<P>(
     shown: &Decimal,
 ) -> Result<Option<i64>, CommandError> {
     let name = channel.unwrap_or_default();
-    let scale = d
-        .config
-        .channels
-        .get(name)
-        .and_then(|c| c.units.scale)
+    // The config's scale, else the one the driver declared (a meter register's step).
+    let declared = d.channels.iter().find(|c| &*c.name == name);
+    let configured = d.config.channels.get(name).and_then(|c| c.units.scale);
+    if configured.is_none() && declared.is_none() && d.config.channels_from_device() {
+        // Its channels are what it answers: unknown until it did, then known.
+        return Err(match d.channels.is_empty() {
+            true => CommandError::Busy {
+                device: d.name.to_string(),
+                why: "its channels have not been read yet",
+            },
+            false => CommandError::UnknownChannel {
+                device: d.name.to_string(),
+                channel: name.to_string(),
+            },
+        });
+    }
+    let scale = configured
+        .or_else(|| declared.and_then(|c| c.units.as_ref()?.scale))
         .ok_or_else(|| CommandError::NoScale {
             channel: name.to_string(),
         })?;

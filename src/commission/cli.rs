@@ -24,9 +24,9 @@ pub struct LineArgs {
     /// Modbus TCP instead: HOST[:PORT] (port 502 unless given; the ZH-YX1600 uses 20108).
     #[arg(long, conflicts_with = "port")]
     host: Option<String>,
-    /// Serial parity: none | even | odd.
-    #[arg(long, default_value = "none")]
-    parity: String,
+    /// Serial parity: none | even | odd (default: none for Modbus, even for M-Bus).
+    #[arg(long)]
+    parity: Option<String>,
     /// Answer timeout before line time is added (default: the models' 100 ms).
     #[arg(long)]
     timeout: Option<humantime::Duration>,
@@ -37,12 +37,33 @@ pub struct LineArgs {
 pub struct UnitArgs {
     #[command(flatten)]
     line: LineArgs,
-    /// Baud rate to talk at.
-    #[arg(long, default_value_t = 9600)]
-    baud: u32,
-    /// Unit id of the module.
+    /// Baud rate to talk at (default: 9600 for Modbus, 2400 for M-Bus).
+    #[arg(long)]
+    baud: Option<u32>,
+    /// Unit id of the module (Modbus).
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=247))]
-    unit: u8,
+    unit: Option<u8>,
+}
+
+impl UnitArgs {
+    /// The Modbus unit, which every Modbus command needs.
+    fn unit(&self) -> Result<u8, CommissionError> {
+        self.unit
+            .ok_or_else(|| CommissionError::BadInput("give --unit N (1-247) of the module".into()))
+    }
+
+    /// The Modbus baud rate.
+    fn baud(&self) -> u32 {
+        self.baud.unwrap_or(9600)
+    }
+}
+
+/// The protocol a commissioning command speaks.
+#[derive(clap::ValueEnum, Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ProtocolArg {
+    #[default]
+    Modbus,
+    Mbus,
 }
 
 /// One module on the line, of a known (or identified) model.
@@ -58,16 +79,26 @@ pub struct ModuleArgs {
 /// Commissioning commands: survey and set up a line before a config exists.
 #[derive(clap::Subcommand, Debug)]
 pub enum Commission {
-    /// Find the units that answer on a line, their models and baud rates.
+    /// Find the units that answer on a line, their models and baud rates (M-Bus: the meters,
+    /// their ids, manufacturers, versions, media and primary addresses).
     Scan {
         #[command(flatten)]
         line: LineArgs,
-        /// A baud rate, or "all": every rate the profiles support, fastest first.
-        #[arg(long, default_value = "9600")]
-        baud: String,
-        /// Unit ids to ask: "1-247", "5", "1,3,10-20".
-        #[arg(long, default_value = "1-247")]
-        units: String,
+        /// modbus | mbus.
+        #[arg(long, value_enum, default_value_t = ProtocolArg::Modbus)]
+        protocol: ProtocolArg,
+        /// M-Bus: the wildcard search by secondary address (finds meters that share a primary
+        /// address, 0 as shipped), instead of asking primary addresses.
+        #[arg(long)]
+        secondary: bool,
+        /// A baud rate, or "all": every rate the profiles support, fastest first (default 9600;
+        /// M-Bus: 2400).
+        #[arg(long)]
+        baud: Option<String>,
+        /// Unit ids to ask: "1-247", "5", "1,3,10-20" (M-Bus: primary addresses, default
+        /// "0-250").
+        #[arg(long)]
+        units: Option<String>,
         /// Print a gateway config for what was found (the table goes to stderr).
         #[arg(long, conflicts_with = "json")]
         toml: bool,
@@ -79,10 +110,20 @@ pub enum Commission {
         #[arg(long)]
         every_probe: bool,
     },
-    /// Read one module's channels, decoded as the gateway publishes them.
+    /// Read one module's channels, decoded as the gateway publishes them (M-Bus: one meter's
+    /// answer, every record with its value in its unit).
     Read {
         #[command(flatten)]
         module: ModuleArgs,
+        /// modbus | mbus.
+        #[arg(long, value_enum, default_value_t = ProtocolArg::Modbus)]
+        protocol: ProtocolArg,
+        /// M-Bus: the meter's primary address (0-250).
+        #[arg(long, conflicts_with = "id")]
+        address: Option<u8>,
+        /// M-Bus: the meter's 8-digit id (its secondary address; F for any digit).
+        #[arg(long)]
+        id: Option<String>,
         /// Print JSON instead of a table.
         #[arg(long)]
         json: bool,
@@ -172,7 +213,18 @@ pub async fn run(command: Commission) -> ExitCode {
 }
 
 fn target(line: &LineArgs) -> Result<Target, CommissionError> {
-    Target::parse(line.port.clone(), line.host.clone(), &line.parity)
+    let parity = line.parity.as_deref().unwrap_or("none");
+    Target::parse(line.port.clone(), line.host.clone(), parity)
+}
+
+/// The M-Bus segment of `line` at `baud` (default 2400, even parity).
+fn segment(line: &LineArgs, baud: Option<u32>) -> Result<super::meters::Segment, CommissionError> {
+    let parity = line.parity.as_deref().unwrap_or("even");
+    Ok(super::meters::Segment {
+        target: Target::parse(line.port.clone(), line.host.clone(), parity)?,
+        baud: baud.unwrap_or(2400),
+        timeout: line.timeout.map(Into::into),
+    })
 }
 
 fn answer_time(line: &LineArgs, profiles: &Profiles) -> Duration {
@@ -198,6 +250,8 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
     match command {
         Commission::Scan {
             line,
+            protocol,
+            secondary,
             baud,
             units,
             toml,
@@ -209,12 +263,31 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
                 json,
                 every_probe,
             };
+            if protocol == ProtocolArg::Mbus {
+                return scan_meters(&line, baud, units, secondary, how).await;
+            }
+            if secondary {
+                return Err(CommissionError::BadInput(
+                    "--secondary is M-Bus's search: give --protocol mbus".into(),
+                ));
+            }
+            let baud = baud.unwrap_or_else(|| "9600".into());
+            let units = units.unwrap_or_else(|| "1-247".into());
             scan(&line, &baud, &units, how, &profiles).await
         }
         Commission::Read {
             module,
+            protocol: ProtocolArg::Mbus,
+            address,
+            id,
+            json,
+            ..
+        } => read_meter(&module.at, address, id.as_deref(), json).await,
+        Commission::Read {
+            module,
             json,
             watch,
+            ..
         } => read(&module, json, watch, &profiles).await,
         Commission::Clear { module, channel } => {
             write_count(&module, &channel, Op::Clear, &profiles).await
@@ -236,8 +309,83 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
             let wanted = wanted(new_unit, new_baud, power_on, &ppr, &set)?;
             setup(&module, &wanted, yes, &profiles).await
         }
-        Commission::Raw { at, op } => raw(&at.line, at.baud, at.unit, op, &profiles).await,
+        Commission::Raw { at, op } => raw(&at.line, at.baud(), at.unit()?, op, &profiles).await,
     }
+}
+
+/// `scan --protocol mbus`: primary addresses, or `--secondary` the wildcard search.
+async fn scan_meters(
+    line: &LineArgs,
+    baud: Option<String>,
+    units: Option<String>,
+    secondary: bool,
+    how: ScanHow,
+) -> Result<(), CommissionError> {
+    use super::meters;
+    let baud = match baud.as_deref() {
+        None => None,
+        Some(b) => Some(b.parse::<u32>().map_err(|_| {
+            CommissionError::BadInput(format!("--baud {b:?}: an M-Bus scan takes one rate"))
+        })?),
+    };
+    let segment = segment(line, baud)?;
+    let scan = meters::MeterScan {
+        secondary,
+        addresses: meters::parse_addresses(units.as_deref().unwrap_or("0-250"))?,
+    };
+    let cancel = ctrl_c();
+    let tty = std::io::stderr().is_terminal();
+    let progress = |text: &str| {
+        if tty {
+            eprint!("\r\x1b[K{text}");
+        } else if text.starts_with("found") {
+            eprintln!("{text}");
+        }
+    };
+    let (found, collisions, problems) =
+        meters::scan(&segment, line.host.as_deref(), &scan, &cancel, progress).await?;
+    if tty {
+        eprint!("\r\x1b[K");
+    }
+    for p in &problems {
+        eprintln!("  {p}");
+    }
+    if secondary {
+        eprintln!("{collisions} collision(s) resolved digit by digit");
+    }
+    let table = meters::found_table(&found);
+    if how.toml {
+        eprint!("{table}");
+        print!("{}", meters::config_snippet(&segment, &found));
+    } else if how.json {
+        let list: Vec<_> = found.iter().map(meters::found_json).collect();
+        let out = serde_json::json!({ "found": list, "collisions": collisions,
+            "problems": problems, "interrupted": cancel.is_cancelled() });
+        println!("{out}");
+    } else {
+        print!("{table}");
+    }
+    Ok(())
+}
+
+/// `read --protocol mbus`: one meter's answer.
+async fn read_meter(
+    at: &UnitArgs,
+    address: Option<u8>,
+    id: Option<&str>,
+    json: bool,
+) -> Result<(), CommissionError> {
+    use super::meters;
+    let segment = segment(&at.line, at.baud)?;
+    let meter = meters::meter_at(address, id)?;
+    let (header, records) = meters::read(&segment, at.line.host.as_deref(), meter).await?;
+    let answer = meters::answer_json(&header, &records);
+    if json {
+        println!("{answer}");
+    } else {
+        print!("{}", meters::answer_table(&answer, &records));
+    }
+    Ok(())
 }
 
 /// Output and probing choices of a scan.
@@ -368,14 +516,13 @@ async fn read(
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
     let target = target(&m.at.line)?;
-    let mut link = target.open(m.at.baud)?;
+    let (unit, baud) = (m.at.unit()?, m.at.baud());
+    let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
-            .await?;
-    let mut rt = super::read::poller(&target, m.at.baud, m.at.unit, &profile, &link);
+        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+    let mut rt = super::read::poller(&target, baud, unit, &profile, &link);
     let Some(every) = watch.map(Duration::from) else {
-        let value =
-            super::read::read_once(&mut rt, &mut link, &profile, &target, m.at.baud).await?;
+        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
         if json {
             println!("{value}");
         } else {
@@ -387,8 +534,7 @@ async fn read(
     let tty = std::io::stdout().is_terminal();
     let mut previous = None;
     while !cancel.is_cancelled() {
-        let value =
-            super::read::read_once(&mut rt, &mut link, &profile, &target, m.at.baud).await?;
+        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
         if json {
             println!("{value}");
         } else {
@@ -414,17 +560,17 @@ async fn write_count(
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
     let target = target(&m.at.line)?;
-    let mut link = target.open(m.at.baud)?;
+    let (unit, baud) = (m.at.unit()?, m.at.baud());
+    let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
-            .await?;
+        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
     if !profile.all_channels().iter().any(|c| c.name == channel) {
         return Err(CommissionError::BadInput(format!(
             "model {} has no channel {channel}",
             profile.model
         )));
     }
-    let mut rt = super::read::poller(&target, m.at.baud, m.at.unit, &profile, &link);
+    let mut rt = super::read::poller(&target, baud, unit, &profile, &link);
     let got = super::read::write_count(&mut rt, &mut link, &target, channel, op).await?;
     let what = if matches!(op, Op::Clear) {
         "cleared"
@@ -432,8 +578,8 @@ async fn write_count(
         "preset"
     };
     match got {
-        Some(v) => println!("unit {} {channel}: {what}; reads back {v}", m.at.unit),
-        None => println!("unit {} {channel}: {what}", m.at.unit),
+        Some(v) => println!("unit {} {channel}: {what}; reads back {v}", unit),
+        None => println!("unit {} {channel}: {what}", unit),
     }
     Ok(())
 }
@@ -508,17 +654,17 @@ async fn setup(
 ) -> Result<(), CommissionError> {
     use super::setup::*;
     let target = target(&m.at.line)?;
-    let mut link = target.open(m.at.baud)?;
+    let (unit, baud) = (m.at.unit()?, m.at.baud());
+    let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, m.at.unit, &m.model, m.at.baud)
-            .await?;
+        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
     let answer =
         m.at.line
             .timeout
             .map(Into::into)
             .unwrap_or(profile.answer_timeout);
     let timeout = link.timeout_for(answer, 1);
-    let modes = crate::driver::modbus::probe::read_modes(&mut link, m.at.unit, &profile, timeout)
+    let modes = crate::driver::modbus::probe::read_modes(&mut link, unit, &profile, timeout)
         .await
         .map_err(CommissionError::Failed)?;
     let channels = profile
@@ -527,7 +673,7 @@ async fn setup(
     let changes = plan_changes(&profile, &channels, wanted)?;
     if let Some(c) = changes.iter().find(|c| c.setting.name == "unit") {
         let new = c.field as u8;
-        if new != m.at.unit {
+        if new != unit {
             let id_timeout = link.timeout_for(answer, 3);
             if let Ok(Some(_)) =
                 crate::driver::modbus::probe::identify(&mut link, profiles, new, id_timeout, true)
@@ -539,8 +685,8 @@ async fn setup(
             }
         }
     }
-    let words = current_words(&mut link, &target, m.at.unit, &changes, answer).await?;
-    let mut plan = format!("unit {} ({}):\n", m.at.unit, profile.model);
+    let words = current_words(&mut link, &target, unit, &changes, answer).await?;
+    let mut plan = format!("unit {} ({}):\n", unit, profile.model);
     let mut lines: Vec<(String, usize)> = Vec::new();
     for (c, w) in changes.iter().zip(&words) {
         let from_to = format!(
@@ -576,14 +722,14 @@ async fn setup(
             "not confirmed; nothing written".into(),
         ));
     }
-    write_changes(&mut link, &target, m.at.unit, &changes, &words, answer).await?;
+    write_changes(&mut link, &target, unit, &changes, &words, answer).await?;
     drop(link);
-    let (unit, baud) = read_back(&target, &changes, m.at.unit, m.at.baud, &profile).await?;
+    let (unit, baud) = read_back(&target, &changes, unit, baud, &profile).await?;
     println!("written and read back at unit {unit}, {baud} baud:");
     let mut seen = std::collections::BTreeSet::new();
     for c in &changes {
         if seen.insert(c.setting.name.clone()) {
-            println!("  {}", explain(c, m.at.unit));
+            println!("  {}", explain(c, unit));
         }
     }
     Ok(())

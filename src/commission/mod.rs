@@ -1,6 +1,8 @@
 //! Commissioning: survey a line before a config exists. Find the units that answer and their
 //! models (`scan`), read one module as the gateway would (`read`), clear or preset a channel,
 //! change the settings its datasheet documents (`setup`), and read or write raw registers.
+//! M-Bus segments (`meters.rs`): find the meters (primary addresses, or the wildcard search)
+//! and read one meter's answer.
 //!
 //! Everything here reuses the gateway's parts: the profiles (identification, settings,
 //! channels), the link layer (timeouts, late answers, exclusive port) and the device poller
@@ -11,6 +13,7 @@ mod cli;
 mod error;
 mod holder;
 pub(crate) mod line;
+pub mod meters;
 mod raw;
 mod read;
 pub(crate) mod scan;

@@ -125,6 +125,7 @@ pub(super) fn poller(
         payload: None,
         intervals: None,
         enabled: true,
+        meter: None,
     };
     let wire = Wire::for_line(link.timing().as_ref());
     let proto = ModbusDevice::new(&bus, &device, wire, Vec::new());

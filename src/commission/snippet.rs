@@ -103,6 +103,7 @@ mod tests {
             modes: vec![0],
             channels: vec!["enc0".into()],
             note: model.is_none().then(|| "unknown model".into()),
+            meter: None,
         }
     }
 

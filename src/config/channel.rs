@@ -48,6 +48,8 @@ pub struct ChannelConfig {
     pub publish: PolicyOverride,
     /// `intervals` of this channel, when it overrides its device's.
     pub intervals: Option<Vec<crate::metering::Period>>,
+    /// An M-Bus meter's record this channel names (its 0-based index in the answer).
+    pub record: Option<usize>,
 }
 
 impl Default for ChannelConfig {
@@ -62,6 +64,7 @@ impl Default for ChannelConfig {
             units: ChannelUnits::default(),
             publish: PolicyOverride::default(),
             intervals: None,
+            record: None,
         }
     }
 }
@@ -139,6 +142,7 @@ pub(super) fn channel(
         units,
         publish,
         intervals,
+        record: None,
     }
 }
 

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use config::Value;
 
-use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Parity};
+use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Parity, Protocol};
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
@@ -198,13 +198,24 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             "bus name must be letters, digits, '-' or '_'",
         );
     }
-    let link = bus_link(&mut t, &path, errs);
-
-    let t_origin = t.origin().map(str::to_string);
+    let protocol = match t.opt::<String>("protocol", errs) {
+        None => Protocol::Modbus,
+        Some(p) => match p.parse::<Protocol>() {
+            Ok(p) => p,
+            Err(why) => {
+                errs.push(&join(&path, "protocol"), t.origin(), why);
+                return None;
+            }
+        },
+    };
+    let (link, guard, slow_poll, devices) = match protocol {
+        Protocol::Modbus => modbus_bus(&mut t, &path, profiles, errs),
+        Protocol::Mbus => {
+            let (link, devices) = super::meter::bus(&mut t, &path, errs);
+            (link, Duration::ZERO, Duration::from_secs(60), devices)
+        }
+    };
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
-    let guard = t
-        .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
-        .unwrap_or(Duration::ZERO);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
         errs.push(
@@ -226,31 +237,11 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             "must not be below backoff_min",
         );
     }
-    let slow_poll = t
-        .duration("slow_poll", errs)
-        .unwrap_or(Duration::from_secs(60));
     let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
-
-    let devices = bus_devices(&mut t, &path, profiles, errs);
-    if matches!(link, Some(Link::Tcp { .. })) {
-        for d in devices.iter().filter(|d| d.baud.is_some()) {
-            errs.push(
-                &format!("{path}.devices.{}.baud", d.name),
-                t.origin(),
-                "serial setting on a TCP bus",
-            );
-        }
-    }
     t.finish(errs);
-    let mut link = link?;
-    if let Link::Tcp { port, .. } = &mut link
-        && *port == 0
-    {
-        *port = default_tcp_port(&path, &devices, t_origin.as_deref(), errs);
-    }
     Some(Bus {
         name: name.to_string(),
-        link,
+        link: link?,
         timeout,
         guard,
         offline_after,
@@ -260,6 +251,41 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         enabled,
         devices,
     })
+}
+
+/// What only a Modbus bus has: its link (with the TCP port its devices' datasheets give when
+/// none is written), the guard time, the slow poll and its devices of known models.
+fn modbus_bus(
+    t: &mut Table<'_>,
+    path: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> (Option<Link>, Duration, Duration, Vec<Device>) {
+    let link = bus_link(t, path, errs);
+    let t_origin = t.origin().map(str::to_string);
+    let guard = t
+        .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
+        .unwrap_or(Duration::ZERO);
+    let slow_poll = t
+        .duration("slow_poll", errs)
+        .unwrap_or(Duration::from_secs(60));
+    let devices = bus_devices(t, path, profiles, errs);
+    if matches!(link, Some(Link::Tcp { .. })) {
+        for d in devices.iter().filter(|d| d.baud.is_some()) {
+            errs.push(
+                &format!("{path}.devices.{}.baud", d.name),
+                t.origin(),
+                "serial setting on a TCP bus",
+            );
+        }
+    }
+    let mut link = link;
+    if let Some(Link::Tcp { port, .. }) = &mut link
+        && *port == 0
+    {
+        *port = default_tcp_port(path, &devices, t_origin.as_deref(), errs);
+    }
+    (link, guard, slow_poll, devices)
 }
 
 /// The bus's link: `host` (Modbus TCP) or `port` (a serial device, Modbus RTU) and its settings.
@@ -314,7 +340,7 @@ fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Link> {
         errs.push(
             path,
             t.origin(),
-            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP)",
+            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP), or `protocol = \"mbus\"` for M-Bus meters",
         );
         None
     }
@@ -360,14 +386,7 @@ fn device(
 ) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    if !crate::topics::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
-        errs.push(
-            &path,
-            t.origin(),
-            "device name must be letters, digits, '-' or '_' and not status, bus, cmd or gateway \
-             (it is a topic level)",
-        );
-    }
+    super::names::device_name(&t, &path, name, errs);
     if !t.has("unit") {
         errs.push(&join(&path, "unit"), t.origin(), "missing");
     }
@@ -431,6 +450,7 @@ fn device(
         publish,
         payload,
         intervals,
+        meter: None,
     })
 }
 

@@ -26,5 +26,9 @@ pub fn spawn(
             let driver = modbus::Modbus::for_bus(bus).with_scans(Some(scans));
             tokio::spawn(task.run(driver, shutdown))
         }
+        Link::Mbus(_) => match crate::driver::mbus::master::Mbus::for_bus(bus) {
+            Some(driver) => tokio::spawn(task.run(driver.with_scans(Some(scans)), shutdown)),
+            None => tokio::spawn(async {}),
+        },
     }
 }

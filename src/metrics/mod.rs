@@ -189,6 +189,10 @@ struct Present {
     buses: BTreeSet<String>,
     devices: BTreeSet<(String, String)>,
     channels: BTreeSet<(String, String, String)>,
+    /// Devices whose channels are what they answer (M-Bus meters): any channel of theirs
+    /// may be present, except one the config disables.
+    open: BTreeSet<(String, String)>,
+    disabled: BTreeSet<(String, String, String)>,
 }
 
 impl Present {
@@ -213,7 +217,24 @@ impl Present {
                         .map(move |c| (b.name.clone(), d.name.clone(), c.name))
                 })
                 .collect(),
+            open: devices()
+                .filter(|(_, d)| d.channels_from_device())
+                .map(|(b, d)| (b.name.clone(), d.name.clone()))
+                .collect(),
+            disabled: devices()
+                .flat_map(|(b, d)| {
+                    d.channels
+                        .iter()
+                        .filter(|(_, c)| !c.enabled)
+                        .map(move |(c, _)| (b.name.clone(), d.name.clone(), c.clone()))
+                })
+                .collect(),
         }
+    }
+
+    fn has_channel(&self, key: &(String, String, String)) -> bool {
+        self.channels.contains(key)
+            || (self.open.contains(&(key.0.clone(), key.1.clone())) && !self.disabled.contains(key))
     }
 }
 
@@ -230,7 +251,7 @@ impl Gone {
         match (bus, device, channel) {
             (Some(b), Some(d), Some(c)) => {
                 let key = (b, d, c);
-                if !present.channels.contains(&key) {
+                if !present.has_channel(&key) {
                     self.channels.insert(key);
                 }
             }
@@ -413,8 +434,12 @@ impl DeviceMetrics {
         }
     }
 
-    /// A reading that is being published (an encoder's total is a position).
+    /// A reading that is being published (an encoder's total is a position; a gauge's value
+    /// is no pulse count).
     pub fn reading(&mut self, r: &Reading) {
+        if r.is_gauge() {
+            return;
+        }
         let encoder = r.kind == crate::profile::ChannelKind::Encoder;
         let Some(h) = &mut self.inner else { return };
         let ch = h.channels.entry(r.channel.clone()).or_insert_with(|| {

@@ -27,6 +27,7 @@ fn reading(device: &str, channel: &str, total: i64, rate: f64, encoder: bool) ->
             rate_hz: Some(rate),
             event: None,
         },
+        measured: None,
     }
 }
 

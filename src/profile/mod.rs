@@ -219,6 +219,28 @@ pub struct Profile {
 }
 
 impl Profile {
+    /// What an M-Bus meter has in the place of a profile: no registers and no channels (a
+    /// meter's channels are its answer's records, found when it answers), the M-Bus baud
+    /// rates, and the answer timeout of an M-Bus-to-Ethernet converter (a serial line's comes
+    /// from its baud rate, by the standard).
+    pub fn meter() -> Profile {
+        Profile {
+            model: "mbus".into(),
+            aliases: Vec::new(),
+            title: "M-Bus meter".into(),
+            manufacturer: None,
+            word_order: WordOrder::LowFirst,
+            answer_timeout: Duration::from_millis(500),
+            bauds: vec![300, 600, 1200, 2400, 4800, 9600, 19200, 38400],
+            tcp_port: None,
+            identify: None,
+            autosave: None,
+            fingerprint: 0,
+            settings: BTreeMap::new(),
+            groups: Vec::new(),
+        }
+    }
+
     /// Parses and checks a profile from TOML text; `origin` names it in errors.
     pub fn from_toml(text: &str, origin: &str) -> Result<Profile, ProfileError> {
         let raw: raw::Profile = toml::from_str(text).map_err(|e| ProfileError::Parse {

@@ -48,6 +48,7 @@ fn reading(total: i64) -> Reading {
         meter: None,
         kind: crate::profile::ChannelKind::Encoder,
         units: None,
+        measured: None,
     }
 }
 

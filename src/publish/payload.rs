@@ -38,6 +38,26 @@ struct ReadingJson {
     /// When `set_reading` last moved the reading (its sensor's `last_reset`).
     #[serde(skip_serializing_if = "Option::is_none")]
     reading_since: Option<String>,
+    /// The unit of `value` and `reading`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    unit: Option<String>,
+}
+
+/// The JSON of a gauge's reading: its value (an exact decimal, a number or text) in its unit.
+#[derive(Debug, Serialize)]
+struct GaugeJson {
+    ts: String,
+    value: Box<RawValue>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    unit: Option<String>,
+}
+
+/// A count's or a gauge's JSON.
+#[derive(Debug, Serialize)]
+#[serde(untagged)]
+enum AnyJson {
+    Count(ReadingJson),
+    Gauge(GaugeJson),
 }
 
 /// The JSON of one interval record.
@@ -104,12 +124,36 @@ pub fn reading(r: &Reading) -> String {
 
 /// `{"a0":{…reading…},"a1":{…}}`: the readings of one poll of a device, keyed by channel.
 pub fn device(readings: &[Reading]) -> String {
-    let map: BTreeMap<&str, ReadingJson> =
-        readings.iter().map(|r| (&*r.channel, json_of(r))).collect();
+    let map: BTreeMap<&str, AnyJson> = readings.iter().map(|r| (&*r.channel, json_of(r))).collect();
     serde_json::to_string(&map).expect("readings serialize")
 }
 
-fn json_of(r: &Reading) -> ReadingJson {
+fn json_of(r: &Reading) -> AnyJson {
+    match &r.measured {
+        Some(m) => AnyJson::Gauge(GaugeJson {
+            ts: humantime::format_rfc3339_millis(r.ts).to_string(),
+            value: measure_json(m),
+            unit: r.units.as_deref().and_then(|u| u.unit.clone()),
+        }),
+        None => AnyJson::Count(count_json(r)),
+    }
+}
+
+/// A gauge's value: an exact decimal as a JSON number with its exact text, a real as a
+/// number, text as a string.
+fn measure_json(m: &crate::reading::Measure) -> Box<RawValue> {
+    use crate::reading::Measure;
+    let text = match m {
+        Measure::Exact(d) => d.to_string(),
+        Measure::Real(v) if v.is_finite() => serde_json::to_string(v).unwrap_or_default(),
+        Measure::Real(_) => "null".into(),
+        Measure::Text(t) => serde_json::to_string(&**t).unwrap_or_default(),
+    };
+    RawValue::from_string(text)
+        .unwrap_or_else(|_| RawValue::from_string("null".into()).expect("null is JSON"))
+}
+
+fn count_json(r: &Reading) -> ReadingJson {
     let units = r.units.as_deref();
     let value = units
         .and_then(|u| crate::config::units::value(u, r.update.total))
@@ -139,6 +183,9 @@ fn json_of(r: &Reading) -> ReadingJson {
         rate,
         reading,
         reading_since,
+        unit: units
+            .filter(|u| u.scale.is_some())
+            .and_then(|u| u.unit.clone()),
     }
 }
 
@@ -168,6 +215,7 @@ mod tests {
             meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
+            measured: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["ts"], "2026-11-21T22:38:43.123Z");
@@ -199,6 +247,7 @@ mod tests {
             meter: None,
             kind: crate::profile::ChannelKind::Encoder,
             units: None,
+            measured: None,
         };
         let v: serde_json::Value = serde_json::from_str(&reading(&r)).unwrap();
         assert_eq!(v["count"], 4_294_953_616u64);
@@ -232,6 +281,7 @@ mod tests {
             })),
             after_seq: None,
             meter: None,
+            measured: None,
         }
     }
 
@@ -257,5 +307,37 @@ mod tests {
         assert_eq!(v["a0"]["total"], 3);
         assert_eq!(v["b0"]["value"], 5);
         assert_eq!(v.as_object().unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_gauge_publishes_its_exact_value_and_unit_and_nothing_counted() {
+        use crate::config::units::ChannelUnits;
+        use crate::decimal::Decimal;
+        use crate::reading::Measure;
+        let mut r = metered(0, "1", 0.0);
+        r.channel = "flow_temperature".into();
+        r.units = Some(std::sync::Arc::new(ChannelUnits {
+            unit: Some("°C".into()),
+            ..ChannelUnits::default()
+        }));
+        r.measured = Some(Measure::Exact(Decimal::parse("60.25").unwrap()));
+        let text = reading(&r);
+        assert_eq!(
+            text,
+            r#"{"ts":"1970-01-01T00:00:00.000Z","value":60.25,"unit":"°C"}"#
+        );
+        r.measured = Some(Measure::Text("2024-01-31".into()));
+        let v: serde_json::Value = serde_json::from_str(&device(&[r])).unwrap();
+        assert_eq!(v["flow_temperature"]["value"], "2024-01-31");
+    }
+
+    #[test]
+    fn a_register_names_the_unit_of_its_value() {
+        let mut r = metered(12_345, "0.001", 0.0);
+        std::sync::Arc::make_mut(r.units.as_mut().unwrap()).unit = Some("m³".into());
+        let text = reading(&r);
+        assert!(text.contains(r#""value":12.345,"#), "{text}");
+        assert!(text.contains(r#""unit":"m³""#), "{text}");
+        assert!(text.contains(r#""total":12345"#), "{text}");
     }
 }

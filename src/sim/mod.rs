@@ -7,34 +7,30 @@
 mod comm;
 mod config;
 mod datasheet;
+mod endpoint;
 mod error;
 pub mod gateway;
 pub mod line;
 pub mod mbus;
 pub mod model;
+pub mod segments;
 mod server;
 
 use std::collections::BTreeMap;
-use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use tokio_util::sync::CancellationToken;
 
-pub use config::{SimBusConfig, SimConfig, SimDeviceConfig};
+pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
+pub use endpoint::Endpoint;
+use endpoint::relink;
 pub use error::SimError;
 pub use model::SimModule;
+pub use segments::PlantSegment;
 
 pub use server::Modules;
-
-/// Where a simulated bus can be reached.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Endpoint {
-    /// A pseudo-terminal: open this path as a serial port.
-    Serial(PathBuf),
-    Tcp(SocketAddr),
-}
 
 /// A simulated bus.
 pub struct PlantBus {
@@ -63,6 +59,8 @@ impl Drop for Wire {
 /// A running simulated plant.
 pub struct Plant {
     pub buses: Vec<PlantBus>,
+    /// M-Bus segments.
+    pub segments: Vec<PlantSegment>,
     start: Instant,
     cancel: CancellationToken,
 }
@@ -197,11 +195,27 @@ impl Plant {
                 link: bus.link.clone(),
             });
         }
+        let mut segments = Vec::new();
+        for (name, c) in &config.mbus {
+            let segment = segments::serve(name, c, start, &cancel)
+                .await
+                .map_err(|message| SimError::Bus {
+                    bus: name.clone(),
+                    message,
+                })?;
+            segments.push(segment);
+        }
         Ok(Plant {
             buses,
+            segments,
             start,
             cancel,
         })
+    }
+
+    /// An M-Bus segment by name.
+    pub fn segment(&self, name: &str) -> Option<&PlantSegment> {
+        self.segments.iter().find(|s| s.name == name)
     }
 
     /// Seconds since the plant started (the modules' clock).
@@ -265,15 +279,6 @@ impl Plant {
     pub fn stop(&self) {
         self.cancel.cancel();
     }
-}
-
-/// Points `link` at `target`, replacing what was there.
-fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Result<()> {
-    let _ = std::fs::remove_file(link);
-    if let Some(dir) = link.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
-    std::os::unix::fs::symlink(target, link)
 }
 
 impl Drop for Plant {

@@ -106,12 +106,12 @@ pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
 }
 
 /// The key of a channel's state.
-pub fn channel_key(unit: u8, model: &str, channel: &str) -> String {
+pub fn channel_key(unit: impl std::fmt::Display, model: &str, channel: &str) -> String {
     format!("{unit}/{model}/{channel}")
 }
 
 /// The key of a device's holes.
-pub fn device_key(unit: u8, model: &str) -> String {
+pub fn device_key(unit: impl std::fmt::Display, model: &str) -> String {
     format!("{unit}/{model}")
 }
 
@@ -122,7 +122,7 @@ pub fn split_channel_key(key: &str) -> Option<(&str, &str, &str)> {
 }
 
 /// Whether channel key `key` is a channel of the device `unit`/`model`.
-pub fn is_channel_of(key: &str, unit: u8, model: &str) -> bool {
+pub fn is_channel_of(key: &str, unit: impl std::fmt::Display, model: &str) -> bool {
     split_channel_key(key).is_some_and(|(u, m, _)| u == unit.to_string() && m == model)
 }
 

@@ -55,9 +55,11 @@ pub fn owner(config: &Config, bus: &str, key: &str) -> Option<String> {
     b.devices
         .iter()
         .find(|d| {
-            d.unit.to_string() == unit
+            d.place() == unit
                 && d.model == model
-                && d.profile.all_channels().iter().any(|c| c.name == channel)
+                // A meter's channels are its records: any name of its may be one of them.
+                && (d.channels_from_device()
+                    || d.profile.all_channels().iter().any(|c| c.name == channel))
         })
         .map(|d| d.name.clone())
 }

@@ -251,6 +251,7 @@ fn a_scan_shows_its_progress_then_its_report() {
         modes: vec![],
         channels: vec!["enc0".into()],
         note: None,
+        meter: None,
     };
     let progress = ScanProgress {
         bus: "line1".into(),

@@ -819,6 +819,207 @@ const SPARKPLUG_CASES: &[(&str, &str, &str, &str)] = &[
     ),
 ];
 
+/// [`BASE`] with two M-Bus buses: a serial level converter and a TCP converter, meters by
+/// primary address and by secondary address.
+const MBUS: &str = r#"
+[buses.heat]
+protocol = "mbus"
+port = "/dev/ttyUSB1"
+baud = 2400
+parity = "even"
+[buses.heat.devices.flat1]
+address = 5
+poll = "30s"
+[buses.heat.devices.flat2]
+id = "12345678"
+manufacturer = "KAM"
+[buses.heat.devices.flat2.channels.heat]
+record = 0
+[buses.cellar]
+protocol = "mbus"
+host = "10.0.0.5:10001"
+[buses.cellar.devices.water]
+id = "87654321"
+medium = 7
+"#;
+
+/// Broken M-Bus buses and meters, each a change to [`BASE`] + [`MBUS`].
+const MBUS_CASES: &[(&str, &str, &str, &str)] = &[
+    (
+        "buses.heat.protocol",
+        "\"mbuss\"",
+        "buses.heat.protocol",
+        "use \"modbus\" or \"mbus\"",
+    ),
+    (
+        "buses.heat.baud",
+        "115200",
+        "buses.heat.baud",
+        "not an M-Bus baud rate",
+    ),
+    (
+        "buses.heat.parity",
+        "\"high\"",
+        "buses.heat.parity",
+        "does not have variant",
+    ),
+    (
+        "buses.heat.port",
+        "-",
+        "buses.heat",
+        "needs `port` (a serial level converter)",
+    ),
+    (
+        "buses.heat.port",
+        "\"ttyUSB1\"",
+        "buses.heat.port",
+        "absolute path",
+    ),
+    (
+        "buses.heat.guard",
+        "\"1ms\"",
+        "buses.heat.guard",
+        "unknown key",
+    ),
+    (
+        "buses.cellar.host",
+        "\"10.0.0.5\"",
+        "buses.cellar.host",
+        "\"HOST:PORT\"",
+    ),
+    (
+        "buses.cellar.host",
+        "\"10.0.0.5:0\"",
+        "buses.cellar.host",
+        "\"HOST:PORT\"",
+    ),
+    (
+        "buses.cellar.baud",
+        "2400",
+        "buses.cellar.baud",
+        "serial setting on a TCP bus",
+    ),
+    (
+        "buses.cellar.port",
+        "10001",
+        "buses.cellar.port",
+        "give the TCP port in `host`",
+    ),
+    (
+        "buses.heat.devices.flat1.address",
+        "251",
+        "buses.heat.devices.flat1.address",
+        "outside 0..250",
+    ),
+    (
+        "buses.heat.devices.flat1.address",
+        "-",
+        "buses.heat.devices.flat1",
+        "needs `address`",
+    ),
+    (
+        "buses.heat.devices.flat1.id",
+        "\"11111111\"",
+        "buses.heat.devices.flat1",
+        "not both",
+    ),
+    (
+        "buses.heat.devices.flat1.unit",
+        "5",
+        "buses.heat.devices.flat1.unit",
+        "not by a Modbus unit",
+    ),
+    (
+        "buses.heat.devices.flat1.model",
+        "\"yl67\"",
+        "buses.heat.devices.flat1.model",
+        "not by a Modbus unit",
+    ),
+    (
+        "buses.heat.devices.flat1.manufacturer",
+        "\"KAM\"",
+        "buses.heat.devices.flat1.manufacturer",
+        "only with `id`",
+    ),
+    (
+        "buses.heat.devices.flat2.id",
+        "\"1234567\"",
+        "buses.heat.devices.flat2.id",
+        "8 digits",
+    ),
+    (
+        "buses.heat.devices.flat2.id",
+        "\"1234567X\"",
+        "buses.heat.devices.flat2.id",
+        "8 digits",
+    ),
+    (
+        "buses.heat.devices.flat2.manufacturer",
+        "\"kam\"",
+        "buses.heat.devices.flat2.manufacturer",
+        "three letters A-Z",
+    ),
+    (
+        "buses.heat.devices.flat2.version",
+        "300",
+        "buses.heat.devices.flat2.version",
+        "out of range",
+    ),
+    (
+        "buses.heat.devices.flat2.channels.heat.record",
+        "-1",
+        "buses.heat.devices.flat2.channels.heat.record",
+        "out of range",
+    ),
+    (
+        "buses.heat.devices.flat2.channels.other",
+        "{ record = 0 }",
+        "buses.heat.devices.flat2.channels.other.record",
+        "record 0 is already channel heat",
+    ),
+    (
+        "buses.heat.devices.flat2.channels.heat.scale",
+        "0.001",
+        "buses.heat.devices.flat2.channels.heat.scale",
+        "unknown key",
+    ),
+    (
+        "buses.heat.devices.flat2.channels.heat.max_rate_hz",
+        "0",
+        "buses.heat.devices.flat2.channels.heat.max_rate_hz",
+        "greater than zero",
+    ),
+    (
+        "buses.heat.devices.flat3",
+        "{ address = 5 }",
+        "buses.heat.devices.flat3.address",
+        "primary address 5 is already used by meter flat1",
+    ),
+    (
+        "buses.cellar.devices.water2",
+        "{ id = \"87654321\" }",
+        "buses.cellar.devices.water2.id",
+        "id 87654321 is already used by meter water",
+    ),
+    (
+        "buses.cellar.devices.status",
+        "{ address = 1 }",
+        "buses.cellar.devices.status",
+        "topic level",
+    ),
+];
+
+#[test]
+fn a_good_mbus_config_is_valid_and_every_broken_one_is_refused() {
+    let base = format!("{BASE}{MBUS}");
+    let file = Path::new("/etc/pulsegate/pulsegate.toml");
+    let good = pulsegate::config::Config::from_toml(&base, file, Some(Default::default()))
+        .expect("the M-Bus base is valid");
+    let heat = good.buses.iter().find(|b| b.name == "heat").unwrap();
+    assert_eq!(heat.devices.len(), 2);
+    refused(&base, MBUS_CASES);
+}
+
 /// Sets `path` in a TOML table to `value` (TOML text), or removes it with "-".
 fn mutate(base: &str, path: &str, value: &str) -> String {
     let mut doc: toml::Table = base.parse().unwrap();

@@ -17,6 +17,7 @@ mod format_seam;
 mod hostile;
 mod local_socket;
 mod mbus_frames;
+mod mbus_gateway;
 mod mbus_pymeterbus;
 mod mbus_sim;
 mod metering;

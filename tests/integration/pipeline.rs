@@ -293,7 +293,8 @@ fn the_demo_shows_live_readings_of_every_model() {
         String::from_utf8_lossy(&out.stderr)
     );
     let text = String::from_utf8_lossy(&out.stdout);
-    // The last table drawn: rows for the YL67, IBF67, both WJ157s and the ZH-YX1600 on TCP.
+    // The last table drawn: rows for the YL67, IBF67, both WJ157s and the ZH-YX1600 on TCP,
+    // and the M-Bus heat meter's register and a value of it.
     let last = text.rsplit("pulsegate demo: readings").next().unwrap();
     for row in [
         "press1/enc0",
@@ -302,6 +303,8 @@ fn the_demo_shows_live_readings_of_every_model() {
         "conveyor/enc3",
         "bottles/a0",
         "doors/di1",
+        "heat1/energy",
+        "heat1/flow_temperature",
     ] {
         assert!(last.contains(row), "no {row} in the live table:\n{last}");
     }

@@ -10,6 +10,8 @@
 //! - [`channel`]: default channel names, and which records are counted registers.
 //!
 //! The record layer is our own (docs/mbus.md says why the m-bus-parser crate is not used).
+//! On it stands [`master`]: the driver under the bus core (the line, each meter's readout,
+//! records as channels and samples, the wildcard search); only it does I/O.
 
 pub mod address;
 pub mod channel;
@@ -18,6 +20,7 @@ pub mod error;
 pub mod fixed;
 pub mod frame;
 pub mod header;
+pub mod master;
 pub mod quantity;
 pub mod record;
 pub mod telegram;

@@ -218,6 +218,7 @@ impl DeviceRt<ModbusDevice> {
                     wrap,
                     max_rate_hz: overrides.max_rate_hz.unwrap_or(spec.max_rate_hz),
                 },
+                units: None,
             });
             self.proto.channels.push(ModbusChannel {
                 name,

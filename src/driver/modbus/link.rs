@@ -392,7 +392,7 @@ impl Link {
                         self.port = Some(p.clone());
                         self.speed = match &self.config {
                             LinkConfig::Rtu { baud, .. } => Some(*baud),
-                            LinkConfig::Tcp { .. } => None,
+                            LinkConfig::Tcp { .. } | LinkConfig::Mbus(_) => None,
                         };
                         self.timing = crate::config::line_timing(&self.config, self.guard);
                         p
@@ -418,6 +418,12 @@ impl Link {
                     .map_err(|e| open_err(e.to_string()))?;
                 let _ = stream.set_nodelay(true);
                 self.ctx = Some(tokio_modbus::client::tcp::attach(stream));
+            }
+            LinkConfig::Mbus(_) => {
+                return Err(LinkError::Open {
+                    what: "an M-Bus line".into(),
+                    message: "not a Modbus line".into(),
+                });
             }
         }
         Ok(())

@@ -31,11 +31,11 @@ use crate::config::Bus;
 use crate::plan::Wire;
 use crate::sample::Sample;
 use crate::scan::ScanRequest;
+use crate::scan::Survey;
 use crate::state::BusState;
 pub use device::{ModbusDevice, ModbusError};
 use identity::Identity;
 use link::Link;
-use survey::Survey;
 
 /// Modbus RTU or TCP over one [`Link`], with the bus's scan requests (asked in idle time).
 pub struct Modbus {

@@ -129,6 +129,7 @@ pub(crate) async fn describe(
         modes: Vec::new(),
         channels: Vec::new(),
         note: None,
+        meter: None,
     };
     match identified {
         Identified::Unknown(seen) => {

@@ -9,11 +9,12 @@ use std::collections::BTreeSet;
 
 use serde_json::json;
 
+pub use super::entity::Shape;
 use super::entity::{Entity, Module, Site, State, common, merge, origin, sensor};
 use crate::config::Config;
 use crate::config::units::ChannelUnits;
 use crate::config::units::rate_device_class;
-use crate::profile::{ChannelKind, ChannelSpec};
+use crate::profile::ChannelKind;
 
 /// The gateway's own device, with its status as a diagnostic sensor so `via_device` resolves.
 pub fn gateway_entities(site: &Site) -> Vec<Entity> {
@@ -39,9 +40,9 @@ pub fn gateway_entities(site: &Site) -> Vec<Entity> {
     }]
 }
 
-/// The device-wide clear button, where commands are enabled.
+/// The device-wide clear button, where commands are enabled and counts can be written.
 pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
-    if !m.device.commands {
+    if !m.device.commands || !m.device.writable_counts() {
         return Vec::new();
     }
     let object = "clear_all";
@@ -63,7 +64,7 @@ pub fn device_entities(site: &Site, m: Module<'_>) -> Vec<Entity> {
 }
 
 /// The total (or an encoder's position) with its units, class and attributes.
-fn total(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) -> Entity {
+fn total(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) -> Entity {
     let ch = &spec.name;
     let state = State::of(site, m, ch);
     let encoder = spec.kind == ChannelKind::Encoder;
@@ -100,7 +101,7 @@ fn total(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) -
 }
 
 /// The rate: scaled per the channel's time base, or pulses per second.
-fn rate(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) -> Entity {
+fn rate(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) -> Entity {
     let ch = &spec.name;
     let state = State::of(site, m, ch);
     let per = match units.rate_per.seconds() {
@@ -127,23 +128,27 @@ fn rate(site: &Site, m: Module<'_>, spec: &ChannelSpec, units: &ChannelUnits) ->
 }
 
 /// Every entity of one channel of a module: total, rate, frequency and rpm where the model has
-/// them, and a clear button where commands are enabled. None for a channel with
-/// `enabled = false` (not published, so its configs are cleared).
-pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<Entity> {
+/// them, and a clear button where commands are enabled and counts can be written; a gauge's
+/// one sensor. None for a channel with `enabled = false` (not published, so its configs are
+/// cleared).
+pub fn channel_entities(site: &Site, m: Module<'_>, spec: &Shape) -> Vec<Entity> {
     let ch = &spec.name;
-    if m.device.channels.get(ch).is_some_and(|c| !c.enabled) {
+    let config = m.device.channels.get(ch);
+    if config.is_some_and(|c| !c.enabled) {
         return Vec::new();
     }
-    let units = m
-        .device
-        .channels
-        .get(ch)
+    let units = config
         .map(|c| c.units.clone())
+        .filter(|u| u.scale.is_some())
+        .or_else(|| spec.declared.clone())
         .unwrap_or_default();
+    if let Some(numeric) = spec.gauge {
+        return vec![gauge(site, m, spec, &units, numeric)];
+    }
     let state = State::of(site, m, ch);
     let mut out = vec![total(site, m, spec, &units), rate(site, m, spec, &units)];
     out.extend(super::meter_entities::entities(site, m, spec, &units));
-    if spec.freq.is_some() {
+    if spec.freq {
         let more = json!({
             "state_topic": state.topic,
             "value_template": state.template("freq_hz"),
@@ -159,7 +164,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
             more,
         ));
     }
-    if spec.rpm.is_some() {
+    if spec.rpm {
         // rpm has no device class: Home Assistant's frequency class refuses the unit.
         let more = json!({
             "state_topic": state.topic,
@@ -175,7 +180,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
             more,
         ));
     }
-    if m.device.commands {
+    if m.device.commands && m.device.writable_counts() {
         let object = format!("{ch}_clear");
         let config = merge(
             common(site, m, "button", &object, &format!("{ch} clear")),
@@ -198,12 +203,50 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &ChannelSpec) -> Vec<E
 
 /// The channel of `m`'s profile called `name` that counts as `kind` (the work mode decides:
 /// a ZH-YX1600 `di1` is an input counter or an encoder).
-pub fn channel_spec(m: Module<'_>, name: &str, kind: ChannelKind) -> Option<ChannelSpec> {
+pub fn channel_spec(m: Module<'_>, name: &str, kind: ChannelKind) -> Option<Shape> {
     m.device
         .profile
         .all_channels()
         .into_iter()
         .find(|c| c.name == name && c.kind == kind)
+        .map(|c| Shape::of_spec(&c))
+}
+
+/// A gauge's sensor: its value in its unit, a measurement (text, such as a date, has no state
+/// class), with Home Assistant's class where its unit has one.
+fn gauge(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits, numeric: bool) -> Entity {
+    let ch = &spec.name;
+    let state = State::of(site, m, ch);
+    let mut more = json!({
+        "state_topic": state.topic,
+        "value_template": state.template("value"),
+    });
+    if numeric {
+        more["state_class"] = "measurement".into();
+        if let Some(u) = &units.unit {
+            more["unit_of_measurement"] = u.clone().into();
+            if let Some(class) = gauge_class(u) {
+                more["device_class"] = class.into();
+            }
+        }
+    }
+    sensor(site, m, ch.clone(), ch.replace('_', " "), more)
+}
+
+/// Home Assistant's sensor class of a measured value in `unit`, where one takes that unit as
+/// a measurement (energy and volume take no `measurement`: a stored register is no class).
+fn gauge_class(unit: &str) -> Option<&'static str> {
+    Some(match unit {
+        "W" | "kW" | "MW" => "power",
+        "°C" | "K" | "°F" => "temperature",
+        "m³/h" | "m³/min" | "m³/s" => "volume_flow_rate",
+        "bar" => "pressure",
+        "V" => "voltage",
+        "A" => "current",
+        "Hz" => "frequency",
+        "s" | "min" | "h" | "d" => "duration",
+        _ => return None,
+    })
 }
 
 /// Every config topic `config` may have: the gateway's, each module's, and each channel of
@@ -231,7 +274,7 @@ pub fn module_topics(site: &Site, m: Module<'_>) -> BTreeSet<String> {
         .collect();
     for spec in m.device.profile.all_channels() {
         out.extend(
-            channel_entities(site, m, &spec)
+            channel_entities(site, m, &Shape::of_spec(&spec))
                 .iter()
                 .map(|e| e.topic(site)),
         );

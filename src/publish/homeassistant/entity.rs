@@ -6,7 +6,10 @@
 use serde_json::{Value, json};
 
 use crate::config::policy::PayloadMode;
+use crate::config::units::ChannelUnits;
 use crate::config::{Config, Device};
+use crate::profile::{ChannelKind, ChannelSpec};
+use crate::reading::{Measure, Reading};
 use crate::topics::Topics;
 
 /// Where discovery goes and what it points at.
@@ -78,7 +81,7 @@ pub struct Module<'a> {
 impl Module<'_> {
     /// The module's place on the wire, stable across renames.
     pub(super) fn key(&self) -> String {
-        format!("{}_u{}", self.bus, self.device.unit)
+        format!("{}_{}", self.bus, self.device.place_tag())
     }
 
     pub(super) fn payload(&self, site: &Site) -> PayloadMode {
@@ -102,6 +105,16 @@ pub(super) fn availability(site: &Site, device: &str) -> Value {
     ])
 }
 
+/// Where the module is, for its device's `serial_number`: `line1 unit 3`, `mbus1 address 5`,
+/// `mbus1 id 12345678`.
+fn serial(m: Module<'_>) -> String {
+    match &m.device.meter {
+        Some(crate::config::MeterAddress::Primary(a)) => format!("{} address {a}", m.bus),
+        Some(crate::config::MeterAddress::Secondary { id, .. }) => format!("{} id {id}", m.bus),
+        None => format!("{} unit {}", m.bus, m.device.unit),
+    }
+}
+
 pub(super) fn module_device(site: &Site, m: Module<'_>) -> Value {
     let profile = &m.device.profile;
     let mut device = json!({
@@ -109,7 +122,7 @@ pub(super) fn module_device(site: &Site, m: Module<'_>) -> Value {
         "name": m.device.name,
         "model": profile.title,
         "model_id": profile.model,
-        "serial_number": format!("{} unit {}", m.bus, m.device.unit),
+        "serial_number": serial(m),
         "via_device": site.gateway_identifier(),
     });
     // The profile's maker is that of its own model; an alias (IBF67 on the YL67 map) may be
@@ -211,5 +224,46 @@ pub fn sensor(site: &Site, m: Module<'_>, object: String, name: String, more: Va
         component: "sensor",
         object_id: format!("{}_{object}", m.key()),
         config,
+    }
+}
+
+/// What a channel's entities are made of: its name and kind, whether the module measures its
+/// frequency and speed (from the profile); for a channel its device declares (an M-Bus
+/// meter's record), the units it declared and whether it is a gauge (a value, not a count).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shape {
+    pub name: String,
+    pub kind: ChannelKind,
+    pub freq: bool,
+    pub rpm: bool,
+    /// `Some(numeric)` for a gauge (text, such as a date, is not numeric).
+    pub gauge: Option<bool>,
+    /// The units the device declared (a `scale` in the config wins).
+    pub declared: Option<ChannelUnits>,
+}
+
+impl Shape {
+    /// A profile's channel.
+    pub fn of_spec(spec: &ChannelSpec) -> Shape {
+        Shape {
+            name: spec.name.clone(),
+            kind: spec.kind,
+            freq: spec.freq.is_some(),
+            rpm: spec.rpm.is_some(),
+            gauge: None,
+            declared: None,
+        }
+    }
+
+    /// A channel its device declared, as its reading shows it.
+    pub fn of_reading(r: &Reading) -> Shape {
+        Shape {
+            name: r.channel.to_string(),
+            kind: r.kind,
+            freq: r.freq_hz.is_some(),
+            rpm: r.rpm.is_some(),
+            gauge: r.measured.as_ref().map(|m| !matches!(m, Measure::Text(_))),
+            declared: r.units.as_deref().cloned(),
+        }
     }
 }

@@ -10,18 +10,13 @@
 
 use serde_json::{Value, json};
 
-use super::entity::{Entity, Module, Site, State, sensor};
+use super::entity::{Entity, Module, Shape, Site, State, sensor};
 use crate::config::units::ChannelUnits;
-use crate::profile::{ChannelKind, ChannelSpec};
+use crate::profile::ChannelKind;
 
 /// The meter-reading and interval sensors of channel `spec` of `m` (none for an encoder, whose
 /// position is not a meter, and no reading without a scale).
-pub fn entities(
-    site: &Site,
-    m: Module<'_>,
-    spec: &ChannelSpec,
-    units: &ChannelUnits,
-) -> Vec<Entity> {
+pub fn entities(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) -> Vec<Entity> {
     if spec.kind == ChannelKind::Encoder {
         return Vec::new();
     }

@@ -10,7 +10,7 @@
 //! flapping Home Assistant, a misbehaving client) costs at most one announcement every
 //! [`REANNOUNCE_GAP`]: an `online` within it leaves one announcement pending for the next tick.
 
-use std::collections::{BTreeMap, BTreeSet, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -25,7 +25,7 @@ use crate::outbox::{Content, Message};
 use crate::profile::ChannelKind;
 use crate::reading::{Output, Reading};
 use entities::{
-    channel_entities, channel_spec, device_entities, gateway_entities, module_topics,
+    Shape, channel_entities, channel_spec, device_entities, gateway_entities, module_topics,
     possible_topics,
 };
 use entity::{Entity, Module, Site};
@@ -51,8 +51,9 @@ fn messages(list: impl IntoIterator<Item = Announce>) -> Vec<Message> {
     list.into_iter().map(Announce::message).collect()
 }
 
-/// A channel by its place on the wire and what it counts: bus, unit, channel name, kind.
-type ChannelKey = (String, u8, String, ChannelKind);
+/// A channel by its place on the wire and what it counts: bus, the device's place (`u3`,
+/// `a5`, `id12345678`), channel name, kind.
+type ChannelKey = (String, String, String, ChannelKind);
 
 /// What discovery knows.
 pub struct Discovery {
@@ -62,12 +63,13 @@ pub struct Discovery {
     announced: BTreeMap<String, String>,
     /// Config topics of this gateway seen retained on the broker.
     on_broker: BTreeSet<String>,
-    /// Channels that have published readings: their entities are announced.
-    learned: HashSet<ChannelKey>,
+    /// Channels that have published readings, and what their entities are made of: their
+    /// entities are announced.
+    learned: HashMap<ChannelKey, Shape>,
     /// Topics this config may have; anything else of ours on the broker is stale.
     possible: BTreeSet<String>,
     /// Modules that completed a poll: their channels in the current work mode are all learned.
-    settled: BTreeSet<(String, u8)>,
+    settled: BTreeSet<(String, String)>,
     /// Topics of settled modules' channels they do not have (another work mode): stale.
     unwanted: BTreeSet<String>,
     /// When every config was last announced for Home Assistant's `online`.
@@ -88,7 +90,7 @@ impl Discovery {
             config,
             announced: BTreeMap::new(),
             on_broker: BTreeSet::new(),
-            learned: HashSet::new(),
+            learned: HashMap::new(),
             settled: BTreeSet::new(),
             unwanted: BTreeSet::new(),
             reannounced: None,
@@ -131,21 +133,31 @@ impl Discovery {
         else {
             return Vec::new();
         };
-        let key = (bus.name.clone(), device.unit, r.channel.to_string(), r.kind);
-        if self.learned.contains(&key) {
-            // A channel read again: the module's first poll is complete.
-            return self.settle(key.0, key.1);
-        }
+        let key = (
+            bus.name.clone(),
+            device.place_tag(),
+            r.channel.to_string(),
+            r.kind,
+        );
         let m = Module {
             bus: &bus.name,
             device,
         };
-        let Some(spec) = channel_spec(m, &r.channel, r.kind) else {
+        // A channel its device declares (an M-Bus record) is what its reading shows; it is
+        // announced again when that changes.
+        let declared = device.channels_from_device().then(|| Shape::of_reading(r));
+        if let Some(known) = self.learned.get(&key)
+            && declared.as_ref().is_none_or(|d| d == known)
+        {
+            // A channel read again: the module's first poll is complete.
+            return self.settle(key.0, key.1);
+        }
+        let Some(spec) = declared.or_else(|| channel_spec(m, &r.channel, r.kind)) else {
             return Vec::new();
         };
         let entities = channel_entities(&self.site, m, &spec);
-        let settled = self.settled.contains(&(key.0.clone(), key.1));
-        self.learned.insert(key);
+        let settled = self.settled.contains(&(key.0.clone(), key.1.clone()));
+        self.learned.insert(key, spec);
         if settled {
             // The work mode changed under a settled module: its new channels are wanted now.
             self.refresh_unwanted();
@@ -153,10 +165,10 @@ impl Discovery {
         self.announce(entities)
     }
 
-    /// The module at `bus`/`unit` completed a poll: configs of channels it does not have in
+    /// The module at `bus`/`place` completed a poll: configs of channels it does not have in
     /// its current work mode are cleared.
-    fn settle(&mut self, bus: String, unit: u8) -> Vec<Announce> {
-        if !self.settled.insert((bus, unit)) {
+    fn settle(&mut self, bus: String, place: String) -> Vec<Announce> {
+        if !self.settled.insert((bus, place)) {
             return Vec::new();
         }
         self.refresh_unwanted();
@@ -167,7 +179,10 @@ impl Discovery {
     fn refresh_unwanted(&mut self) {
         let mut unwanted = BTreeSet::new();
         for (bus, device) in self.config.enabled_devices() {
-            if !self.settled.contains(&(bus.name.clone(), device.unit)) {
+            if !self
+                .settled
+                .contains(&(bus.name.clone(), device.place_tag()))
+            {
                 continue;
             }
             let m = Module {
@@ -178,15 +193,14 @@ impl Discovery {
             for e in device_entities(&self.site, m) {
                 topics.remove(&e.topic(&self.site));
             }
+            let place = device.place_tag();
             let learned = self
                 .learned
                 .iter()
-                .filter(|(b, u, ..)| *b == bus.name && *u == device.unit);
-            for (_, _, channel, kind) in learned {
-                if let Some(spec) = channel_spec(m, channel, *kind) {
-                    for e in channel_entities(&self.site, m, &spec) {
-                        topics.remove(&e.topic(&self.site));
-                    }
+                .filter(|((b, p, ..), _)| *b == bus.name && *p == place);
+            for (_, spec) in learned {
+                for e in channel_entities(&self.site, m, spec) {
+                    topics.remove(&e.topic(&self.site));
                 }
             }
             unwanted.extend(topics);
@@ -248,7 +262,29 @@ impl Discovery {
             return None;
         }
         self.on_broker.insert(topic.to_string());
-        (!self.possible.contains(topic) || self.unwanted.contains(topic)).then(|| self.clear(topic))
+        (!self.possible(topic) || self.unwanted.contains(topic)).then(|| self.clear(topic))
+    }
+
+    /// Whether the config may have `topic`: one of its modules' and channels' topics, or any
+    /// topic of a module whose channels are what its device answers (an M-Bus meter's records
+    /// are known only once it answers).
+    fn possible(&self, topic: &str) -> bool {
+        if self.possible.contains(topic) {
+            return true;
+        }
+        let Some(object) = topic.split('/').nth(3) else {
+            return false;
+        };
+        self.config
+            .enabled_devices()
+            .filter(|(_, d)| d.channels_from_device())
+            .any(|(b, d)| {
+                let m = Module {
+                    bus: &b.name,
+                    device: d,
+                };
+                object.starts_with(&format!("{}_", m.key()))
+            })
     }
 
     fn clear(&mut self, topic: &str) -> Announce {
@@ -270,14 +306,14 @@ impl Discovery {
         config.outputs = self.config.outputs.clone();
         self.config = config;
         self.possible = possible_topics(&self.site, &self.config);
-        let mut out = self.clear_where(|d, t| !d.possible.contains(t));
+        let mut out = self.clear_where(|d, t| !d.possible(t));
         out.extend(self.start());
         let learned = std::mem::take(&mut self.learned);
-        for (bus, unit, channel, kind) in learned {
+        for ((bus, place, channel, kind), shape) in learned {
             let config = self.config.clone();
             let Some((b, device)) = config
                 .enabled_devices()
-                .find(|(b, d)| b.name == bus && d.unit == unit)
+                .find(|(b, d)| b.name == bus && d.place_tag() == place)
             else {
                 continue;
             };
@@ -285,9 +321,13 @@ impl Discovery {
                 bus: &b.name,
                 device,
             };
-            if let Some(spec) = channel_spec(m, &channel, kind) {
+            let spec = match device.channels_from_device() {
+                true => Some(shape),
+                false => channel_spec(m, &channel, kind),
+            };
+            if let Some(spec) = spec {
                 let entities = channel_entities(&self.site, m, &spec);
-                self.learned.insert((bus, unit, channel, kind));
+                self.learned.insert((bus, place, channel, kind), spec);
                 out.extend(self.announce(entities));
             }
         }

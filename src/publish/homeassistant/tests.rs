@@ -78,6 +78,7 @@ fn reading(device: &str, channel: &str) -> Reading {
         units: None,
         after_seq: None,
         meter: None,
+        measured: None,
     }
 }
 
@@ -498,4 +499,88 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
             .any(|o| o.contains("reading") || o.contains("interval")),
         "{press:?}"
     );
+}
+
+const METERS: &str = r#"
+[gateway]
+id = "edge"
+[homeassistant]
+discovery = true
+[buses.mb]
+protocol = "mbus"
+host = "10.0.0.5:10001"
+[buses.mb.devices.water]
+address = 5
+[buses.mb.devices.heat]
+id = "12345678"
+"#;
+
+/// A meter's reading as its driver declared it: a register in m³ (water) or a gauge in °C.
+fn meter_reading(device: &str, channel: &str, gauge: bool) -> Reading {
+    use crate::config::units::{ChannelUnits, RatePer};
+    use crate::decimal::Decimal;
+    let mut r = reading(device, channel);
+    r.units = Some(Arc::new(match gauge {
+        true => ChannelUnits {
+            unit: Some("°C".into()),
+            ..ChannelUnits::default()
+        },
+        false => ChannelUnits {
+            scale: Some(Decimal::parse("0.001").unwrap()),
+            unit: Some("m³".into()),
+            rate_unit: Some("m³/h".into()),
+            rate_per: RatePer::Hour,
+            device_class: Some("water".into()),
+        },
+    }));
+    if gauge {
+        r.measured = Some(crate::reading::Measure::Exact(
+            Decimal::parse("60.25").unwrap(),
+        ));
+    }
+    r
+}
+
+#[test]
+fn a_meters_register_and_gauges_are_announced_from_their_readings_without_clear_buttons() {
+    let mut d = discovery(&config(METERS));
+    let start: Vec<String> = d.start().into_iter().map(|a| a.topic).collect();
+    assert!(start.iter().all(|t| !t.contains("/button/")), "{start:?}");
+    d.reading(&meter_reading("water", "volume", false));
+    let v = json(
+        &mut d,
+        "homeassistant/sensor/edge/mb_a5_volume_total/config",
+    );
+    assert_eq!(
+        (
+            &v["state_class"],
+            &v["device_class"],
+            &v["unit_of_measurement"]
+        ),
+        (&"total_increasing".into(), &"water".into(), &"m³".into())
+    );
+    assert_eq!(v["device"]["serial_number"], "mb address 5");
+    let rate = json(&mut d, "homeassistant/sensor/edge/mb_a5_volume_rate/config");
+    assert_eq!(rate["device_class"], "volume_flow_rate");
+    d.reading(&meter_reading("heat", "flow_temperature", true));
+    let t = json(
+        &mut d,
+        "homeassistant/sensor/edge/mb_id12345678_flow_temperature/config",
+    );
+    assert_eq!(
+        (
+            &t["state_class"],
+            &t["device_class"],
+            &t["unit_of_measurement"]
+        ),
+        (&"measurement".into(), &"temperature".into(), &"°C".into())
+    );
+    assert!(t["value_template"].as_str().unwrap().contains("'value'"));
+    assert!(d.everything().iter().all(|a| !a.topic.contains("/button/")));
+    // A meter's configs retained from an earlier run are its own, not stale: its channels are
+    // known only once it answers.
+    let retained = "homeassistant/sensor/edge/mb_id12345678_power/config";
+    assert_eq!(d.config_seen(retained, b"{}"), None);
+    let stale = "homeassistant/sensor/edge/mb_id87654321_power/config";
+    assert!(d.config_seen(stale, b"{}").is_some());
 }

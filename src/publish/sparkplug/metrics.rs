@@ -6,7 +6,8 @@
 //! where the module measures them, `<c>/Value` (the scaled total, Double, its unit in the
 //! `engUnit` property) where the channel has a `scale`, `<c>/Event` (String: cleared, preset,
 //! reset, rollover, gap), and the writable `<c>/Clear` (Boolean) and `<c>/Preset` (Int64) where
-//! the device takes commands.
+//! the device takes commands. A gauge (an M-Bus meter's temperature, power, date) has one:
+//! `<c>/Value` (Double, String for text), its unit in `engUnit`.
 
 use std::collections::{BTreeMap, HashMap};
 
@@ -29,9 +30,42 @@ pub struct ChannelShape {
     pub value_unit: Option<Option<String>>,
     /// `<c>/Clear` and `<c>/Preset` are written by the host.
     pub writable: bool,
+    /// `Some(numeric)` for a gauge: its one metric is `<c>/Value` (Double, or String for text
+    /// such as a date), in its unit.
+    pub gauge: Option<bool>,
 }
 
 impl ChannelShape {
+    /// A channel its device declared (an M-Bus meter's record), as its reading shows it: not
+    /// writable (only a profile's channels are).
+    pub fn of_reading(r: &Reading) -> ChannelShape {
+        let units = r.units.as_deref();
+        let gauge = r
+            .measured
+            .as_ref()
+            .map(|m| !matches!(m, crate::reading::Measure::Text(_)));
+        let value_unit = match gauge {
+            Some(_) => Some(units.and_then(|u| u.unit.clone())),
+            None => units.and_then(|u| u.scale.map(|_| u.unit.clone())),
+        };
+        ChannelShape {
+            name: r.channel.to_string(),
+            kind: r.kind,
+            freq: r.freq_hz.is_some(),
+            rpm: r.rpm.is_some(),
+            value_unit,
+            writable: false,
+            gauge,
+        }
+    }
+
+    fn value_type(&self) -> u32 {
+        match self.gauge {
+            Some(false) => datatype::STRING,
+            _ => datatype::DOUBLE,
+        }
+    }
+
     fn total_type(&self) -> u32 {
         match self.kind {
             ChannelKind::Encoder => datatype::INT64,
@@ -70,6 +104,13 @@ impl Aliases {
 /// without one, for a birth before any reading): name, datatype, value.
 pub fn values(r: Option<&Reading>, shape: &ChannelShape) -> Vec<(String, u32, Option<Value>)> {
     let c = &shape.name;
+    if shape.gauge.is_some() {
+        let v = r.and_then(|r| r.measured.as_ref()).and_then(|m| match m {
+            crate::reading::Measure::Text(t) => Some(Value::String(t.to_string())),
+            other => other.to_f64().map(Value::Double),
+        });
+        return vec![(format!("{c}/Value"), shape.value_type(), v)];
+    }
     let round = crate::publish::payload::round3;
     let total = r.map(|r| match shape.kind {
         ChannelKind::Encoder => r.update.total as u64,

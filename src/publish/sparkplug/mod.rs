@@ -110,7 +110,8 @@ pub fn shapes(config: &Config, commands: bool) -> Vec<(String, Vec<ChannelShape>
                 freq,
                 rpm,
                 value_unit: units.and_then(|u| u.scale.map(|_| u.unit.clone())),
-                writable: commands && d.commands,
+                writable: commands && d.commands && d.writable_counts(),
+                gauge: None,
             });
         }
         out.push((d.name.clone(), shapes));

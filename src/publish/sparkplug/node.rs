@@ -408,6 +408,11 @@ impl Node {
         };
         let mut metrics = Vec::new();
         for r in readings {
+            if !d.shapes.iter().any(|s| *s.name == *r.channel) {
+                // A channel its device declared (an M-Bus record): born with its first reading.
+                d.shapes.push(ChannelShape::of_reading(r));
+                d.declared = None;
+            }
             let Some(shape) = d.shapes.iter_mut().find(|s| *s.name == *r.channel) else {
                 continue;
             };

@@ -14,6 +14,7 @@ fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
         rpm: false,
         value_unit: None,
         writable: true,
+        gauge: None,
     }
 }
 
@@ -62,6 +63,7 @@ fn reading(device: &str, channel: &str, total: i64, ms: u64) -> Reading {
             ChannelKind::Counter
         },
         units: None,
+        measured: None,
     }
 }
 
