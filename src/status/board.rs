@@ -402,6 +402,7 @@ impl Board {
             name: d.config.name.clone(),
             bus: d.bus.clone(),
             unit: d.config.unit,
+            address: address(&d.config),
             model: d.config.model.clone(),
             status: d
                 .status
@@ -519,6 +520,16 @@ fn outputs(config: &Config) -> BTreeMap<String, (Option<String>, String, u64)> {
     out
 }
 
+/// Where `device` is on its bus, as a person says it.
+fn address(device: &crate::config::Device) -> String {
+    use crate::config::MeterAddress;
+    match &device.meter {
+        Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
+        Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
+        None => format!("unit {}", device.unit),
+    }
+}
+
 /// `v` to three decimals: a chart needs no more, and the answer stays short.
 fn milli(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
@@ -530,9 +541,10 @@ fn channel_view(c: &ChannelEntry, clock: &Clock, now_ms: u64) -> ChannelView {
     let units = r.units.as_deref();
     ChannelView {
         name: r.channel.to_string(),
-        kind: match r.kind {
-            crate::profile::ChannelKind::Encoder => "encoder",
-            crate::profile::ChannelKind::Counter => "counter",
+        kind: match (&r.measured, r.kind) {
+            (Some(_), _) => "gauge",
+            (None, crate::profile::ChannelKind::Encoder) => "encoder",
+            (None, crate::profile::ChannelKind::Counter) => "counter",
         },
         count: r.count,
         total: r.update.total,
@@ -542,9 +554,12 @@ fn channel_view(c: &ChannelEntry, clock: &Clock, now_ms: u64) -> ChannelView {
         event: r.update.event,
         at_ms: unix_ms(r.ts),
         unit: units.and_then(|u| u.unit.clone()),
-        value: units
-            .and_then(|u| crate::config::units::value(u, r.update.total))
-            .map(|v| v.to_string()),
+        value: match &r.measured {
+            Some(m) => Some(m.to_string()),
+            None => units
+                .and_then(|u| crate::config::units::value(u, r.update.total))
+                .map(|v| v.to_string()),
+        },
         rate_unit: units.and_then(|u| u.rate_unit.clone()),
         rate: units
             .zip(r.update.rate_hz)

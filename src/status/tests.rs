@@ -304,3 +304,41 @@ fn a_scan_shows_its_progress_then_its_report() {
         "an old report leaves the board"
     );
 }
+
+#[test]
+fn a_meters_gauge_shows_its_value_and_unit_and_the_meter_its_address() {
+    let text = r#"
+[gateway]
+id = "hall"
+[buses.mb]
+protocol = "mbus"
+host = "10.0.0.5:10001"
+[buses.mb.devices.water]
+address = 5
+[buses.mb.devices.heat]
+id = "12345678"
+"#;
+    let mut board = Board::new(&config(text), T0);
+    let mut r = reading("heat", "flow_temperature", T0 + 1000, 0, 0, 1);
+    r.units = Some(Arc::new(crate::config::units::ChannelUnits {
+        unit: Some("°C".into()),
+        ..Default::default()
+    }));
+    r.measured = Some(crate::reading::Measure::Exact(
+        crate::decimal::Decimal::parse("60.25").unwrap(),
+    ));
+    board.hand(&Output::single(r), T0 + 1000);
+    let s = status(&board, T0 + 2000);
+    let by = |n: &str| s.devices.iter().find(|d| d.name == n).unwrap();
+    assert_eq!(by("water").address, "primary address 5");
+    let heat = by("heat");
+    assert_eq!(heat.address, "id 12345678");
+    let c = &heat.channels[0];
+    assert_eq!(
+        (c.kind, c.value.as_deref(), c.unit.as_deref()),
+        ("gauge", Some("60.25"), Some("°C")),
+        "a gauge is its value, not a total of 0"
+    );
+    let modbus = Board::new(&config(CONFIG), T0);
+    assert_eq!(status(&modbus, T0).devices[0].address, "unit 1");
+}

@@ -101,6 +101,9 @@ pub struct DeviceView {
     pub name: String,
     pub bus: String,
     pub unit: u8,
+    /// Where it is on its bus, as a person says it: `unit 3` (Modbus), `primary address 5` or
+    /// `id 12345678` (an M-Bus meter, whose `unit` means nothing).
+    pub address: String,
     /// The model configured.
     pub model: String,
     /// `unknown` (not yet answered), `online`, `offline`, or a problem: `wrong_model`,
@@ -143,7 +146,8 @@ pub struct RequestView {
 #[derive(Debug, Clone, Serialize)]
 pub struct ChannelView {
     pub name: String,
-    /// `counter` (an input counting on its own) or `encoder` (a signed position).
+    /// `counter` (an input counting on its own), `encoder` (a signed position) or `gauge` (a
+    /// meter's value: a temperature, a power, a date; its `value` and `unit`, no counts).
     pub kind: &'static str,
     /// The reading's fields, as published on MQTT.
     pub count: i64,
@@ -155,7 +159,7 @@ pub struct ChannelView {
     pub event: Option<crate::event::Event>,
     pub at_ms: u64,
     /// Engineering units (with `scale`): the unit, the scaled total (exact decimal text), the
-    /// rate's unit and the scaled rate.
+    /// rate's unit and the scaled rate. A gauge's value as the meter gave it, in its unit.
     pub unit: Option<String>,
     pub value: Option<String>,
     pub rate_unit: Option<String>,

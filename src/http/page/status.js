@@ -162,7 +162,7 @@
     const st = badge(d.status, statusTone(d.status));
     st.classList.add('status');
     head.appendChild(st);
-    head.appendChild(el('span', 'muted', d.model + ' · bus ' + d.bus + ' · unit ' + d.unit));
+    head.appendChild(el('span', 'muted', d.model + ' · bus ' + d.bus + ' · ' + d.address));
     card.appendChild(head);
     const facts = el('div', 'device-facts');
     fact(facts, 'last answer', since(s.now_ms, d.last_answer_ms) || 'never');
@@ -203,7 +203,8 @@
     tr.dataset.channel = d.name + '/' + c.name;
     const name = cell(tr, c.name);
     if (c.event) name.appendChild(el('span', 'muted', ' ' + c.event));
-    cell(tr, num(c.count), 'num count');
+    const gauge = c.kind === 'gauge';
+    cell(tr, gauge ? '' : num(c.count), 'num count');
     const total = cell(tr, c.value !== null ? c.value : num(c.total), 'num total');
     if (c.unit !== null) total.appendChild(el('span', 'unit muted', ' ' + c.unit));
     let rate = '';
@@ -217,7 +218,8 @@
     chart.height = 28;
     chart.setAttribute('aria-label', c.name + ': rate over the last 15 minutes');
     draw(chart, c.history.rates);
-    cell(tr, '').appendChild(chart);
+    if (gauge) cell(tr, '');
+    else cell(tr, '').appendChild(chart);
     const iv = cell(tr, '', 'interval');
     for (const i of c.intervals) {
       const left = Math.max(0, Math.round((i.end_ms - s.now_ms) / 60000));
