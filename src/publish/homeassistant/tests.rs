@@ -2,7 +2,6 @@
 
 use std::path::Path;
 use std::sync::Arc;
-use std::time::SystemTime;
 
 use serde_json::Value;
 
@@ -20,7 +19,6 @@ fn chosen(config: &Config) -> Vec<Box<dyn crate::publish::format::Format>> {
 fn discovery(config: &Config) -> Discovery {
     Discovery::new(config, &config.outputs.list[0])
 }
-use crate::counter::Update;
 use crate::profile::ChannelKind;
 use crate::reading::{Output, Reading};
 
@@ -56,30 +54,14 @@ fn config(text: &str) -> Config {
 }
 
 fn reading(device: &str, channel: &str) -> Reading {
-    Reading {
-        device: Arc::from(device),
-        channel: Arc::from(channel),
-        ts: SystemTime::UNIX_EPOCH,
-        count: 0,
-        freq_hz: None,
-        rpm: None,
-        update: Update {
-            delta: 0,
-            total: 0,
-            seq: 1,
-            rate_hz: None,
-            event: None,
-        },
-        kind: if channel.starts_with("enc") {
-            ChannelKind::Encoder
-        } else {
-            ChannelKind::Counter
-        },
-        units: None,
-        after_seq: None,
-        meter: None,
-        measured: None,
-    }
+    let mut r = Reading::sample(device, channel, 1);
+    (r.count, r.update.delta, r.update.total) = (0, 0, 0);
+    r.kind = if channel.starts_with("enc") {
+        ChannelKind::Encoder
+    } else {
+        ChannelKind::Counter
+    };
+    r
 }
 
 fn json(d: &mut Discovery, topic: &str) -> Value {
