@@ -615,7 +615,9 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
     )
     .unwrap();
     let devices = [("line1", "d", 1, "yl67", "100ms")];
-    let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    let http = free_port();
+    let metrics = format!("[metrics]\nlisten = \"127.0.0.1:{http}\"\n");
+    let gw = start_gateway(&plant, broker.port, &dir, &devices, &metrics);
     tokio::time::sleep(Duration::from_secs(3)).await;
     let log = gw.log_text();
     assert!(
@@ -623,6 +625,14 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
         "{log}"
     );
     assert!(log.contains("bus not started"), "{log}");
+    // A bus that refuses to count is not a healthy gateway, whatever MQTT says.
+    let (code, body) =
+        tokio::task::spawn_blocking(move || crate::metrics::http_get(http, "/healthz"))
+            .await
+            .unwrap();
+    assert_eq!(code, 503, "{body}");
+    assert!(body.contains("bus/line1 not polling"), "{body}");
+    assert!(body.contains("state file refused"), "{body}");
     assert!(
         sub.on("pulsegate/test/d/enc0").is_empty(),
         "nothing published from zero"
@@ -657,9 +667,14 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
     assert!(sub.on("pulsegate/test/d/enc0").is_empty());
     drop(gw);
     std::fs::remove_file(&moved[0]).unwrap();
-    let _gw = start_gateway(&plant, broker.port, &dir, &devices, "");
+    let _gw = start_gateway(&plant, broker.port, &dir, &devices, &metrics);
     sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
         .await;
+    let (code, body) =
+        tokio::task::spawn_blocking(move || crate::metrics::http_get(http, "/healthz"))
+            .await
+            .unwrap();
+    assert_eq!(code, 200, "polling again: {body}");
 }
 
 /// Runs the gateway binary with `args`, as an unprivileged user when the tests run as root
