@@ -16,22 +16,27 @@
 //! is slow on purpose).
 
 mod auth;
+mod feed;
 mod page;
 mod reply;
+mod slots;
 
-use std::collections::BTreeMap;
 use std::convert::Infallible;
 use std::net::SocketAddr;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use http_body_util::Full;
+use feed::Feed;
+use http_body_util::{Either, Full};
 use hyper::body::{Bytes, Incoming};
 use hyper::header::{CONTENT_TYPE, HeaderValue};
 use hyper::{Method, Request, Response, StatusCode};
 use hyper_util::rt::{TokioIo, TokioTimer};
 use reply::plain;
+use slots::{Lease, Pool, Slots, lock};
 use tokio::net::TcpListener;
+use tokio::sync::watch;
 use tokio_util::sync::CancellationToken;
 
 use crate::config::Secret;
@@ -39,12 +44,12 @@ use crate::health::Health;
 use crate::metrics::Metrics;
 use crate::status::Live;
 
-/// Connections served at once; a new one beyond them closes the oldest.
+/// Short requests served at once; a new one beyond them closes the oldest.
 const MAX_CONNECTIONS: usize = 8;
 /// A request head (request line and headers) must arrive within this: a scraper or a probe
 /// sends it at once.
 const HEADER_TIMEOUT: Duration = Duration::from_secs(1);
-/// A connection's whole life, request head to last byte of the answer.
+/// A short request's whole life, request head to last byte of the answer.
 const CONNECTION_DEADLINE: Duration = Duration::from_secs(10);
 /// Read buffer cap: a request head larger than this is refused.
 const MAX_HEAD: usize = 8 * 1024;
@@ -52,6 +57,9 @@ const MAX_HEAD: usize = 8 * 1024;
 const STALE_AFTER: Duration = Duration::from_secs(10);
 
 const TEXT_FORMAT: &str = "text/plain; version=0.0.4; charset=utf-8";
+
+/// An answer: whole, or the page's event stream.
+type Answer = Response<Either<Full<Bytes>, Feed>>;
 
 /// The endpoint could not start.
 #[derive(Debug, thiserror::Error)]
@@ -79,13 +87,39 @@ pub struct Endpoint {
     pub token: Option<Secret>,
 }
 
+/// The connections being served and the frames of the event streams.
+struct Pools {
+    /// Short requests (`/healthz`, `/metrics`, the page's files, the API).
+    fresh: Pool,
+    /// Event streams of open pages.
+    streams: Pool,
+    /// The newest snapshot as an event, from [`feed::feed`].
+    frames: watch::Sender<Bytes>,
+}
+
+/// One connection: what closes it, its slot among the short requests until it becomes a
+/// stream, and whether it has.
+struct Connection {
+    closed: CancellationToken,
+    fresh: Mutex<Option<Lease>>,
+    streaming: AtomicBool,
+}
+
 /// Serves until `shutdown`.
 pub async fn serve(listener: TcpListener, endpoint: Endpoint, shutdown: CancellationToken) {
-    let slots = Arc::new(std::sync::Mutex::new(Slots::default()));
+    let pools = Arc::new(Pools {
+        fresh: Arc::new(Mutex::new(Slots::new(MAX_CONNECTIONS))),
+        streams: Arc::new(Mutex::new(Slots::new(feed::STREAMS))),
+        frames: watch::channel(Bytes::new()).0,
+    });
+    if let Some(live) = &endpoint.status {
+        let frames = pools.frames.clone();
+        tokio::spawn(feed::feed(live.clone(), frames, shutdown.clone()));
+    }
     let endpoint = Arc::new(endpoint);
     loop {
         let stream = tokio::select! {
-            () = shutdown.cancelled() => return,
+            () = shutdown.cancelled() => break,
             s = listener.accept() => match s {
                 Ok((s, _)) => s,
                 Err(e) => {
@@ -95,71 +129,102 @@ pub async fn serve(listener: TcpListener, endpoint: Endpoint, shutdown: Cancella
                 }
             },
         };
-        let endpoint = endpoint.clone();
-        let (id, closed) = lock(&slots).admit();
-        let slots = slots.clone();
-        tokio::spawn(async move {
-            let service = hyper::service::service_fn(move |req| {
-                let endpoint = endpoint.clone();
-                async move { Ok::<_, Infallible>(answer(req, &endpoint).await) }
-            });
-            let conn = hyper::server::conn::http1::Builder::new()
-                .timer(TokioTimer::new())
-                .header_read_timeout(HEADER_TIMEOUT)
-                .max_buf_size(MAX_HEAD)
-                .keep_alive(false)
-                .serve_connection(TokioIo::new(stream), service);
-            tokio::select! {
-                _ = tokio::time::timeout(CONNECTION_DEADLINE, conn) => {}
-                () = closed.cancelled() => {}
-            }
-            lock(&slots).done(id);
+        let closed = CancellationToken::new();
+        let connection = Arc::new(Connection {
+            fresh: Mutex::new(Some(Lease::take(&pools.fresh, closed.clone()))),
+            closed,
+            streaming: AtomicBool::new(false),
         });
+        tokio::spawn(serve_connection(
+            stream,
+            endpoint.clone(),
+            pools.clone(),
+            connection,
+        ));
+    }
+    lock(&pools.streams).close_all();
+    lock(&pools.fresh).close_all();
+}
+
+/// One connection, until it is answered, its deadline passes or a newer one takes its slot.
+async fn serve_connection(
+    stream: tokio::net::TcpStream,
+    endpoint: Arc<Endpoint>,
+    pools: Arc<Pools>,
+    connection: Arc<Connection>,
+) {
+    let on = connection.clone();
+    let service = hyper::service::service_fn(move |req| {
+        let (endpoint, pools, on) = (endpoint.clone(), pools.clone(), on.clone());
+        async move { Ok::<_, Infallible>(answer(req, &endpoint, &pools, &on).await) }
+    });
+    let conn = hyper::server::conn::http1::Builder::new()
+        .timer(TokioTimer::new())
+        .header_read_timeout(HEADER_TIMEOUT)
+        .max_buf_size(MAX_HEAD)
+        .keep_alive(false)
+        .serve_connection(TokioIo::new(stream), service);
+    // A stream ends itself after its life; this cuts one whose client stopped reading.
+    let deadline = async {
+        tokio::time::sleep(CONNECTION_DEADLINE).await;
+        if connection.streaming.load(Ordering::Relaxed) {
+            tokio::time::sleep(feed::STREAM_LIFE).await;
+        }
+    };
+    tokio::select! {
+        _ = conn => {}
+        () = deadline => {}
+        () = connection.closed.cancelled() => {}
     }
 }
 
-fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+/// `GET /api/v1/events`: the connection leaves the short requests' slots for a stream's.
+fn stream(req: &Request<Incoming>, endpoint: &Endpoint, pools: &Pools, on: &Connection) -> Answer {
+    let Some(live) = &endpoint.status else {
+        return plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()).map(Either::Left);
+    };
+    if !auth::allowed(req.headers(), endpoint.token.as_ref()) {
+        return page::refused(page::EVENTS).map(Either::Left);
+    }
+    if req.method() == Method::HEAD {
+        let empty = Bytes::new();
+        return reply::page(StatusCode::OK, feed::KIND, empty).map(Either::Left);
+    }
+    on.streaming.store(true, Ordering::Relaxed);
+    let lease = Lease::take(&pools.streams, on.closed.clone());
+    drop(lock_lease(&on.fresh).take());
+    let body = Feed::new(&live.json(), pools.frames.subscribe(), lease);
+    reply::dress(Response::new(Either::Right(body)), feed::KIND)
+}
+
+fn lock_lease(m: &Mutex<Option<Lease>>) -> std::sync::MutexGuard<'_, Option<Lease>> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// The connections being served, oldest first, each with the token that closes it.
-#[derive(Default)]
-struct Slots {
-    next: u64,
-    open: BTreeMap<u64, CancellationToken>,
-}
-
-impl Slots {
-    /// A new connection: its id and token; when every slot is taken, the oldest connection's
-    /// token is cancelled (it closes) and its slot is the new one's.
-    fn admit(&mut self) -> (u64, CancellationToken) {
-        while self.open.len() >= MAX_CONNECTIONS {
-            if let Some((_, oldest)) = self.open.pop_first() {
-                oldest.cancel();
-            }
-        }
-        let id = self.next;
-        self.next += 1;
-        let token = CancellationToken::new();
-        self.open.insert(id, token.clone());
-        (id, token)
-    }
-
-    /// A connection ended (answered, timed out or closed).
-    fn done(&mut self, id: u64) {
-        self.open.remove(&id);
-    }
-}
-
-async fn answer(req: Request<Incoming>, endpoint: &Endpoint) -> Response<Full<Bytes>> {
+async fn answer(
+    req: Request<Incoming>,
+    endpoint: &Endpoint,
+    pools: &Pools,
+    on: &Connection,
+) -> Answer {
     let path = req.uri().path().to_string();
     if req.method() == Method::POST && path == "/login" && endpoint.status.is_some() {
-        return auth::login(req, endpoint.token.as_ref()).await;
+        return auth::login(req, endpoint.token.as_ref())
+            .await
+            .map(Either::Left);
     }
     if req.method() != Method::GET && req.method() != Method::HEAD {
-        return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into());
+        return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into()).map(Either::Left);
     }
-    match path.as_str() {
+    if path == page::EVENTS {
+        return stream(&req, endpoint, pools, on);
+    }
+    whole(&path, &req, endpoint).await.map(Either::Left)
+}
+
+/// Every answer but the event stream.
+async fn whole(path: &str, req: &Request<Incoming>, endpoint: &Endpoint) -> Response<Full<Bytes>> {
+    match path {
         "/metrics" => {
             // Thousands of series take tens of milliseconds to encode: off the runtime thread,
             // so polling does not wait for a scrape.
@@ -177,32 +242,8 @@ async fn answer(req: Request<Incoming>, endpoint: &Endpoint) -> Response<Full<By
             Err(why) => plain(StatusCode::SERVICE_UNAVAILABLE, format!("{why}\n")),
         },
         _ => match &endpoint.status {
-            Some(live) => page::answer(&path, &req, live, endpoint.token.as_ref()),
+            Some(live) => page::answer(path, req, live, endpoint.token.as_ref()),
             None => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
         },
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_connection_beyond_the_slots_closes_the_oldest_and_only_it() {
-        let mut slots = Slots::default();
-        let first: Vec<(u64, CancellationToken)> =
-            (0..MAX_CONNECTIONS).map(|_| slots.admit()).collect();
-        assert!(first.iter().all(|(_, t)| !t.is_cancelled()));
-        let (_, newest) = slots.admit();
-        assert!(first[0].1.is_cancelled(), "the oldest is closed");
-        assert!(first[1..].iter().all(|(_, t)| !t.is_cancelled()));
-        assert!(!newest.is_cancelled());
-        slots.done(first[0].0);
-        slots.done(first[1].0);
-        let (_, another) = slots.admit();
-        assert!(
-            !first[2].1.is_cancelled() && !another.is_cancelled(),
-            "a slot freed by a finished connection is taken without closing anyone"
-        );
     }
 }

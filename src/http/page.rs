@@ -37,6 +37,8 @@ const LOGIN_CSS: &str = include_str!("page/login.css");
 
 /// The API's path.
 pub const API: &str = "/api/v1/status";
+/// The same snapshot, pushed once a second as server-sent events (what the page listens to).
+pub const EVENTS: &str = "/api/v1/events";
 
 /// A `GET` of anything but `/metrics` and `/healthz`.
 pub fn answer(
@@ -61,7 +63,7 @@ pub fn answer(
     if file.is_none() && path != API {
         return reply::plain(
             StatusCode::NOT_FOUND,
-            format!("/ (the status page), {API}, /metrics or /healthz\n"),
+            format!("/ (the status page), {API}, {EVENTS}, /metrics or /healthz\n"),
         );
     }
     if !auth::allowed(req.headers(), token) {
@@ -76,7 +78,7 @@ pub fn answer(
 }
 
 /// 401: the login form for the page itself, a bearer challenge for the rest.
-fn refused(path: &str) -> Response<Full<Bytes>> {
+pub fn refused(path: &str) -> Response<Full<Bytes>> {
     let mut r = if path == "/" || path == "/index.html" {
         auth::form(StatusCode::UNAUTHORIZED, "")
     } else {

@@ -24,8 +24,13 @@ pub fn plain(status: StatusCode, body: String) -> Response<Full<Bytes>> {
 /// An answer of the page's: its type, the content security policy, no sniffing, no caching
 /// (a gateway updated in place serves its new page at once), no referrer.
 pub fn page(status: StatusCode, kind: &'static str, body: Bytes) -> Response<Full<Bytes>> {
-    let mut r = Response::new(Full::new(body));
+    let mut r = dress(Response::new(Full::new(body)), kind);
     *r.status_mut() = status;
+    r
+}
+
+/// `r` with the headers of the page's answers (see [`page`]), whatever its body.
+pub fn dress<B>(mut r: Response<B>, kind: &'static str) -> Response<B> {
     let h = r.headers_mut();
     h.insert(CONTENT_TYPE, HeaderValue::from_static(kind));
     h.insert(CACHE_CONTROL, HeaderValue::from_static("no-store"));

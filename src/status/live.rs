@@ -1,7 +1,7 @@
 //! The board of a running gateway: the fan-out hands it every event, the HTTP endpoint asks it
-//! for the API's JSON. The answer is made at most every [`FRESH`] (the page asks once a second)
-//! and shared by every client asking within that time, so fifty open pages cost the gateway one
-//! snapshot a second, not fifty.
+//! for the API's JSON. The answer is made at most every [`FRESH`] and shared by every client
+//! asking within that time (and by every open page's event stream), so fifty scripts or pages
+//! cost the gateway one snapshot a second, not fifty.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
@@ -54,14 +54,20 @@ impl Live {
 
     /// `GET /api/v1/status`: the snapshot as JSON.
     pub fn json(&self) -> Bytes {
-        let mut made = lock(&self.made);
+        let made = lock(&self.made);
         if let Some((at, body)) = made.as_ref() {
             if at.elapsed() < FRESH {
                 return body.clone();
             }
         }
+        drop(made);
+        self.fresh_json()
+    }
+
+    /// The snapshot made now (the event stream's, once every [`FRESH`]), kept for the API.
+    pub fn fresh_json(&self) -> Bytes {
         let body = Bytes::from(serde_json::to_vec(&self.status()).unwrap_or_default());
-        *made = Some((Instant::now(), body.clone()));
+        *lock(&self.made) = Some((Instant::now(), body.clone()));
         body
     }
 

@@ -10,7 +10,7 @@ pub mod log;
 pub mod view;
 
 pub use board::{Board, Measured};
-pub use live::Live;
+pub use live::{FRESH, Live};
 
 #[cfg(test)]
 mod tests;

@@ -218,6 +218,45 @@ fn http(
     (status, head.to_string(), body.to_string())
 }
 
+/// An open `GET /api/v1/events`: the connection, and the head with what came after it.
+fn open_stream(port: u16, headers: &[(&str, &str)]) -> (TcpStream, String) {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+    let mut req = format!("GET /api/v1/events HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n");
+    for (k, v) in headers {
+        req += &format!("{k}: {v}\r\n");
+    }
+    s.write_all((req + "\r\n").as_bytes()).unwrap();
+    let mut got = Vec::new();
+    let mut buf = [0u8; 65536];
+    while !String::from_utf8_lossy(&got).contains("\r\n\r\n") {
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => got.extend_from_slice(&buf[..n]),
+        }
+    }
+    (s, String::from_utf8_lossy(&got).into_owned())
+}
+
+/// The next snapshot a stream sends (its `data:` line as JSON), or `None` when it ended.
+fn next_event(s: &mut TcpStream, pending: &mut Vec<u8>) -> Option<Value> {
+    let mut buf = [0u8; 65536];
+    loop {
+        let text = String::from_utf8_lossy(pending).into_owned();
+        if let Some(at) = text.find("data: ") {
+            if let Some(end) = text[at..].find("\n\n") {
+                let json = &text[at + 6..at + end];
+                pending.drain(..(at + end + 2).min(pending.len()));
+                return serde_json::from_str(json).ok();
+            }
+        }
+        match s.read(&mut buf) {
+            Ok(0) | Err(_) => return None,
+            Ok(n) => pending.extend_from_slice(&buf[..n]),
+        }
+    }
+}
+
 fn api(port: u16, headers: &[(&str, &str)]) -> Value {
     let (status, _, body) = http(port, "GET", "/api/v1/status", headers, "");
     assert_eq!(status, 200, "{body}");
@@ -352,8 +391,8 @@ async fn the_page_in_a_real_browser_shows_the_plant_live_and_runs_nothing_from_t
         .filter_map(|e| e["params"]["request"]["url"].as_str())
         .collect();
     assert!(
-        urls.iter().any(|u| u.ends_with("/api/v1/status")),
-        "{urls:?}"
+        urls.iter().any(|u| u.ends_with("/api/v1/events")),
+        "the page listens to the event stream: {urls:?}"
     );
     let elsewhere: Vec<&&str> = urls.iter().filter(|u| !u.starts_with(&page)).collect();
     assert!(
@@ -433,6 +472,16 @@ async fn a_token_guards_the_page_and_the_api_and_never_metrics_or_healthz() {
     tokio::task::spawn_blocking(move || {
         wait_listening(port);
         let bearer = format!("Bearer {token}");
+        let (_, head) = open_stream(port, &[]);
+        assert!(
+            head.starts_with("HTTP/1.1 401"),
+            "the stream without the token: {head}"
+        );
+        let (_, head) = open_stream(port, &[("Authorization", &bearer)]);
+        assert!(
+            head.starts_with("HTTP/1.1 200"),
+            "the stream with the token: {head}"
+        );
         for path in ["/", "/status.css", "/status.js", "/api/v1/status"] {
             let (status, head, _) = http(port, "GET", path, &[], "");
             assert_eq!(status, 401, "{path} without the token: {head}");
@@ -501,6 +550,79 @@ async fn a_token_guards_the_page_and_the_api_and_never_metrics_or_healthz() {
             "",
         );
         assert_eq!(status, 200);
+    })
+    .await
+    .unwrap();
+    drop(gw);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn open_pages_get_the_snapshot_every_second_and_never_keep_a_probe_out() {
+    let broker = Broker::start();
+    let plant = plant(PLANT).await;
+    let dir = temp_dir("status-stream");
+    let port = free_port();
+    let gw = start_gateway(&plant, broker.port, &dir, &DEVICES, &page_toml(port, ""));
+    tokio::task::spawn_blocking(move || {
+        wait_listening(port);
+        // A stream: the snapshot at once, then a newer one about every second.
+        let (mut s, head) = open_stream(port, &[]);
+        let lower = head.to_ascii_lowercase();
+        assert!(
+            lower.starts_with("http/1.1 200") && lower.contains("content-type: text/event-stream"),
+            "{head}"
+        );
+        assert!(
+            lower.contains("content-security-policy: default-src 'self'"),
+            "{head}"
+        );
+        let mut pending = head
+            .split_once("\r\n\r\n")
+            .map(|(_, rest)| rest.as_bytes().to_vec())
+            .unwrap_or_default();
+        let first = next_event(&mut s, &mut pending).expect("the snapshot at hand");
+        assert_eq!(first["api"], 1);
+        let mut later = first.clone();
+        let started = Instant::now();
+        while later["now_ms"] == first["now_ms"] {
+            later = next_event(&mut s, &mut pending).expect("a newer snapshot");
+        }
+        assert!(
+            started.elapsed() < Duration::from_millis(2500),
+            "the next snapshot came after {:?}",
+            started.elapsed()
+        );
+        let api = api(port, &[]);
+        assert_eq!(api["gateway"]["id"], later["gateway"]["id"]);
+
+        // 70 open pages (64 streams at most): /healthz still answers at once, the six oldest
+        // streams are closed (their browsers connect again), the newest are served.
+        let mut pages: Vec<(TcpStream, String)> = (0..70).map(|_| open_stream(port, &[])).collect();
+        assert!(pages.iter().all(|(_, h)| h.starts_with("HTTP/1.1 200")));
+        let (status, _, body) = http(port, "GET", "/healthz", &[], "");
+        assert_eq!(status, 200, "/healthz with 70 pages open: {body}");
+        fn three_events((s, h): &mut (TcpStream, String)) -> bool {
+            let mut rest = h
+                .split_once("\r\n\r\n")
+                .map(|(_, r)| r.as_bytes().to_vec())
+                .unwrap_or_default();
+            let mut n = 0;
+            while next_event(s, &mut rest).is_some() {
+                n += 1;
+                if n == 3 {
+                    return true;
+                }
+            }
+            false
+        }
+        let (oldest, newest) = pages.split_at_mut(7);
+        let closed = oldest.iter_mut().map(three_events).filter(|seen| !seen).count();
+        assert!(closed >= 6, "{closed} of the 7 oldest streams were closed");
+        assert!(
+            newest.iter_mut().take(5).all(three_events),
+            "the newest streams keep getting snapshots"
+        );
+        drop(s);
     })
     .await
     .unwrap();

@@ -1,6 +1,6 @@
-// pulsegate status page. Asks /api/v1/status once a second and redraws. Every name, unit and
-// message from the gateway goes into the page as text (textContent), never as markup: they come
-// from config and profile files. No other host is contacted.
+// pulsegate status page. Listens to /api/v1/events (the snapshot once a second) and redraws.
+// Every name, unit and message from the gateway goes into the page as text (textContent), never
+// as markup: they come from config and profile files. No other host is contacted.
 'use strict';
 (function () {
   const POLL_MS = 1000;
@@ -297,6 +297,18 @@
     b.className = 'badge ' + (ok ? 'ok' : 'bad');
   }
 
+  // The gateway pushes the snapshot once a second (server-sent events): one open stream, no
+  // request a second. Where the stream cannot be had (refused, or the browser has none), the
+  // page asks /api/v1/status once a second instead.
+  const QUIET_MS = 5000; // no snapshot for this long: the gateway is not answering
+  let heard = 0;
+
+  function show(s) {
+    heard = Date.now();
+    render(s);
+    link(true, 'live');
+  }
+
   async function poll() {
     try {
       const r = await fetch('api/v1/status', { cache: 'no-store', credentials: 'same-origin' });
@@ -305,13 +317,26 @@
         return;
       }
       if (!r.ok) throw new Error('HTTP ' + r.status);
-      render(await r.json());
-      link(true, 'live');
+      show(await r.json());
     } catch (e) {
       link(false, 'gateway not answering');
     }
     setTimeout(poll, POLL_MS);
   }
 
-  poll();
+  function listen() {
+    const events = new EventSource('api/v1/events');
+    events.onmessage = (e) => show(JSON.parse(e.data));
+    events.onerror = () => {
+      link(false, 'gateway not answering');
+      // CLOSED: refused (a 401 or another answer than a stream); the poll finds out which.
+      if (events.readyState === EventSource.CLOSED) poll();
+    };
+    setInterval(() => {
+      if (Date.now() - heard > QUIET_MS) link(false, 'gateway not answering');
+    }, POLL_MS);
+  }
+
+  if (typeof EventSource === 'function') listen();
+  else poll();
 })();
