@@ -616,7 +616,11 @@ async fn open_pages_get_the_snapshot_every_second_and_never_keep_a_probe_out() {
             false
         }
         let (oldest, newest) = pages.split_at_mut(7);
-        let closed = oldest.iter_mut().map(three_events).filter(|seen| !seen).count();
+        let closed = oldest
+            .iter_mut()
+            .map(three_events)
+            .filter(|seen| !seen)
+            .count();
         assert!(closed >= 6, "{closed} of the 7 oldest streams were closed");
         assert!(
             newest.iter_mut().take(5).all(three_events),
