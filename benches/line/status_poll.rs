@@ -124,6 +124,10 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// A kind of window: its name, the switch of its clients (none for no client), the CPU a
+/// transaction of each of its windows, and the answers its clients got in all of them.
+type Way = (&'static str, Option<Arc<AtomicBool>>, Vec<f64>, u64);
+
 pub async fn run(figures: &mut Vec<Figure>) {
     let rounds: usize = std::env::var("BENCH_ROUNDS")
         .ok()
@@ -168,8 +172,7 @@ pub async fn run(figures: &mut Vec<Figure>) {
     pages(port, page_on.clone(), stop.clone(), answered.clone());
     scripts(port, script_on.clone(), stop.clone(), answered.clone());
     tokio::time::sleep(Duration::from_secs(5)).await;
-    // (name, switch, CPU a transaction of each window, answers of every window)
-    let mut ways: [(&str, Option<Arc<AtomicBool>>, Vec<f64>, u64); 3] = [
+    let mut ways: [Way; 3] = [
         ("none", None, Vec::new(), 0),
         ("pages", Some(page_on), Vec::new(), 0),
         ("scripts", Some(script_on), Vec::new(), 0),
