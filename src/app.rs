@@ -261,7 +261,7 @@ async fn start_http(
     }
     match crate::http::bind(listen).await {
         Ok(l) => {
-            tracing::info!(%listen, "HTTP endpoint: the status page at http://{listen}/, /api/v1/status, /metrics, /healthz");
+            tracing::info!(%listen, "HTTP endpoint: the status page at http://{listen}/, /api/v1/status, /api/v1/events, /metrics, /healthz");
             let endpoint = crate::http::Endpoint {
                 metrics: metrics.clone(),
                 health: health.clone(),
