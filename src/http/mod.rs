@@ -192,13 +192,9 @@ fn stream(req: &Request<Incoming>, endpoint: &Endpoint, pools: &Pools, on: &Conn
     }
     on.streaming.store(true, Ordering::Relaxed);
     let lease = Lease::take(&pools.streams, on.closed.clone());
-    drop(lock_lease(&on.fresh).take());
+    drop(lock(&on.fresh).take());
     let body = Feed::new(&live.json(), pools.frames.subscribe(), lease);
     reply::dress(Response::new(Either::Right(body)), feed::KIND)
-}
-
-fn lock_lease(m: &Mutex<Option<Lease>>) -> std::sync::MutexGuard<'_, Option<Lease>> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 async fn answer(

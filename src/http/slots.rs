@@ -11,10 +11,10 @@ use tokio_util::sync::CancellationToken;
 /// A pool shared by the connections' tasks.
 pub type Pool = Arc<Mutex<Slots>>;
 
-/// The pool, whatever a task that panicked while holding it left behind (slots are only ever
-/// whole entries).
-pub fn lock(pool: &Mutex<Slots>) -> MutexGuard<'_, Slots> {
-    pool.lock().unwrap_or_else(|e| e.into_inner())
+/// What `m` guards, whatever a task that panicked while holding it left behind (a pool's
+/// entries and a lease are only ever whole).
+pub fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// A connection's slot in a pool, given back when dropped (with the answer or the connection
