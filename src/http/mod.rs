@@ -179,11 +179,14 @@ async fn serve_connection(
 }
 
 /// `GET /api/v1/events`: the connection leaves the short requests' slots for a stream's.
-fn stream(req: &Request<Incoming>, endpoint: &Endpoint, pools: &Pools, on: &Connection) -> Answer {
-    let Some(live) = &endpoint.status else {
-        return plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()).map(Either::Left);
-    };
-    if !auth::allowed(req.headers(), endpoint.token.as_ref()) {
+fn stream(
+    req: &Request<Incoming>,
+    live: &Live,
+    token: Option<&Secret>,
+    pools: &Pools,
+    on: &Connection,
+) -> Answer {
+    if !auth::allowed(req.headers(), token) {
         return page::refused(page::EVENTS).map(Either::Left);
     }
     if req.method() == Method::HEAD {
@@ -212,8 +215,8 @@ async fn answer(
     if req.method() != Method::GET && req.method() != Method::HEAD {
         return plain(StatusCode::METHOD_NOT_ALLOWED, "only GET\n".into()).map(Either::Left);
     }
-    if path == page::EVENTS {
-        return stream(&req, endpoint, pools, on);
+    if let (page::EVENTS, Some(live)) = (path.as_str(), &endpoint.status) {
+        return stream(&req, live, endpoint.token.as_ref(), pools, on);
     }
     whole(&path, &req, endpoint).await.map(Either::Left)
 }
