@@ -84,10 +84,11 @@ pub async fn run_with_reloads(
 ) -> Ended {
     let _state_lock = claim_state_dir(&config.gateway.state_dir).await;
     let (mut gateway, mut inbox) = Gateway::start(config, shutdown).await;
-    let mut watch = gateway.resume_watch();
+    let mut watch = None;
+    let mut next = gateway.resume_watch(&mut watch).await;
     let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
     let mut ended = Ended::Stopped;
-    loop {
+    while next == pushed::Next::Run {
         tokio::select! {
             () = gateway.shutdown.cancelled() => break,
             Some(crate::publish::format::Control::Reboot) = inbox.controls.recv() => {
@@ -102,14 +103,21 @@ pub async fn run_with_reloads(
                 };
                 gateway.take(new).await;
             }
-            Some(push) = inbox.pushes.recv() => {
-                if gateway.push(push, &mut watch).await {
-                    ended = Ended::Restart;
-                    gateway.shutdown.cancel();
-                }
-            }
-            _ = tick.tick(), if watch.is_some() => gateway.watch(&mut watch).await,
+            Some(push) = inbox.pushes.recv() => next = gateway.push(push, &mut watch).await,
+            _ = tick.tick(), if watch.is_some() => next = gateway.watch(&mut watch).await,
         }
+    }
+    if next == pushed::Next::Restart {
+        ended = Ended::Restart;
+        // Pushes already queued would be lost with this process: each is answered now, and
+        // those arriving until it stops are answered by the router.
+        inbox.pushes.close();
+        let mut queued = Vec::new();
+        while let Ok(msg) = inbox.pushes.try_recv() {
+            queued.push(msg);
+        }
+        gateway.refuse_queued(queued);
+        gateway.shutdown.cancel();
     }
     gateway.stop().await;
     ended

@@ -136,25 +136,31 @@ impl Router {
         self
     }
 
-    /// `<root>/config/set`: to the remote config task, which answers it; while it works on
-    /// one, another is answered `busy`.
+    /// `<root>/config/set`: to the remote config task, which answers it (a retained one too:
+    /// it is refused there, with its id); while it works on one, another is answered `busy`,
+    /// and so is one that arrives while the process stops to start again.
     fn config_push(&self, msg: Incoming) {
         let Some(remote) = &self.remote else {
             return self.warn(&msg.topic, "a pushed config, but [remote] config is off");
         };
         if let Err(e) = remote.try_send(msg) {
-            let msg = e.into_inner();
+            let (msg, message) = match e {
+                tokio::sync::mpsc::error::TrySendError::Full(m) => (
+                    m,
+                    "a pushed config is being applied or watched: push again after its result",
+                ),
+                tokio::sync::mpsc::error::TrySendError::Closed(m) => (
+                    m,
+                    "the gateway is starting again for an earlier push: push again after its result",
+                ),
+            };
             let id = crate::remote::parse(&msg.payload).ok().and_then(|p| p.id);
-            self.warn(
-                &msg.topic,
-                "a pushed config refused: another one is being applied",
-            );
+            self.warn(&msg.topic, "a pushed config refused: busy");
             let outcome = crate::outcome::ConfigOutcome {
                 id,
                 status: "refused",
                 error: Some("busy"),
-                message: "a pushed config is being applied or watched: push again after its result"
-                    .into(),
+                message: message.into(),
                 hash: None,
             };
             let reply = Reply {
@@ -257,15 +263,15 @@ impl Router {
     }
 
     fn handle(&self, msg: Incoming) {
+        if msg.topic == self.topics.config_set() {
+            return self.config_push(msg);
+        }
         if msg.retain {
             self.warn(&msg.topic, "ignoring a retained command message");
             return;
         }
         if let Some(bus) = self.topics.parse_scan(&msg.topic) {
             return self.scan(bus, &msg);
-        }
-        if msg.topic == self.topics.config_set() {
-            return self.config_push(msg);
         }
         let Some((device, channel)) = self.topics.parse_command(&msg.topic) else {
             return;

@@ -208,17 +208,23 @@ impl Client {
 
     /// Subscribes to command topics: on v5 without the retained messages (retain handling 2);
     /// 3.1.1 cannot say so, and the router drops what arrives flagged retained.
-    pub fn subscribe_commands(&self, filters: &[String]) -> Result<(), RequestError> {
+    ///
+    /// With MQTT 5, no retained message is sent at subscribe, and each filter says whether a
+    /// message that arrives live keeps the retain flag it was published with (Retain As
+    /// Published: a pushed config published retained is then told apart and refused). MQTT
+    /// 3.1.1 has neither: retained messages arrive at subscribe, flagged, and live ones never are.
+    pub fn subscribe_commands(&self, filters: &[(String, bool)]) -> Result<(), RequestError> {
         match self {
-            Client::V5(c) => req(c.try_subscribe_many(filters.iter().map(|f| {
+            Client::V5(c) => req(c.try_subscribe_many(filters.iter().map(|(f, as_published)| {
                 let mut f = Filter::new(f.clone(), v5_qos(1));
                 f.retain_forward_rule = RetainForwardRule::Never;
+                f.preserve_retain = *as_published;
                 f
             }))),
             Client::V311(c) => req(c.try_subscribe_many(
                 filters
                     .iter()
-                    .map(|f| rumqttc::SubscribeFilter::new(f.clone(), v311_qos(1))),
+                    .map(|(f, _)| rumqttc::SubscribeFilter::new(f.clone(), v311_qos(1))),
             )),
         }
     }

@@ -114,12 +114,12 @@ impl Shell {
             self.publish_direct(m);
         }
         if link.commands || link.remote {
-            let mut filters: Vec<String> = Vec::new();
+            let mut filters: Vec<(String, bool)> = Vec::new();
             if link.commands {
-                filters.extend(self.topics.command_filters());
+                filters.extend(self.topics.command_filters().into_iter().map(|f| (f, false)));
             }
             if link.remote {
-                filters.push(self.topics.config_set());
+                filters.push((self.topics.config_set(), true));
             }
             if let Err(e) = self.client.subscribe_commands(&filters) {
                 tracing::error!("cannot subscribe to command topics: {e}");
