@@ -44,6 +44,14 @@ pub enum Ended {
     Restart,
 }
 
+/// What the gateway does after a step of a pushed config ([`pushed`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Next {
+    Run,
+    /// The process starts again (the push's watch or result kept for the new start).
+    Restart,
+}
+
 /// The exit status of a reboot: not 0 (systemd's `Restart=on-failure` restarts on it) and not
 /// 2, which `RestartPreventExitStatus=` keeps for a bad config. `EX_TEMPFAIL`.
 pub const REBOOT_STATUS: u8 = 75;
@@ -88,7 +96,7 @@ pub async fn run_with_reloads(
     let mut next = gateway.resume_watch(&mut watch).await;
     let mut tick = tokio::time::interval(std::time::Duration::from_secs(1));
     let mut ended = Ended::Stopped;
-    while next == pushed::Next::Run {
+    while next == Next::Run {
         tokio::select! {
             () = gateway.shutdown.cancelled() => break,
             Some(crate::publish::format::Control::Reboot) = inbox.controls.recv() => {
@@ -107,7 +115,7 @@ pub async fn run_with_reloads(
             _ = tick.tick(), if watch.is_some() => next = gateway.watch(&mut watch).await,
         }
     }
-    if next == pushed::Next::Restart {
+    if next == Next::Restart {
         ended = Ended::Restart;
         // Pushes already queued would be lost with this process: each is answered now, and
         // those arriving until it stops are answered by the router.

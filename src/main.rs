@@ -88,8 +88,41 @@ enum Command {
         #[arg(long)]
         duration: Option<humantime::Duration>,
     },
+    /// Keys and signed pushes for `[remote] trusted_keys` (docs/operations.md).
+    Config {
+        #[command(subcommand)]
+        action: ConfigAction,
+    },
     #[command(flatten)]
     Commission(Box<pulsegate::commission::Commission>),
+}
+
+#[derive(Subcommand)]
+enum ConfigAction {
+    /// A new Ed25519 signing key (PKCS#8 PEM, as `openssl genpkey -algorithm ed25519` writes);
+    /// prints its public key for `[remote] trusted_keys`.
+    Keygen {
+        /// Write the key here (mode 0600, never over an existing file); without it the key goes
+        /// to standard output and the public key to standard error.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Prints the JSON to publish on `<root>/config/set`: FILE signed for one gateway.
+    Sign {
+        /// The signing key (PKCS#8 PEM).
+        #[arg(long)]
+        key: PathBuf,
+        /// The gateway's id (`gateway.id`): the push is taken by that gateway only.
+        #[arg(long)]
+        gateway: String,
+        /// The push's id, echoed in its results.
+        #[arg(long)]
+        id: String,
+        /// Greater than the last serial the gateway took.
+        #[arg(long)]
+        serial: u64,
+        file: PathBuf,
+    },
 }
 
 /// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
@@ -250,6 +283,9 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
                     config.gateway.id
                 );
             }
+            if let Some(why) = pulsegate::remote::writable::problem(&config) {
+                println!("warning: {why}");
+            }
             println!("config {} is valid", config.source.display());
             Ok(ExitCode::SUCCESS)
         }
@@ -302,6 +338,7 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             plant.stop();
             Ok(ExitCode::SUCCESS)
         }
+        Command::Config { action } => config_command(action),
         Command::Demo { mqtt, duration } => {
             if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
                 anyhow::bail!("--duration: at most 7 days");
@@ -333,6 +370,51 @@ async fn set_reading(
     } else {
         ExitCode::FAILURE
     })
+}
+
+/// `pulsegate config keygen|sign`.
+fn config_command(action: ConfigAction) -> anyhow::Result<ExitCode> {
+    use pulsegate::remote::signature::{SigningKey, signed_push};
+    match action {
+        ConfigAction::Keygen { out } => {
+            let pem = SigningKey::generate_pem()?;
+            let public = SigningKey::from_pem(&pem)?.public();
+            match out {
+                Some(path) => {
+                    use std::io::Write as _;
+                    use std::os::unix::fs::OpenOptionsExt as _;
+                    let mut f = std::fs::OpenOptions::new()
+                        .write(true)
+                        .create_new(true)
+                        .mode(0o600)
+                        .open(&path)
+                        .with_context(|| format!("writing {}", path.display()))?;
+                    f.write_all(pem.as_bytes())?;
+                    println!("{public}");
+                }
+                None => {
+                    print!("{pem}");
+                    say_err(format_args!("public key: {public}\n"));
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        ConfigAction::Sign {
+            key,
+            gateway,
+            id,
+            serial,
+            file,
+        } => {
+            let pem = std::fs::read_to_string(&key)
+                .with_context(|| format!("reading {}", key.display()))?;
+            let key = SigningKey::from_pem(&pem).with_context(|| key.display().to_string())?;
+            let toml = std::fs::read_to_string(&file)
+                .with_context(|| format!("reading {}", file.display()))?;
+            println!("{}", signed_push(&key, &gateway, &id, serial, &toml));
+            Ok(ExitCode::SUCCESS)
+        }
+    }
 }
 
 /// `pulsegate state list|prune`.

@@ -89,7 +89,14 @@ fn the_service_unit_keeps_what_the_daemon_needs() {
     assert_eq!(unit_value("Type"), "notify");
     assert_eq!(unit_value("NotifyAccess"), "main");
     assert_eq!(unit_value("User"), "pulsegate");
-    assert_eq!(unit_value("StateDirectory"), "pulsegate");
+    // The state, and beside it the directory a config managed from the broker lives in (the
+    // service owns it; /etc stays read-only under ProtectSystem=strict).
+    assert_eq!(unit_value("StateDirectory"), "pulsegate pulsegate/remote");
+    assert!(
+        read("deploy/remote-config.conf")
+            .contains("--config /var/lib/pulsegate/remote/pulsegate.toml"),
+        "the drop-in points the service at the writable directory"
+    );
     assert_eq!(unit_value("ConfigurationDirectory"), "pulsegate");
     assert_eq!(unit_value("ExecReload"), "/bin/kill -HUP $MAINPID");
     let groups = unit_value("SupplementaryGroups");

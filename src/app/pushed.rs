@@ -10,10 +10,9 @@
 //! when the push had). Each step is said on `<root>/config/result`, and every push gets one
 //! final result (`kept`, `rolled_back` or `refused`), across restarts and crashes.
 
-
 use tokio::time::Instant;
 
-use super::Gateway;
+use super::{Gateway, Next};
 use crate::config::Config;
 use crate::dispatch::Incoming;
 use crate::outcome::{ConfigOutcome, Outcome};
@@ -27,14 +26,6 @@ mod files;
 pub(super) struct Pending {
     watch: Watch,
     record: Record,
-}
-
-/// What the gateway does after a step of a push.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Next {
-    Run,
-    /// The process starts again (its watch or result kept for the new start).
-    Restart,
 }
 
 impl Gateway {
@@ -51,11 +42,17 @@ impl Gateway {
                 let grace = self.current.remote.grace;
                 tracing::info!(id = ?record.id, "a pushed config is in force after a start: watched for {} s", grace.as_secs());
                 if announce {
-                    let message = format!("in force after the restart; watched for {} s", grace.as_secs());
+                    let message = format!(
+                        "in force after the restart; watched for {} s",
+                        grace.as_secs()
+                    );
                     self.answer(&record.id, "applied", None, message);
                 }
                 let watch = Watch::resumed(&record, Instant::now(), grace);
-                let record = Record { announce: false, ..record };
+                let record = Record {
+                    announce: false,
+                    ..record
+                };
                 self.keep_record(&record);
                 *pending = Some(Pending { watch, record });
                 Next::Run
@@ -81,6 +78,10 @@ impl Gateway {
 
     /// A pushed config: refused, or written, applied and watched.
     pub(super) async fn push(&mut self, msg: Incoming, pending: &mut Option<Pending>) -> Next {
+        if msg.retain && msg.payload.is_empty() {
+            tracing::info!("the retained message on the config topic was cleared");
+            return Next::Run;
+        }
         let connection = msg.via.as_ref().map_or_else(
             || crate::config::outputs::VOICE_NAME.to_string(),
             |v| v.output.to_string(),
@@ -106,7 +107,9 @@ impl Gateway {
         }
         tracing::info!(id = ?watch.id, "a pushed config is in force: watched for {} s", grace.as_secs());
         if restart {
-            let message = "written; the gateway starts again to apply it, and says when it is in force".into();
+            let message =
+                "written; the gateway starts again to apply it, and says when it is in force"
+                    .into();
             self.answer(&watch.id, "applied", None, message);
             return Next::Restart;
         }
@@ -212,7 +215,9 @@ impl Gateway {
             }
         };
         if crate::remote::reach(&self.current, &previous) == Reach::Restart {
-            tracing::warn!("the previous config differs in what only a start applies: starting again");
+            tracing::warn!(
+                "the previous config differs in what only a start applies: starting again"
+            );
             return Next::Restart;
         }
         self.take(previous).await;
@@ -242,7 +247,9 @@ impl Gateway {
 
     fn keep_record(&self, record: &Record) {
         if let Err(e) = files::save_record(&self.current, record) {
-            tracing::error!("cannot keep the pushed config's watch ({e}): a crash now would leave it unwatched");
+            tracing::error!(
+                "cannot keep the pushed config's watch ({e}): a crash now would leave it unwatched"
+            );
         }
     }
 

@@ -48,7 +48,9 @@ pub(super) fn remove_record(config: &Config) {
             let _ = crate::state::sync_dir(&config.gateway.state_dir);
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-        Err(e) => tracing::error!(file = %path.display(), "cannot remove a finished push's watch: {e}"),
+        Err(e) => {
+            tracing::error!(file = %path.display(), "cannot remove a finished push's watch: {e}")
+        }
     }
 }
 
@@ -97,7 +99,11 @@ pub(super) fn take_serial(config: &Config, serial: u64) -> std::io::Result<()> {
 
 /// `bytes` over `path` atomically; with `like`, the new file takes its mode and owner before
 /// it is renamed into place (so it is never readable by more than the old one was).
-fn write_atomic(path: &Path, bytes: &[u8], like: Option<&std::fs::Metadata>) -> std::io::Result<()> {
+fn write_atomic(
+    path: &Path,
+    bytes: &[u8],
+    like: Option<&std::fs::Metadata>,
+) -> std::io::Result<()> {
     let tmp = PathBuf::from(format!("{}.remote-tmp", path.display()));
     let _ = std::fs::remove_file(&tmp);
     let dir = path.parent().unwrap_or(Path::new("."));

@@ -115,4 +115,3 @@ impl std::fmt::Display for TrustedKey {
         f.write_str(&STANDARD.encode(self.0))
     }
 }
-

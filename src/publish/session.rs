@@ -35,7 +35,7 @@ pub const REQUESTS: usize = INFLIGHT as usize + 4096;
 /// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
 /// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
 /// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
-pub const MAX_PACKET: u32 = 64 * 1024;
+pub const MAX_PACKET: u32 = 256 * 1024;
 
 /// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
 pub const V311_MAX_OUT: u32 = 256 * 1024;
@@ -215,12 +215,14 @@ impl Client {
     /// 3.1.1 has neither: retained messages arrive at subscribe, flagged, and live ones never are.
     pub fn subscribe_commands(&self, filters: &[(String, bool)]) -> Result<(), RequestError> {
         match self {
-            Client::V5(c) => req(c.try_subscribe_many(filters.iter().map(|(f, as_published)| {
-                let mut f = Filter::new(f.clone(), v5_qos(1));
-                f.retain_forward_rule = RetainForwardRule::Never;
-                f.preserve_retain = *as_published;
-                f
-            }))),
+            Client::V5(c) => req(
+                c.try_subscribe_many(filters.iter().map(|(f, as_published)| {
+                    let mut f = Filter::new(f.clone(), v5_qos(1));
+                    f.retain_forward_rule = RetainForwardRule::Never;
+                    f.preserve_retain = *as_published;
+                    f
+                })),
+            ),
             Client::V311(c) => req(c.try_subscribe_many(
                 filters
                     .iter()

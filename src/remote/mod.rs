@@ -9,6 +9,7 @@ use crate::config::Config;
 pub mod guard;
 pub mod signature;
 pub mod watch;
+pub mod writable;
 
 /// The largest push taken (a config of a few hundred devices). Larger ones, up to the MQTT
 /// packet size the gateway takes, are answered `too_large` with their id.
@@ -57,7 +58,9 @@ pub enum Refusal {
     NoTrustedKeys,
     #[error("{0}")]
     BadSignature(signature::SignatureError),
-    #[error("serial {serial} is not greater than {last}, the last one taken: a replay, or sign it with a new serial")]
+    #[error(
+        "serial {serial} is not greater than {last}, the last one taken: a replay, or sign it with a new serial"
+    )]
     Replayed { serial: u64, last: u64 },
     #[error("the config is refused:\n{0}")]
     BadConfig(String),

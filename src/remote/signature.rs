@@ -45,9 +45,11 @@ pub fn verify(keys: &[TrustedKey], bytes: &[u8], signature: &str) -> Result<(), 
         .ok()
         .filter(|s| s.len() == 64)
         .ok_or(SignatureError::Malformed)?;
-    let good = keys
-        .iter()
-        .any(|k| UnparsedPublicKey::new(&ED25519, k.0).verify(bytes, &sig).is_ok());
+    let good = keys.iter().any(|k| {
+        UnparsedPublicKey::new(&ED25519, k.0)
+            .verify(bytes, &sig)
+            .is_ok()
+    });
     if good {
         Ok(())
     } else {
@@ -212,7 +214,10 @@ mod tests {
         let k: TrustedKey = STANDARD.encode([7u8; 32]).parse().unwrap();
         assert_eq!(k.0, [7u8; 32]);
         assert!("not base64!".parse::<TrustedKey>().is_err());
-        let short = STANDARD.encode([7u8; 31]).parse::<TrustedKey>().unwrap_err();
+        let short = STANDARD
+            .encode([7u8; 31])
+            .parse::<TrustedKey>()
+            .unwrap_err();
         assert!(short.contains("31 bytes"), "{short}");
     }
 

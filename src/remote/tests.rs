@@ -37,7 +37,8 @@ fn an_unsigned_push_may_change_operation_and_nothing_that_moves_trust() {
     let old = config("");
     let more = config("[buses.l.devices.e]\nunit = 2\nmodel = \"yl67\"\n");
     assert!(forbidden_changes(&old, &more, Signed::No).is_empty());
-    let cases: [(&str, fn(&mut Config)); 9] = [
+    type Change = fn(&mut Config);
+    let cases: [(&str, Change); 9] = [
         ("mqtt: host, port", |c| c.mqtt.port = 1884),
         ("mqtt: host, port", |c| c.mqtt.host = "10.0.0.2".into()),
         ("mqtt: credentials", |c| {

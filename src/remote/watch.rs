@@ -75,7 +75,6 @@ impl Watch {
     }
 }
 
-
 /// What the state directory keeps of a push until its final result (`remote-watch.json`).
 #[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Record {

@@ -26,6 +26,7 @@ mod outputs;
 mod pipeline;
 mod plants;
 mod protocol;
+mod pushes;
 mod readings_first;
 mod service;
 mod sparkplug;

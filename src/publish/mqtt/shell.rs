@@ -116,7 +116,12 @@ impl Shell {
         if link.commands || link.remote {
             let mut filters: Vec<(String, bool)> = Vec::new();
             if link.commands {
-                filters.extend(self.topics.command_filters().into_iter().map(|f| (f, false)));
+                filters.extend(
+                    self.topics
+                        .command_filters()
+                        .into_iter()
+                        .map(|f| (f, false)),
+                );
             }
             if link.remote {
                 filters.push((self.topics.config_set(), true));
