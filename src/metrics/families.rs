@@ -51,6 +51,7 @@ pub(super) struct Families {
     pub spool_unreadable_lines: IntCounterVec,
     pub chatter_messages: IntGaugeVec,
     pub chatter_dropped: IntCounterVec,
+    pub messages_dropped: IntCounterVec,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -208,6 +209,10 @@ const CHATTER_DROPPED: Family = (
     "pulsegate_mqtt_chatter_dropped_total",
     "Oldest chatter messages dropped to keep their bound (readings are never dropped for them).",
 );
+const MESSAGES_DROPPED: Family = (
+    "pulsegate_mqtt_messages_dropped_total",
+    "Incoming MQTT messages dropped unread, by reason (too_large: larger than the largest packet the gateway takes); the connection stays up.",
+);
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
     "Commands answered (a retained command message is ignored, not counted).",
@@ -307,6 +312,7 @@ impl Families {
             spool_unreadable_lines: family!(r, IntCounterVec, SPOOL_UNREADABLE_LINES, OUTPUT),
             chatter_messages: family!(r, IntGaugeVec, CHATTER_MESSAGES, OUTPUT),
             chatter_dropped: family!(r, IntCounterVec, CHATTER_DROPPED, OUTPUT),
+            messages_dropped: family!(r, IntCounterVec, MESSAGES_DROPPED, &["output", "reason"]),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

@@ -528,6 +528,16 @@ impl OutputMetrics {
         }
     }
 
+    /// An incoming message was dropped unread, for `reason` (`too_large`: over the largest
+    /// packet the gateway takes).
+    pub fn message_dropped(&self, reason: &'static str) {
+        if let Some((f, name)) = &self.inner {
+            f.messages_dropped
+                .with_label_values(&[name.as_str(), reason])
+                .inc();
+        }
+    }
+
     /// When the TLS certificate in `file` expires (seconds since the epoch).
     pub fn tls_expiry(&self, file: &str, not_after: i64) {
         if let Some((f, name)) = &self.inner {

@@ -21,4 +21,6 @@ pub mod spool_place;
 pub mod voice;
 
 #[cfg(test)]
+mod oversized_tests;
+#[cfg(test)]
 mod socket_tests;

@@ -8,6 +8,8 @@
 //!   for);
 //! - no maximum packet size in CONNACK: messages larger than [`V311_MAX_OUT`] are refused as
 //!   unsendable (rumqttc's own outgoing limit), never retried forever;
+//! - no maximum packet size in CONNECT either: the broker sends messages of any size, and the
+//!   ones over [`MAX_PACKET`] are skipped by rumqttc as they stream in ([`Event::TooLarge`]);
 //! - no "session taken over" reason: the broker just closes the connection.
 
 use bytes::Bytes;
@@ -32,10 +34,14 @@ pub const INFLIGHT: u16 = (WINDOW + crate::outbox::CHATTER_WINDOW) as u16 + 64;
 /// connection (a Sparkplug node's DBIRTH of every device) on top. Allocated as it fills.
 pub const REQUESTS: usize = INFLIGHT as usize + 4096;
 
-/// The largest MQTT packet the gateway takes, announced to the broker in CONNECT (so it never
-/// sends a larger one) and given to rumqttc as its incoming limit (its default, 10 KiB, would
-/// disconnect at the first larger command). Commands are refused above 1 KiB anyway.
-pub const MAX_PACKET: u32 = 256 * 1024;
+/// The largest MQTT packet the gateway takes: a message of 256 KiB, and 4 KiB for its topic,
+/// properties and header. Announced to an MQTT 5 broker in CONNECT (so it never sends a larger
+/// one) and given to rumqttc as its incoming limit on both protocols. A pushed config of up to
+/// 256 KiB arrives (its handler refuses what it finds too large, with an answer); commands are
+/// refused above 1 KiB. A larger message (a 3.1.1 broker cannot be told) is skipped by rumqttc
+/// as it streams in, acknowledged and reported as [`Event::TooLarge`]: it never costs the
+/// connection (vendor/rumqttc/PULSEGATE-PATCH.md).
+pub const MAX_PACKET: u32 = 256 * 1024 + 4 * 1024;
 
 /// The largest packet sent to a 3.1.1 broker (it cannot tell us its own limit).
 pub const V311_MAX_OUT: u32 = 256 * 1024;
@@ -262,6 +268,12 @@ pub enum Event {
     /// The broker acknowledged this packet id (PUBACK, or PUBCOMP for QoS 2).
     Acked(u16),
     Received(Received),
+    /// A message larger than [`MAX_PACKET`] arrived and was dropped unread (and acknowledged):
+    /// its topic, and its size on the wire in bytes.
+    TooLarge {
+        topic: String,
+        size: usize,
+    },
     /// Our DISCONNECT went out.
     Disconnected,
     Other,
@@ -338,6 +350,7 @@ fn v5_event(e: v5::Event) -> Event {
             })
         }
         v5::Event::Incoming(_) => Event::Other,
+        v5::Event::Dropped(o) => too_large(o),
     }
 }
 
@@ -358,6 +371,14 @@ fn v311_event(e: rumqttc::Event) -> Event {
             correlation: None,
         }),
         rumqttc::Event::Incoming(_) => Event::Other,
+        rumqttc::Event::Dropped(o) => too_large(o),
+    }
+}
+
+fn too_large(o: rumqttc::Oversized) -> Event {
+    Event::TooLarge {
+        topic: o.topic,
+        size: o.size,
     }
 }
 

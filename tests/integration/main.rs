@@ -2,6 +2,7 @@
 //! real Mosquitto broker.
 
 mod batching;
+mod big_messages;
 mod burn_in;
 mod clock;
 mod commands;

@@ -41,6 +41,8 @@ pub(super) struct Watch {
     pub(super) protocol_named: bool,
     /// This machine's previous run was recognised by its marker (said once).
     pub(super) earlier_run_named: bool,
+    /// Messages too large to take: at most one line a minute, the rest counted in it.
+    pub(super) too_large_log: crate::log_budget::LogBudget,
 }
 
 impl Watch {
@@ -54,6 +56,7 @@ impl Watch {
             pause: Duration::from_secs(1),
             protocol_named: false,
             earlier_run_named: false,
+            too_large_log: crate::log_budget::LogBudget::new(1),
         }
     }
 
@@ -67,6 +70,22 @@ impl Watch {
             );
             self.chatter_dropped = dropped;
         }
+    }
+
+    /// A message larger than the gateway takes was dropped unread (rumqttc skipped it and
+    /// acknowledged it): said within budget, with how many went unsaid in the last minute. A
+    /// retained one comes back at every connection; the connection stays up.
+    pub(super) fn too_large(&mut self, topic: &str, size: usize, link: &Connection, now: Instant) {
+        let (log, unsaid) = self.too_large_log.allow(now);
+        if !log {
+            return;
+        }
+        let more = match unsaid {
+            Some(n) => format!("; {n} more were dropped since the last such line"),
+            None => String::new(),
+        };
+        let max_kib = crate::publish::session::MAX_PACKET / 1024;
+        tracing::warn!(broker = %link.broker, topic, size, "dropped an MQTT message of {size} bytes on {topic}: larger than the packets of {max_kib} KiB the gateway takes; the connection stays up (a retained one comes back at each connection until it is cleared on the broker){more}");
     }
 
     /// A boot marker arrived: another gateway's is logged (within budget); this machine's

@@ -6,10 +6,12 @@
 //! messages in the output stage ([`super::format`]) before they get here.
 //!
 //! Every input is bounded before it costs anything: the gateway announces a maximum packet size
-//! to the broker (and gives rumqttc the same limit), and a message that can never be sent (a topic
-//! with a wildcard, a packet larger than the broker takes) is dropped from the spool with an error
-//! instead of blocking everything behind it. Any client failure (collision timeout, protocol
-//! error, a packet too large, the session taken over) ends with a fresh client and connection:
+//! to the broker (and gives rumqttc the same limit); a larger message (a 3.1.1 broker cannot be
+//! told) is skipped by rumqttc, counted and logged within budget, and the connection stays up.
+//! A message that can never be sent (a topic with a wildcard, a packet larger than the broker
+//! takes) is dropped from the spool with an error instead of blocking everything behind it. Any
+//! client failure (collision timeout, protocol error, a packet too large to send, the session
+//! taken over) ends with a fresh client and connection:
 //! nothing of rumqttc's state survives it. "Connected" means publishing: when messages in flight
 //! get no acknowledgement for a while, the connection is counted down and rebuilt.
 //!
@@ -336,6 +338,11 @@ impl Publisher<'_> {
                 self.acknowledged();
             }
             Ok(Event::Received(p)) => self.received(&p.topic, &p.payload, p.retain),
+            Ok(Event::TooLarge { topic, size }) => {
+                self.task.metrics.message_dropped("too_large");
+                let now = Instant::now();
+                self.watch.too_large(&topic, size, &self.link, now);
+            }
             // Our DISCONNECT went out, or the client was dropped: the gateway is stopping.
             Ok(Event::Disconnected | Event::Other) | Err(Failure::RequestsDone) => {}
             Err(e) => self.reconnect(&e),

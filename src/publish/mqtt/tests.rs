@@ -221,6 +221,25 @@ async fn a_failed_connection_is_replaced_after_its_back_off_and_a_takeover_backs
     assert!(p.shell.outbox.is_connected());
 }
 
+/// A message larger than the gateway takes, skipped by rumqttc: counted, and no reason to
+/// give the connection up (before, it cost the connection at every reconnect).
+#[tokio::test]
+async fn a_message_too_large_to_take_is_counted_and_the_connection_kept() {
+    let mut task = task("too-large");
+    let metrics = crate::metrics::Metrics::new();
+    task.metrics = metrics.output("json");
+    let (mut p, _reports, _requests) = publisher(&task, "too-large");
+    for _ in 0..3 {
+        p.polled(Ok(Event::TooLarge {
+            topic: "pg/t/d/enc0/cmd".into(),
+            size: 300_000,
+        }));
+    }
+    assert!(p.shell.outbox.is_connected(), "not counted as lost");
+    let dropped = "pulsegate_mqtt_messages_dropped_total{output=\"json\",reason=\"too_large\"} 3";
+    assert!(metrics.encode().contains(dropped), "{}", metrics.encode());
+}
+
 fn reading(seq: u64) -> Output {
     Output::single(crate::reading::Reading::sample("d", "enc0", seq))
 }

@@ -95,6 +95,9 @@ pub struct EventLoop {
 pub enum Event {
     Incoming(Incoming),
     Outgoing(Outgoing),
+    /// pulsegate patch: an incoming PUBLISH larger than the maximum incoming packet size,
+    /// dropped unread and acknowledged (see `oversized.rs`).
+    Dropped(crate::Oversized),
 }
 
 impl EventLoop {

@@ -3,14 +3,16 @@ use tokio::io::{AsyncRead, AsyncWrite};
 use tokio_util::codec::Framed;
 
 use crate::mqttbytes::{self, v4::*};
+use crate::oversized::{Frame, SkipOversized};
 use crate::{Incoming, MqttState, StateError};
 
 /// Network transforms packets <-> frames efficiently. It takes
 /// advantage of pre-allocation, buffering and vectorization when
 /// appropriate to achieve performance
 pub struct Network {
-    /// Frame MQTT packets from network connection
-    framed: Framed<Box<dyn AsyncReadWrite>, Codec>,
+    /// Frame MQTT packets from network connection (pulsegate patch: skipping oversized
+    /// PUBLISH packets, see `oversized.rs`)
+    framed: Framed<Box<dyn AsyncReadWrite>, SkipOversized<Codec>>,
     /// Maximum readv count
     max_readb_count: usize,
 }
@@ -22,10 +24,10 @@ impl Network {
         max_outgoing_size: usize,
     ) -> Network {
         let socket = Box::new(socket) as Box<dyn AsyncReadWrite>;
-        let codec = Codec {
+        let codec = SkipOversized::new(Codec {
             max_incoming_size,
             max_outgoing_size,
-        };
+        });
         let framed = Framed::new(socket, codec);
 
         Network {
@@ -37,7 +39,12 @@ impl Network {
     /// Reads and returns a single packet from network
     pub async fn read(&mut self) -> Result<Incoming, StateError> {
         match self.framed.next().await {
-            Some(Ok(packet)) => Ok(packet),
+            Some(Ok(Frame::Packet(packet))) => Ok(packet),
+            // pulsegate patch: only the CONNACK may come before the CONNACK; an oversized
+            // PUBLISH here ends the connection as it did upstream.
+            Some(Ok(Frame::Oversized(o))) => Err(StateError::Deserialization(
+                mqttbytes::Error::PayloadSizeLimitExceeded(o.size),
+            )),
             Some(Err(mqttbytes::Error::InsufficientBytes(_))) => unreachable!(),
             Some(Err(e)) => Err(StateError::Deserialization(e)),
             None => Err(StateError::ConnectionAborted),
@@ -52,8 +59,12 @@ impl Network {
         let mut count = 1;
         loop {
             match res {
-                Some(Ok(packet)) => {
-                    if let Some(outgoing) = state.handle_incoming_packet(packet)? {
+                Some(Ok(frame)) => {
+                    let outgoing = match frame {
+                        Frame::Packet(packet) => state.handle_incoming_packet(packet)?,
+                        Frame::Oversized(dropped) => state.handle_oversized(dropped)?,
+                    };
+                    if let Some(outgoing) = outgoing {
                         self.write(outgoing).await?;
                     }
 

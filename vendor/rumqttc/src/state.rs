@@ -184,6 +184,30 @@ impl MqttState {
         Ok(outgoing)
     }
 
+    /// pulsegate patch: an incoming PUBLISH too large to take was dropped unread (see
+    /// `oversized.rs`). It is reported, and acknowledged at QoS 1 and 2 whatever
+    /// `manual_acks` says (the user never sees it, so cannot ack it): unacknowledged, it would
+    /// hold one of the broker's in-flight slots for this client until the session ends, and
+    /// with a persistent session come back at every reconnect. Acknowledging says only that it
+    /// arrived; the user knows it was dropped.
+    pub fn handle_oversized(
+        &mut self,
+        dropped: crate::Oversized,
+    ) -> Result<Option<Packet>, StateError> {
+        let (qos, pkid) = (dropped.qos, dropped.pkid);
+        self.events.push_back(Event::Dropped(dropped));
+        self.last_incoming = Instant::now();
+        match qos {
+            QoS::AtMostOnce => Ok(None),
+            QoS::AtLeastOnce => self.outgoing_puback(PubAck::new(pkid)),
+            QoS::ExactlyOnce => {
+                // The broker's PUBREL is then answered as for any QoS 2 publish.
+                self.incoming_pub.insert(pkid as usize);
+                self.outgoing_pubrec(PubRec::new(pkid))
+            }
+        }
+    }
+
     fn handle_incoming_suback(&mut self) -> Result<Option<Packet>, StateError> {
         Ok(None)
     }

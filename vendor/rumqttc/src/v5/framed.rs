@@ -3,6 +3,7 @@ use tokio_stream::StreamExt;
 use tokio_util::codec::Framed;
 
 use crate::framed::AsyncReadWrite;
+use crate::oversized::{Frame, SkipOversized};
 
 use super::mqttbytes::v5::Packet;
 use super::{mqttbytes, Codec, Incoming, MqttState, StateError};
@@ -11,18 +12,19 @@ use super::{mqttbytes, Codec, Incoming, MqttState, StateError};
 /// advantage of pre-allocation, buffering and vectorization when
 /// appropriate to achieve performance
 pub struct Network {
-    /// Frame MQTT packets from network connection
-    framed: Framed<Box<dyn AsyncReadWrite>, Codec>,
+    /// Frame MQTT packets from network connection (pulsegate patch: skipping oversized
+    /// PUBLISH packets, see `oversized.rs`)
+    framed: Framed<Box<dyn AsyncReadWrite>, SkipOversized<Codec>>,
     /// Maximum readv count
     max_readb_count: usize,
 }
 impl Network {
     pub fn new(socket: impl AsyncReadWrite + 'static, max_incoming_size: Option<u32>) -> Network {
         let socket = Box::new(socket) as Box<dyn AsyncReadWrite>;
-        let codec = Codec {
+        let codec = SkipOversized::new(Codec {
             max_incoming_size,
             max_outgoing_size: None,
-        };
+        });
         let framed = Framed::new(socket, codec);
 
         Network {
@@ -32,13 +34,21 @@ impl Network {
     }
 
     pub fn set_max_outgoing_size(&mut self, max_outgoing_size: Option<u32>) {
-        self.framed.codec_mut().max_outgoing_size = max_outgoing_size;
+        self.framed.codec_mut().codec.max_outgoing_size = max_outgoing_size;
     }
 
     /// Reads and returns a single packet from network
     pub async fn read(&mut self) -> Result<Incoming, StateError> {
         match self.framed.next().await {
-            Some(Ok(packet)) => Ok(packet),
+            Some(Ok(Frame::Packet(packet))) => Ok(packet),
+            // pulsegate patch: only the CONNACK may come before the CONNACK; an oversized
+            // PUBLISH here ends the connection as it did upstream.
+            Some(Ok(Frame::Oversized(o))) => Err(StateError::Deserialization(
+                mqttbytes::Error::PayloadSizeLimitExceeded {
+                    pkt_size: o.size,
+                    max: self.framed.codec().codec.max_incoming_size.unwrap_or(0),
+                },
+            )),
             Some(Err(mqttbytes::Error::InsufficientBytes(_))) => unreachable!(),
             Some(Err(e)) => Err(StateError::Deserialization(e)),
             None => Err(StateError::ConnectionAborted),
@@ -53,8 +63,12 @@ impl Network {
         let mut count = 1;
         loop {
             match res {
-                Some(Ok(packet)) => {
-                    if let Some(outgoing) = state.handle_incoming_packet(packet)? {
+                Some(Ok(frame)) => {
+                    let outgoing = match frame {
+                        Frame::Packet(packet) => state.handle_incoming_packet(packet)?,
+                        Frame::Oversized(dropped) => state.handle_oversized(dropped)?,
+                    };
+                    if let Some(outgoing) = outgoing {
                         self.write(outgoing).await?;
                     }
 

@@ -226,6 +226,38 @@ impl MqttState {
         Ok(outgoing)
     }
 
+    /// pulsegate patch: an incoming PUBLISH too large to take was dropped unread (see
+    /// `oversized.rs`). It is reported, and acknowledged at QoS 1 and 2 whatever
+    /// `manual_acks` says (the user never sees it, so cannot ack it), with reason 0x83
+    /// ("the PUBLISH is valid but the receiver is not willing to accept it"), which ends a
+    /// QoS 2 flow at the PUBREC: unacknowledged, it would hold one of the broker's in-flight
+    /// slots for this client until the session ends, and with a persistent session come back
+    /// at every reconnect. (A broker that honours the maximum packet size in the CONNECT never
+    /// sends one. A topic alias a skipped packet sets is lost: a client that announces a topic
+    /// alias maximum may then get a publish under an alias it does not know, a protocol error
+    /// as upstream; pulsegate announces none, so its broker sets no alias.)
+    pub fn handle_oversized(
+        &mut self,
+        dropped: crate::Oversized,
+    ) -> Result<Option<Packet>, StateError> {
+        let (qos, pkid) = (dropped.qos, dropped.pkid);
+        self.events.push_back(Event::Dropped(dropped));
+        self.last_incoming = Instant::now();
+        match qos {
+            crate::QoS::AtMostOnce => Ok(None),
+            crate::QoS::AtLeastOnce => {
+                let mut puback = PubAck::new(pkid, None);
+                puback.reason = PubAckReason::ImplementationSpecificError;
+                self.outgoing_puback(puback)
+            }
+            crate::QoS::ExactlyOnce => {
+                let mut pubrec = PubRec::new(pkid, None);
+                pubrec.reason = PubRecReason::ImplementationSpecificError;
+                self.outgoing_pubrec(pubrec)
+            }
+        }
+    }
+
     pub fn handle_protocol_error(&mut self) -> Result<Option<Packet>, StateError> {
         // send DISCONNECT packet with REASON_CODE 0x82
         self.outgoing_disconnect(DisconnectReasonCode::ProtocolError)
