@@ -48,6 +48,13 @@ enum Command {
     Check {
         #[arg(long, default_value = DEFAULT_PATH)]
         config: PathBuf,
+        /// Print the register map of the Modbus server outputs (docs/plc.md) instead of the
+        /// poll plan.
+        #[arg(long)]
+        register_map: bool,
+        /// With --register-map: the map as a JSON list on standard output, nothing else there.
+        #[arg(long, requires = "register_map")]
+        json: bool,
     },
     /// Print the compiled poll plan per bus with line time per cycle.
     Plan {
@@ -264,31 +271,12 @@ fn main() -> ExitCode {
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
         Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
-        Command::Check { config } | Command::Plan { config } => {
-            let config = match load(&config) {
-                Ok(c) => c,
-                Err(code) => return Ok(code),
-            };
-            print!("{}", pulsegate::report::poll_plan(&config));
-            let spool = config.gateway.state_dir.join("spool");
-            if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
-                println!(
-                    "warning: the spool cannot be kept in {} ({e}): the gateway would spool in a fresh private temporary directory, lost at reboot",
-                    spool.display()
-                );
-            }
-            if let Some(host) = &config.gateway.id_from_hostname {
-                println!(
-                    "gateway.id is not set: \"{}\" (from the hostname {host:?})",
-                    config.gateway.id
-                );
-            }
-            if let Some(why) = pulsegate::remote::writable::problem(&config) {
-                println!("warning: {why}");
-            }
-            println!("config {} is valid", config.source.display());
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Check {
+            config,
+            register_map,
+            json,
+        } => check(&config, register_map, json),
+        Command::Plan { config } => check(&config, false, false),
         Command::Run { config: path } => {
             let config = match load(&path) {
                 Ok(c) => c,
@@ -349,6 +337,42 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `pulsegate check` (and `plan`): the poll plan and warnings, or the register map.
+fn check(path: &std::path::Path, register_map: bool, json: bool) -> anyhow::Result<ExitCode> {
+    let config = match load(path) {
+        Ok(c) => c,
+        Err(code) => return Ok(code),
+    };
+    if register_map {
+        if config.outputs.modbus.is_empty() {
+            say_err(format_args!(
+                "warning: no output of kind \"modbus\": the map is what one would serve\n"
+            ));
+        }
+        print!("{}", pulsegate::report::register_map(&config, json));
+        return Ok(ExitCode::SUCCESS);
+    }
+    print!("{}", pulsegate::report::poll_plan(&config));
+    let spool = config.gateway.state_dir.join("spool");
+    if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
+        println!(
+            "warning: the spool cannot be kept in {} ({e}): the gateway would spool in a fresh private temporary directory, lost at reboot",
+            spool.display()
+        );
+    }
+    if let Some(host) = &config.gateway.id_from_hostname {
+        println!(
+            "gateway.id is not set: \"{}\" (from the hostname {host:?})",
+            config.gateway.id
+        );
+    }
+    if let Some(why) = pulsegate::remote::writable::problem(&config) {
+        println!("warning: {why}");
+    }
+    println!("config {} is valid", config.source.display());
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `pulsegate set-reading`: prints the gateway's result; exit 0 when it says ok.

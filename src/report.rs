@@ -117,3 +117,27 @@ fn meters(bus: &str, link: &Link, devices: &[Device]) -> String {
     }
     out
 }
+
+/// The register map of the Modbus server outputs (docs/plc.md): a table, or with `json` a JSON
+/// list of `{"device", "channel", "field", "unit_id", "table", "address", "registers", "type"}`.
+pub fn register_map(config: &Config, json: bool) -> String {
+    use crate::config::outputs::modbus::map::RegisterMap;
+    let commands = config.outputs.modbus.iter().any(|s| s.commands);
+    let entries = RegisterMap::of(config).entries(commands);
+    if json {
+        let text = serde_json::to_string_pretty(&entries).unwrap_or_else(|_| "[]".into());
+        return format!("{text}\n");
+    }
+    let mut out = String::from("unit  table    address  regs  type     device / channel / field\n");
+    for e in &entries {
+        let what = match &e.channel {
+            Some(c) => format!("{} / {c} / {}", e.device, e.field),
+            None => format!("{} / - / {}", e.device, e.field),
+        };
+        out.push_str(&format!(
+            "{:>4}  {:<7}  {:>7}  {:>4}  {:<7}  {what}\n",
+            e.unit_id, e.table, e.address, e.registers, e.ty
+        ));
+    }
+    out
+}

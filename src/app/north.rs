@@ -39,9 +39,15 @@ pub(super) struct Northbound {
     wiring: Wiring,
 }
 
+/// What an output runs: an MQTT connection with its formats, or a Modbus server.
+enum Job {
+    Mqtt(Box<crate::publish::mqtt::Task>),
+    Modbus(crate::publish::modbus::Task),
+}
+
 /// An output ready to run: its task's settings and channels.
 struct Prepared {
-    task: crate::publish::mqtt::Task,
+    task: Job,
     events: UnboundedSender<Output>,
     events_rx: UnboundedReceiver<Output>,
     reloads: UnboundedSender<Config>,
@@ -50,13 +56,21 @@ struct Prepared {
 
 impl Prepared {
     fn spawn(self, w: &Wiring) -> (JoinHandle<()>, UnboundedSender<Config>) {
-        let task = tokio::spawn(crate::publish::mqtt::run(
-            self.task,
-            self.events_rx,
-            w.incoming.clone(),
-            self.reloads_rx,
-            w.shutdown.clone(),
-        ));
+        let task = match self.task {
+            Job::Mqtt(task) => tokio::spawn(crate::publish::mqtt::run(
+                *task,
+                self.events_rx,
+                w.incoming.clone(),
+                self.reloads_rx,
+                w.shutdown.clone(),
+            )),
+            Job::Modbus(task) => tokio::spawn(crate::publish::modbus::run(
+                task,
+                self.events_rx,
+                w.incoming.clone(),
+                self.reloads_rx,
+            )),
+        };
         (task, self.reloads)
     }
 }
@@ -165,6 +179,9 @@ fn prepare(config: &Config, w: &Wiring) -> Vec<Prepared> {
             w,
         ));
     }
+    for server in &config.outputs.modbus {
+        out.push(prepare_server(config, server, w));
+    }
     if config.outputs.voice == VoiceHome::Own {
         let voice = crate::publish::voice::Voice::new(&config.mqtt.topic_root, VOICE_NAME);
         let formats: Vec<Box<dyn Format>> = vec![Box::new(voice)];
@@ -200,7 +217,31 @@ fn prepare_one(
         remote_config: config.remote.config && name == home,
     };
     Prepared {
-        task,
+        task: Job::Mqtt(Box::new(task)),
+        events,
+        events_rx,
+        reloads,
+        reloads_rx,
+    }
+}
+
+/// A Modbus server output: its map and where its writes go.
+fn prepare_server(
+    config: &Config,
+    server: &crate::config::outputs::modbus::ModbusServer,
+    w: &Wiring,
+) -> Prepared {
+    let (events, events_rx) = unbounded_channel();
+    let (reloads, reloads_rx) = unbounded_channel();
+    let task = crate::publish::modbus::Task {
+        server: server.clone(),
+        map: crate::config::outputs::modbus::map::RegisterMap::of(config),
+        root: config.mqtt.topic_root.clone(),
+        heart: w.health.heart(&format!("output/{}", server.name)),
+        metrics: w.metrics.output(&server.name),
+    };
+    Prepared {
+        task: Job::Modbus(task),
         events,
         events_rx,
         reloads,

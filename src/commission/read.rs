@@ -126,6 +126,7 @@ pub(super) fn poller(
         intervals: None,
         enabled: true,
         meter: None,
+        server_unit: None,
     };
     let wire = Wire::for_line(link.timing().as_ref());
     let proto = ModbusDevice::new(&bus, &device, wire, Vec::new());

@@ -50,6 +50,9 @@ pub struct ChannelConfig {
     pub intervals: Option<Vec<crate::metering::Period>>,
     /// An M-Bus meter's record this channel names (its 0-based index in the answer).
     pub record: Option<usize>,
+    /// `register = N`: the first address of this channel's block in a Modbus server output's
+    /// map, pinned (otherwise the map places it; see `publish::modbus::map`).
+    pub register: Option<u16>,
 }
 
 impl Default for ChannelConfig {
@@ -65,6 +68,7 @@ impl Default for ChannelConfig {
             publish: PolicyOverride::default(),
             intervals: None,
             record: None,
+            register: None,
         }
     }
 }
@@ -131,6 +135,7 @@ pub(super) fn channel(
     let units = units(&mut ct, errs);
     let publish = super::publish::policy(&mut ct, errs);
     let intervals = super::metering::intervals(&mut ct, errs);
+    let register = ct.int::<u16>("register", errs);
     ct.finish(errs);
     ChannelConfig {
         ppr,
@@ -143,6 +148,7 @@ pub(super) fn channel(
         publish,
         intervals,
         record: None,
+        register,
     }
 }
 

@@ -82,6 +82,11 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         }
     }
 
+    // A Modbus server output's map is a contract: unit ids and blocks that collide are errors.
+    if !outputs.modbus.is_empty() {
+        super::outputs::modbus::map::RegisterMap::build(&buses, errs);
+    }
+
     Some(Config {
         source: path.to_path_buf(),
         gateway,
@@ -426,6 +431,7 @@ fn device(
     let publish = super::publish::policy(&mut t, errs);
     let payload = super::publish::payload(&mut t, errs);
     let intervals = super::metering::intervals(&mut t, errs);
+    let server_unit = super::outputs::modbus::server_unit(&mut t, &path, errs);
     let mut channels = BTreeMap::new();
     for (cname, cvalue) in t.entries("channels", errs) {
         let cpath = format!("{path}.channels.{cname}");
@@ -451,6 +457,7 @@ fn device(
         payload,
         intervals,
         meter: None,
+        server_unit,
     })
 }
 

@@ -134,6 +134,7 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
     let publish = super::publish::policy(&mut t, errs);
     let payload = super::publish::payload(&mut t, errs);
     let intervals = super::metering::intervals(&mut t, errs);
+    let server_unit = super::outputs::modbus::server_unit(&mut t, &path, errs);
     let channels = channels(&mut t, &path, errs);
     t.finish(errs);
     let address = address?;
@@ -155,6 +156,7 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
         payload,
         intervals,
         meter: Some(address),
+        server_unit,
     })
 }
 
@@ -286,6 +288,7 @@ fn channels(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BTreeMap<String
         }
         let c = ChannelConfig {
             record,
+            register: ct.int::<u16>("register", errs),
             max_rate_hz,
             enabled: ct.opt::<bool>("enabled", errs).unwrap_or(true),
             publish: super::publish::policy(&mut ct, errs),

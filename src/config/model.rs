@@ -239,6 +239,9 @@ pub struct Device {
     pub intervals: Option<Vec<crate::metering::Period>>,
     /// An M-Bus meter's address (`None` on a Modbus bus, where `unit` and `model` say it).
     pub meter: Option<MeterAddress>,
+    /// `server_unit = N`: the unit id this device answers as on a Modbus server output (by
+    /// default its own address; see `publish::modbus::map`). Not part of its polling.
+    pub server_unit: Option<u8>,
 }
 
 /// Where an M-Bus meter answers: a primary address, or its secondary address (selected by its

@@ -52,6 +52,9 @@ pub(super) struct Families {
     pub chatter_messages: IntGaugeVec,
     pub chatter_dropped: IntCounterVec,
     pub messages_dropped: IntCounterVec,
+    pub modbus_requests: IntCounterVec,
+    pub modbus_connections: IntGaugeVec,
+    pub modbus_closed: IntCounterVec,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub start_time: Gauge,
@@ -213,6 +216,18 @@ const MESSAGES_DROPPED: Family = (
     "pulsegate_mqtt_messages_dropped_total",
     "Incoming MQTT messages dropped unread, by reason (too_large: larger than the largest packet the gateway takes); the connection stays up.",
 );
+const MODBUS_REQUESTS: Family = (
+    "pulsegate_modbus_server_requests_total",
+    "Requests a Modbus server output answered, by function code and result (ok, or the exception's name).",
+);
+const MODBUS_CONNECTIONS: Family = (
+    "pulsegate_modbus_server_connections",
+    "Client connections a Modbus server output holds open.",
+);
+const MODBUS_CLOSED: Family = (
+    "pulsegate_modbus_server_connections_closed_total",
+    "Client connections a Modbus server output closed itself, by reason (not_allowed: at accept; evicted: oldest idle for a new one; idle: silent too long or a half frame; bad_frame: not Modbus TCP).",
+);
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
     "Commands answered (a retained command message is ignored, not counted).",
@@ -313,6 +328,14 @@ impl Families {
             chatter_messages: family!(r, IntGaugeVec, CHATTER_MESSAGES, OUTPUT),
             chatter_dropped: family!(r, IntCounterVec, CHATTER_DROPPED, OUTPUT),
             messages_dropped: family!(r, IntCounterVec, MESSAGES_DROPPED, &["output", "reason"]),
+            modbus_requests: family!(
+                r,
+                IntCounterVec,
+                MODBUS_REQUESTS,
+                &["output", "function", "result"]
+            ),
+            modbus_connections: family!(r, IntGaugeVec, MODBUS_CONNECTIONS, OUTPUT),
+            modbus_closed: family!(r, IntCounterVec, MODBUS_CLOSED, &["output", "reason"]),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             start_time: family!(r, Gauge, START_TIME),

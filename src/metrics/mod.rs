@@ -538,6 +538,34 @@ impl OutputMetrics {
         }
     }
 
+    /// A Modbus server output answered a request of `function` with `result`.
+    pub fn modbus_request(&self, function: u8, result: &str) {
+        if let Some((f, name)) = &self.inner {
+            let function = function.to_string();
+            f.modbus_requests
+                .with_label_values(&[name.as_str(), function.as_str(), result])
+                .inc();
+        }
+    }
+
+    /// The client connections a Modbus server output holds open.
+    pub fn modbus_connections(&self, open: usize) {
+        if let Some((f, name)) = &self.inner {
+            f.modbus_connections
+                .with_label_values(&[name.as_str()])
+                .set(open as i64);
+        }
+    }
+
+    /// A Modbus server output closed a client connection itself, for `reason`.
+    pub fn modbus_closed(&self, reason: &'static str) {
+        if let Some((f, name)) = &self.inner {
+            f.modbus_closed
+                .with_label_values(&[name.as_str(), reason])
+                .inc();
+        }
+    }
+
     /// When the TLS certificate in `file` expires (seconds since the epoch).
     pub fn tls_expiry(&self, file: &str, not_after: i64) {
         if let Some((f, name)) = &self.inner {

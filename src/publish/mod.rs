@@ -11,6 +11,7 @@ pub mod format;
 pub mod formats;
 pub mod homeassistant;
 pub mod json;
+pub mod modbus;
 pub mod mqtt;
 pub mod payload;
 pub mod poller;

@@ -39,6 +39,9 @@ pub fn forbidden_changes(old: &Config, new: &Config, signed: Signed) -> Vec<Stri
     if old.remote != new.remote {
         out.push("[remote]".to_string());
     }
+    if old.outputs.modbus != new.outputs.modbus {
+        out.push("outputs of kind modbus (what the gateway listens on, who may connect, whether writes are taken)".to_string());
+    }
     out.extend(connection_changes("mqtt", &old.mqtt, &new.mqtt));
     for o in &new.outputs.list {
         let path = format!("outputs.{}", o.name);

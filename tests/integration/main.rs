@@ -26,6 +26,7 @@ mod metrics;
 mod outputs;
 mod pipeline;
 mod plants;
+mod plc;
 mod protocol;
 mod pushes;
 mod readings_first;

@@ -14,6 +14,7 @@ use std::fmt;
 use std::str::FromStr;
 
 pub mod homeassistant;
+pub mod modbus;
 pub mod sparkplug;
 
 use config::ValueKind;
@@ -75,7 +76,7 @@ impl fmt::Display for OutputKind {
 
 /// A name that is not an output kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown output format {0:?}: one of {list}", list = OutputKind::list())]
+#[error("unknown output format {0:?}: one of {list}, or {modbus:?} (a Modbus TCP server)", list = OutputKind::list(), modbus = modbus::KIND)]
 pub struct UnknownKind(pub String);
 
 impl FromStr for OutputKind {
@@ -116,6 +117,8 @@ pub struct Outputs {
     pub sparkplug: Option<Sparkplug>,
     /// `[homeassistant]`: its prefix, for the outputs of kind `homeassistant`.
     pub homeassistant: HomeAssistant,
+    /// The outputs of kind `modbus`: servers for PLCs, not MQTT connections.
+    pub modbus: Vec<modbus::ModbusServer>,
 }
 
 /// The name the gateway's own connection takes (no output may take it).
@@ -162,6 +165,7 @@ pub(crate) fn read(
     let sparkplug = sparkplug::sparkplug(sp_table, gateway_id, errs);
     let entries = root.entries("outputs", errs);
     let origin = root.origin().map(str::to_string);
+    let mut servers_read = Vec::new();
     let list = if entries.is_empty() {
         from_format(legacy.as_deref(), discovery, base, errs)
     } else {
@@ -173,7 +177,14 @@ pub(crate) fn read(
             let why = "with [outputs], Home Assistant discovery is an output of kind \"homeassistant\"; remove discovery";
             errs.push("homeassistant.discovery", origin.as_deref(), why);
         }
-        entries
+        let (servers, connections): (Vec<_>, Vec<_>) = entries
+            .into_iter()
+            .partition(|(_, value)| kind_of(value).as_deref() == Some(modbus::KIND));
+        servers_read = servers
+            .into_iter()
+            .filter_map(|(name, value)| server(&name, value, errs))
+            .collect();
+        connections
             .into_iter()
             .filter_map(|(name, value)| output(&name, value, base, errs))
             .collect()
@@ -193,6 +204,7 @@ pub(crate) fn read(
         voice: voice_home(&list, base),
         list,
         sparkplug,
+        modbus: servers_read,
         homeassistant,
     }
 }
@@ -237,6 +249,31 @@ fn from_format(
         .collect();
     list.sort_by(|a, b| a.name.cmp(&b.name));
     list
+}
+
+/// The `kind` an `[outputs.NAME]` table names, if it names one as text.
+fn kind_of(value: &config::Value) -> Option<String> {
+    match &value.kind {
+        ValueKind::Table(t) => match &t.get("kind")?.kind {
+            ValueKind::String(k) => Some(k.clone()),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
+/// One `[outputs.NAME]` table of kind `modbus`.
+fn server(name: &str, value: &config::Value, errs: &mut Errors) -> Option<modbus::ModbusServer> {
+    let path = format!("outputs.{name}");
+    let mut t = Table::of(value, &path, errs)?;
+    if !is_output_name(name) {
+        let why = format!(
+            "{name:?} is not an output name: 1..{MAX_NAME} of a-z, 0-9, '_' and '-', not {VOICE_NAME:?}"
+        );
+        errs.push(&path, t.origin(), why);
+    }
+    let _ = t.raw("kind");
+    modbus::read(name, t, errs)
 }
 
 /// One `[outputs.NAME]` table.

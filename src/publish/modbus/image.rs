@@ -1,0 +1,278 @@
+//! The registers a Modbus server output serves, built from the gateway's events: each device's
+//! words as of its last poll. A poll's readings replace a device's words whole (a new `Arc`),
+//! so a request, which reads one device's words once, never sees half of one poll and half of
+//! the next: a 64-bit total is never torn. Pure: events and time in, words out.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use crate::config::outputs::modbus::map::{
+    BLOCK, CHANNEL_FIELDS, DEVICE_FIELDS, DeviceMap, RegisterMap, Type, result,
+};
+use crate::reading::{Output, Reading};
+
+/// One device's words and what its device block says at read time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DeviceWords {
+    pub map: Arc<DeviceMap>,
+    /// From address 0 to the end of its last block.
+    pub words: Arc<[u16]>,
+    pub online: bool,
+    /// When its last answer arrived.
+    pub last_answer: Option<SystemTime>,
+}
+
+impl DeviceWords {
+    fn new(map: DeviceMap) -> DeviceWords {
+        let mut words = vec![0u16; map.end() as usize];
+        for base in map.channels.values() {
+            for f in CHANNEL_FIELDS
+                .iter()
+                .filter(|f| f.ty == Type::F64 || f.ty == Type::F32)
+            {
+                put(&mut words, base + f.offset, f.ty, Value::Float(f64::NAN));
+            }
+        }
+        DeviceWords {
+            map: Arc::new(map),
+            words: words.into(),
+            online: false,
+            last_answer: None,
+        }
+    }
+
+    /// `count` registers from `address`, with the device block as of `now`; `None` when they
+    /// are not all in the map.
+    pub fn read(&self, address: u16, count: u16, now: SystemTime) -> Option<Vec<u16>> {
+        let end = usize::from(address) + usize::from(count);
+        if end > self.words.len() || count == 0 {
+            return None;
+        }
+        let mut out = self.words[usize::from(address)..end].to_vec();
+        let mut head = self.words[..usize::from(BLOCK)].to_vec();
+        put(
+            &mut head,
+            DEVICE_FIELDS[0].offset,
+            Type::U16,
+            Value::Int(i64::from(self.online)),
+        );
+        let age = self.last_answer.map_or(u64::from(u32::MAX), |t| {
+            now.duration_since(t)
+                .map_or(0, |d| d.as_secs())
+                .min(u64::from(u32::MAX - 1))
+        });
+        put(
+            &mut head,
+            DEVICE_FIELDS[1].offset,
+            Type::U32,
+            Value::Int(age as i64),
+        );
+        for (i, w) in out.iter_mut().enumerate() {
+            let a = usize::from(address) + i;
+            if a < usize::from(BLOCK) {
+                *w = head[a];
+            }
+        }
+        Some(out)
+    }
+}
+
+/// Every device's words, by unit id.
+#[derive(Debug, Clone, Default)]
+pub struct Image {
+    pub units: BTreeMap<u8, DeviceWords>,
+    by_device: BTreeMap<String, u8>,
+}
+
+impl Image {
+    /// Zeros (and NaN) for every device of `map`: nothing read yet, every device offline.
+    pub fn new(map: &RegisterMap) -> Image {
+        let units: BTreeMap<u8, DeviceWords> = map
+            .units
+            .iter()
+            .map(|(u, d)| (*u, DeviceWords::new(d.clone())))
+            .collect();
+        let by_device = units
+            .iter()
+            .map(|(u, d)| (d.map.device.clone(), *u))
+            .collect();
+        Image { units, by_device }
+    }
+
+    /// The same devices with a new map: what was read is kept where a device and its channels
+    /// still are.
+    pub fn remap(&self, map: &RegisterMap) -> Image {
+        let mut next = Image::new(map);
+        for (unit, d) in next.units.iter_mut() {
+            let Some(old) = self.device(&d.map.device) else {
+                continue;
+            };
+            d.online = old.online;
+            d.last_answer = old.last_answer;
+            let mut words = d.words.to_vec();
+            for (name, base) in &d.map.channels {
+                if let Some(old_base) = old.map.channels.get(name) {
+                    let (from, to) = (usize::from(*old_base), usize::from(*base));
+                    let n = usize::from(BLOCK);
+                    words[to..to + n].copy_from_slice(&old.words[from..from + n]);
+                }
+            }
+            d.words = words.into();
+            let _ = unit;
+        }
+        next
+    }
+
+    fn device(&self, name: &str) -> Option<&DeviceWords> {
+        self.units.get(self.by_device.get(name)?)
+    }
+
+    /// The unit id `device` answers as.
+    pub fn unit_of(&self, device: &str) -> Option<u8> {
+        self.by_device.get(device).copied()
+    }
+
+    /// What an event changes. `true` when it changed something.
+    pub fn apply(&mut self, event: &Output) -> bool {
+        match event {
+            Output::DeviceReadings { device, readings } => self.readings(device, readings),
+            Output::DeviceStatus { device, online } => self.status(device, *online),
+            Output::DeviceProblem { device, .. } => self.status(device, false),
+            _ => false,
+        }
+    }
+
+    fn status(&mut self, device: &str, online: bool) -> bool {
+        let Some(unit) = self.by_device.get(device) else {
+            return false;
+        };
+        let d = self.units.get_mut(unit).expect("indexed");
+        d.online = online;
+        true
+    }
+
+    fn readings(&mut self, device: &str, readings: &[Reading]) -> bool {
+        let Some(unit) = self.by_device.get(device) else {
+            return false;
+        };
+        let d = self.units.get_mut(unit).expect("indexed");
+        let mut words = d.words.to_vec();
+        for r in readings {
+            let Some(base) = d.map.channels.get(&*r.channel) else {
+                continue;
+            };
+            write_reading(&mut words, *base, r);
+            d.last_answer = Some(d.last_answer.map_or(r.ts, |t| t.max(r.ts)));
+        }
+        d.online = true;
+        d.words = words.into();
+        true
+    }
+
+    /// The device block's command fields after a write to `channel_base`.
+    pub fn command(&mut self, unit: u8, channel_base: u16, outcome: u16) {
+        let Some(d) = self.units.get_mut(&unit) else {
+            return;
+        };
+        let mut words = d.words.to_vec();
+        put(
+            &mut words,
+            DEVICE_FIELDS[2].offset,
+            Type::U16,
+            Value::Int(i64::from(outcome)),
+        );
+        put(
+            &mut words,
+            DEVICE_FIELDS[3].offset,
+            Type::U16,
+            Value::Int(i64::from(channel_base)),
+        );
+        d.words = words.into();
+    }
+}
+
+/// A reading's fields into its block.
+fn write_reading(words: &mut [u16], base: u16, r: &Reading) {
+    let field = |name: &str| {
+        CHANNEL_FIELDS
+            .iter()
+            .find(|f| f.name == name)
+            .expect("a field")
+    };
+    let value = match &r.measured {
+        Some(m) => m.to_f64().unwrap_or(f64::NAN),
+        None => r
+            .units
+            .as_ref()
+            .and_then(|u| u.scale.as_ref())
+            .map_or(f64::NAN, |s| r.update.total as f64 * s.to_f64()),
+    };
+    let (total, rate) = match &r.measured {
+        Some(_) => (0, f64::NAN),
+        None => (
+            r.update.total,
+            r.update.rate_hz.or(r.freq_hz).unwrap_or(f64::NAN),
+        ),
+    };
+    for (name, v) in [
+        ("total", Value::Int(total)),
+        ("rate", Value::Float(rate)),
+        (
+            "seq",
+            Value::Int((r.update.seq & u64::from(u32::MAX)) as i64),
+        ),
+        ("value", Value::Float(value)),
+    ] {
+        let f = field(name);
+        put(words, base + f.offset, f.ty, v);
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+enum Value {
+    Int(i64),
+    Float(f64),
+}
+
+/// `v` as `ty` at `address`, high word first.
+fn put(words: &mut [u16], address: u16, ty: Type, v: Value) {
+    let bytes: Vec<u8> = match (ty, v) {
+        (Type::U16, Value::Int(i)) => (i as u16).to_be_bytes().to_vec(),
+        (Type::U32, Value::Int(i)) => (i as u32).to_be_bytes().to_vec(),
+        (Type::I64, Value::Int(i)) => i.to_be_bytes().to_vec(),
+        (Type::F32, Value::Float(f)) => (f as f32).to_be_bytes().to_vec(),
+        (Type::F64, Value::Float(f)) => f.to_be_bytes().to_vec(),
+        (Type::F32, Value::Int(i)) => (i as f32).to_be_bytes().to_vec(),
+        (Type::F64, Value::Int(i)) => (i as f64).to_be_bytes().to_vec(),
+        (_, Value::Float(f)) => {
+            (f as i64).to_be_bytes()[8 - 2 * ty.registers() as usize..].to_vec()
+        }
+    };
+    for (i, pair) in bytes.chunks(2).enumerate() {
+        if let Some(w) = words.get_mut(usize::from(address) + i) {
+            *w = u16::from_be_bytes([pair[0], pair[1]]);
+        }
+    }
+}
+
+/// The i64 in four registers, high word first (a preset written with function 16).
+pub fn i64_of(words: &[u16]) -> Option<i64> {
+    let w: [u16; 4] = words.try_into().ok()?;
+    let mut b = [0u8; 8];
+    for (i, x) in w.iter().enumerate() {
+        b[2 * i..2 * i + 2].copy_from_slice(&x.to_be_bytes());
+    }
+    Some(i64::from_be_bytes(b))
+}
+
+/// The block fields' result code for the device block, by a command's outcome.
+pub fn result_code(outcome: &crate::outcome::Outcome) -> u16 {
+    match outcome.refusal() {
+        None => result::DONE,
+        Some("bad_request" | "unknown_device" | "unknown_channel" | "disabled" | "busy") => {
+            result::REFUSED
+        }
+        Some(_) => result::FAILED,
+    }
+}
