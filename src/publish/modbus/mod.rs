@@ -272,3 +272,6 @@ impl tokio_modbus::server::Service for Service {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
