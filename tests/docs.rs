@@ -97,3 +97,42 @@ fn links_between_the_reference_pages_lead_somewhere() {
         }
     }
 }
+
+/// Every file docs/architecture.md names (a backticked `name.rs`, or one in its tree drawing)
+/// exists: as a path from the repository or from `src/`, or, for a bare file name written
+/// in a folder's paragraph, as a file of that name somewhere under `src/` or `tests/` (a
+/// pattern such as `*_tests.rs` is not a name).
+#[test]
+fn the_architecture_names_only_files_that_exist() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    let mut stack = vec![root.join("src"), root.join("tests"), root.join("benches")];
+    while let Some(dir) = stack.pop() {
+        for e in std::fs::read_dir(&dir).unwrap().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                files.push(p.strip_prefix(root).unwrap().display().to_string());
+            }
+        }
+    }
+    let text = read("docs/architecture.md");
+    let named: BTreeSet<String> = text
+        .split(|c: char| !(c.is_ascii_alphanumeric() || "_/.-".contains(c)))
+        .filter(|w| w.ends_with(".rs") && w.len() > 3 && !w.starts_with('_'))
+        .map(|w| w.trim_start_matches("./").to_string())
+        .collect();
+    let missing: Vec<&String> = named
+        .iter()
+        .filter(|n| {
+            !root.join(n).exists()
+                && !root.join("src").join(n).exists()
+                && !files.iter().any(|f| f.ends_with(&format!("/{n}")))
+        })
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "docs/architecture.md names files that do not exist: {missing:?}"
+    );
+}
