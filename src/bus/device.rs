@@ -194,6 +194,16 @@ impl<P> DeviceRt<P> {
         self
     }
 
+    /// A good answer after `d`: its latency in the metrics (and so the page's last answer)
+    /// and in the window of the p50/p99.
+    pub fn answered_in(&mut self, d: std::time::Duration) {
+        self.metrics.latency(d);
+        if self.latencies.len() >= 256 {
+            self.latencies.pop_front();
+        }
+        self.latencies.push_back(d.as_secs_f64());
+    }
+
     /// The state file's key of `channel` (the file's format: unit, model, channel).
     pub(crate) fn channel_key(&self, channel: &str) -> String {
         channel_key(self.config.place(), &self.config.model, channel)

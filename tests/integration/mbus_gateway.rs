@@ -634,3 +634,34 @@ async fn a_meter_register_is_discovered_counted_in_intervals_and_born_in_sparkpl
         "a meter register is not writable"
     );
 }
+
+/// A meter that answers has a last answer and a latency on the status API (they were never set
+/// for M-Bus: the page said "last answer never" for a meter answering every 300 ms).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_meter_that_answers_shows_its_last_answer_and_latency() {
+    let broker = Broker::start();
+    let plant = plant(FAULTS).await;
+    let dir = temp_dir("mbus-last-answer");
+    let http = free_port();
+    let sub = Subscriber::start(broker.port, "pulsegate/test/#").await;
+    let meters: &[MeterLine<'_>] = &[("field", "good", "good", "300ms")];
+    let text = meters_toml(&plant, broker.port, &dir, meters, "timeout = \"150ms\"\n")
+        + &format!("[metrics]\nlisten = \"127.0.0.1:{http}\"\n");
+    let _gw = Gateway::start(&write_config(&dir, &text));
+    sub.wait_for("pulsegate/test/good/status", Duration::from_secs(10), |m| {
+        m.payload == "online"
+    })
+    .await
+    .expect("online");
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let (code, body) = crate::metrics::http_get(http, "/api/v1/status");
+    assert_eq!(code, 200, "{body}");
+    let status: serde_json::Value = serde_json::from_str(&body).unwrap();
+    let good = status["devices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["name"] == "good")
+        .unwrap_or_else(|| panic!("{status}"));
+    assert!(good["last_answer_ms"].is_u64(), "{good}");
+}

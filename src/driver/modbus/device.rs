@@ -528,11 +528,7 @@ impl DeviceRt<ModbusDevice> {
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less
     /// the time the request and answer of `len` registers take on the line.
     fn record_latency(&mut self, d: Duration, link: &Link, len: u16) {
-        self.metrics.latency(d);
-        if self.latencies.len() >= 256 {
-            self.latencies.pop_front();
-        }
-        self.latencies.push_back(d.as_secs_f64());
+        self.answered_in(d);
         if let Some(t) = link.timing_for(self.proto.unit) {
             let line = t.read_time(len);
             let turnaround = d.saturating_sub(line).as_secs_f64();

@@ -172,6 +172,7 @@ impl DeviceRt<MeterDevice> {
         &mut self,
         link: &mut Link,
     ) -> Result<Vec<Sample>, MeterPollError> {
+        let started = tokio::time::Instant::now();
         let readout = self.proto.read_out(link).await;
         let (header, records) = match readout {
             Ok(r) => r,
@@ -184,6 +185,8 @@ impl DeviceRt<MeterDevice> {
                 return Err(PollError::Protocol(e));
             }
         };
+        // A readout's latency: from its first request to its last telegram.
+        self.answered_in(started.elapsed());
         let at = At::now();
         let replaced = self.proto.check_identity(&header, &self.name);
         let medium = match header {
