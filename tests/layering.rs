@@ -195,7 +195,10 @@ const FLOORS: &[(&str, &[&str])] = &[
         ],
     ),
     // The HTTP endpoint: metrics, health and the status page.
-    ("http", &["config", "health", "metrics", "status"]),
+    (
+        "http",
+        &["config", "health", "log_budget", "metrics", "status"],
+    ),
     // Tools and wiring on top.
     (
         "commission",

@@ -2,19 +2,18 @@
 //! it, as `Authorization: Bearer <token>` (scripts) or as the cookie the login form sets
 //! (browsers: HttpOnly, so no script reads it; SameSite=Strict, so no other site's page sends
 //! it). Compared in constant time: the SHA-256 of both sides, so not even the length leaks.
+//! Whether a token is compared at all, and what a wrong one costs, is `door.rs`'s.
 
-use http_body_util::{BodyExt, Full, Limited};
-use hyper::body::{Bytes, Incoming};
+use http_body_util::Full;
+use hyper::body::Bytes;
 use hyper::header::{AUTHORIZATION, COOKIE, HeaderValue, LOCATION, SET_COOKIE};
-use hyper::{HeaderMap, Request, Response, StatusCode};
+use hyper::{HeaderMap, Response, StatusCode};
 
 use super::reply;
 use crate::config::Secret;
 
 /// The cookie's name.
 pub const COOKIE_NAME: &str = "pulsegate_token";
-/// The largest login form body read.
-const MAX_FORM: usize = 1024;
 
 /// The login form; `<!--message-->` is where a refusal is said.
 const LOGIN: &str = include_str!("page/login.html");
@@ -33,16 +32,21 @@ pub fn same(a: &str, b: &str) -> bool {
     std::hint::black_box(diff) == 0
 }
 
-/// Whether a request may see the page and the API: no token configured, or it carries it.
-pub fn allowed(headers: &HeaderMap, token: Option<&Secret>) -> bool {
-    let Some(token) = token else { return true };
-    let bearer = headers
+/// The tokens a request gives: its bearers (`Authorization: Bearer <token>`) and its cookie.
+pub fn given(headers: &HeaderMap) -> Vec<&str> {
+    headers
         .get_all(AUTHORIZATION)
         .iter()
         .filter_map(|v| v.to_str().ok())
         .filter_map(|v| v.strip_prefix("Bearer "))
-        .any(|t| same(t.trim(), &token.0));
-    bearer || cookie(headers).is_some_and(|t| same(t, &token.0))
+        .map(str::trim)
+        .chain(cookie(headers))
+        .collect()
+}
+
+/// Whether any of `given` is `token`.
+pub fn any_is(given: &[&str], token: &Secret) -> bool {
+    given.iter().any(|t| same(t, &token.0))
 }
 
 /// The token cookie's value, if the request has one.
@@ -63,26 +67,8 @@ pub fn form(status: StatusCode, message: &str) -> Response<Full<Bytes>> {
     reply::page(status, "text/html; charset=utf-8", Bytes::from(body))
 }
 
-/// `POST /login` with `token=<token>` (a form): the cookie and a redirect to the page when it
-/// is the token, the form again (401) when not.
-pub async fn login(req: Request<Incoming>, token: Option<&Secret>) -> Response<Full<Bytes>> {
-    let Some(token) = token else {
-        return redirect(None);
-    };
-    let body = match Limited::new(req.into_body(), MAX_FORM).collect().await {
-        Ok(b) => b.to_bytes(),
-        Err(_) => return form(StatusCode::PAYLOAD_TOO_LARGE, "That was too long."),
-    };
-    let given = form_value(&body, "token").unwrap_or_default();
-    if !same(&given, &token.0) {
-        tracing::info!("status page: a login with a wrong token");
-        return form(StatusCode::UNAUTHORIZED, "That is not the token.");
-    }
-    redirect(Some(&token.0))
-}
-
 /// 303 to the page, setting the cookie when `token` is given.
-fn redirect(token: Option<&str>) -> Response<Full<Bytes>> {
+pub fn redirect(token: Option<&str>) -> Response<Full<Bytes>> {
     let mut r = reply::plain(StatusCode::SEE_OTHER, String::new());
     r.headers_mut()
         .insert(LOCATION, HeaderValue::from_static("/"));
@@ -96,7 +82,7 @@ fn redirect(token: Option<&str>) -> Response<Full<Bytes>> {
 }
 
 /// A field of an `application/x-www-form-urlencoded` body, decoded.
-fn form_value(body: &[u8], key: &str) -> Option<String> {
+pub fn form_value(body: &[u8], key: &str) -> Option<String> {
     let text = std::str::from_utf8(body).ok()?;
     let raw = text
         .split('&')
@@ -132,38 +118,28 @@ mod tests {
     }
 
     #[test]
-    fn without_a_token_configured_everyone_may_look() {
-        assert!(allowed(&HeaderMap::new(), None));
-    }
-
-    #[test]
     fn the_token_is_taken_as_a_bearer_or_as_the_cookie_and_nothing_else() {
         let t = Secret("0123456789abcdef".into());
-        assert!(!allowed(&HeaderMap::new(), Some(&t)));
-        assert!(allowed(
-            &headers(&[("authorization", "Bearer 0123456789abcdef")]),
-            Some(&t)
-        ));
-        assert!(!allowed(
-            &headers(&[("authorization", "Bearer 0123456789abcdeX")]),
-            Some(&t)
-        ));
-        assert!(!allowed(
-            &headers(&[("authorization", "Basic 0123456789abcdef")]),
-            Some(&t)
-        ));
-        assert!(allowed(
-            &headers(&[("cookie", "a=b; pulsegate_token=0123456789abcdef")]),
-            Some(&t)
-        ));
-        assert!(!allowed(
-            &headers(&[("cookie", "pulsegate_token=0123")]),
-            Some(&t)
-        ));
-        assert!(!allowed(
-            &headers(&[("cookie", "other=0123456789abcdef")]),
-            Some(&t)
-        ));
+        let given = |pairs: &[(&'static str, &str)]| {
+            let h = headers(pairs);
+            let g = given(&h);
+            (g.len(), any_is(&g, &t))
+        };
+        assert_eq!(given(&[]), (0, false));
+        let bearer = "Bearer 0123456789abcdef";
+        assert_eq!(given(&[("authorization", bearer)]), (1, true));
+        let wrong = "Bearer 0123456789abcdeX";
+        assert_eq!(given(&[("authorization", wrong)]), (1, false));
+        let basic = "Basic 0123456789abcdef";
+        assert_eq!(given(&[("authorization", basic)]), (0, false));
+        let cookie = "a=b; pulsegate_token=0123456789abcdef";
+        assert_eq!(given(&[("cookie", cookie)]), (1, true));
+        let short = "pulsegate_token=0123";
+        assert_eq!(given(&[("cookie", short)]), (1, false));
+        let other = "other=0123456789abcdef";
+        assert_eq!(given(&[("cookie", other)]), (0, false));
+        let both = [("authorization", wrong), ("cookie", cookie)];
+        assert_eq!(given(&both), (2, true), "any of them may be it");
     }
 
     #[test]

@@ -2,7 +2,9 @@
 
 use http_body_util::Full;
 use hyper::body::Bytes;
-use hyper::header::{CACHE_CONTROL, CONTENT_TYPE, HeaderName, HeaderValue};
+use std::time::Duration;
+
+use hyper::header::{CACHE_CONTROL, CONTENT_TYPE, HeaderName, HeaderValue, RETRY_AFTER};
 use hyper::{Response, StatusCode};
 
 /// The page loads only its own files and talks only to its own origin: no inline script or
@@ -47,4 +49,16 @@ pub fn dress<B>(mut r: Response<B>, kind: &'static str) -> Response<B> {
         HeaderValue::from_static("no-referrer"),
     );
     r
+}
+
+/// `r` (a 429) saying when to try again: after `left`, in whole seconds.
+pub fn limited<B>(mut r: Response<B>, left: Duration) -> Response<B> {
+    r.headers_mut()
+        .insert(RETRY_AFTER, HeaderValue::from(whole_seconds(left)));
+    r
+}
+
+/// `d` in seconds, rounded up (a client that waits that long is in time), at least 1.
+pub fn whole_seconds(d: Duration) -> u64 {
+    (d.as_secs() + u64::from(d.subsec_nanos() > 0)).max(1)
 }

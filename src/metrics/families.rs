@@ -57,6 +57,7 @@ pub(super) struct Families {
     pub modbus_closed: IntCounterVec,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
+    pub http_login_failures: IntCounterVec,
     pub start_time: Gauge,
     pub build_info: IntGaugeVec,
     /// Each device's last good answer (no series: the status page's).
@@ -236,11 +237,47 @@ const COMMANDS_REFUSED: Family = (
     "pulsegate_commands_refused_total",
     "Commands answered with an error, by error code.",
 );
+const HTTP_LOGIN_FAILURES: Family = (
+    "pulsegate_http_login_failures_total",
+    "Tokens the status page and its API refused (a login form's, a bearer, the cookie), by result: wrong_token (checked, wrong), limited (not checked: the client gave too many wrong ones and is locked out, answered 429).",
+);
 const START_TIME: Family = (
     "process_start_time_seconds",
     "Start time of the process since the Unix epoch, in seconds.",
 );
 const BUILD_INFO: Family = ("pulsegate_build_info", "Always 1; the version is a label.");
+
+/// Why the status page or its API refused a token (`pulsegate_http_login_failures_total`'s
+/// `result`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoginFailure {
+    /// Checked, and not the token.
+    WrongToken,
+    /// Not checked: its client is locked out after too many wrong ones (answered 429).
+    Limited,
+}
+
+impl LoginFailure {
+    pub const ALL: [LoginFailure; 2] = [LoginFailure::WrongToken, LoginFailure::Limited];
+
+    /// Its `result` label.
+    pub fn label(self) -> &'static str {
+        match self {
+            LoginFailure::WrongToken => "wrong_token",
+            LoginFailure::Limited => "limited",
+        }
+    }
+}
+
+/// The login failures' family, both results at 0 from the start (a rate over a series that
+/// appears with its first failure misses that failure).
+fn login_failures(r: &Registry) -> IntCounterVec {
+    let f = family!(r, IntCounterVec, HTTP_LOGIN_FAILURES, &["result"]);
+    for result in LoginFailure::ALL {
+        f.with_label_values(&[result.label()]);
+    }
+    f
+}
 
 /// Series of buses, devices and channels that are gone (see `Metrics::retain`).
 #[derive(Default)]
@@ -338,6 +375,7 @@ impl Families {
             modbus_closed: family!(r, IntCounterVec, MODBUS_CLOSED, &["output", "reason"]),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
+            http_login_failures: login_failures(r),
             start_time: family!(r, Gauge, START_TIME),
             build_info: family!(r, IntGaugeVec, BUILD_INFO, &["version"]),
             live: Default::default(),

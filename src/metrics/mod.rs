@@ -22,6 +22,7 @@ use prometheus::{Encoder, Gauge, Histogram, IntCounter, IntGauge, Registry, Text
 use crate::bus_health::WireCounters;
 use crate::config::Config;
 use crate::reading::Reading;
+pub use families::LoginFailure;
 use families::{Families, Gone};
 pub use look::{BusLook, DeviceLook};
 
@@ -111,6 +112,14 @@ impl Metrics {
         f.commands_received.inc();
         if let Some(code) = outcome.refusal() {
             f.commands_refused.with_label_values(&[code]).inc();
+        }
+    }
+
+    /// A token the status page or its API refused.
+    pub fn login_failure(&self, failure: LoginFailure) {
+        if let Some(e) = &self.inner {
+            let f = &e.families.http_login_failures;
+            f.with_label_values(&[failure.label()]).inc();
         }
     }
 

@@ -311,3 +311,17 @@ fn a_reload_forgets_every_series_of_a_device_channel_or_bus_that_is_gone() {
         "what stays is kept:\n{text}"
     );
 }
+
+#[test]
+fn refused_tokens_are_counted_by_result_and_both_results_show_0_from_the_start() {
+    let m = Metrics::new();
+    let text = m.encode();
+    assert!(text.contains("pulsegate_http_login_failures_total{result=\"wrong_token\"} 0"));
+    assert!(text.contains("pulsegate_http_login_failures_total{result=\"limited\"} 0"));
+    m.login_failure(LoginFailure::WrongToken);
+    m.login_failure(LoginFailure::Limited);
+    m.login_failure(LoginFailure::Limited);
+    let text = m.encode();
+    assert!(text.contains("pulsegate_http_login_failures_total{result=\"wrong_token\"} 1"));
+    assert!(text.contains("pulsegate_http_login_failures_total{result=\"limited\"} 2"));
+}

@@ -16,6 +16,7 @@ mod faults;
 mod fleet;
 mod format_seam;
 mod hostile;
+mod http_limits;
 mod local_socket;
 mod mbus_frames;
 mod mbus_gateway;

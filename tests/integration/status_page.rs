@@ -185,7 +185,7 @@ fn page_target(port: u16) -> String {
 // --- plain HTTP ----------------------------------------------------------------------------
 
 /// One HTTP/1.1 request on loopback: (status, head, body).
-fn http(
+pub(crate) fn http(
     port: u16,
     method: &str,
     path: &str,
@@ -290,7 +290,7 @@ fn page_toml(port: u16, metrics: &str) -> String {
 }
 
 /// Waits until the endpoint answers.
-fn wait_listening(port: u16) {
+pub(crate) fn wait_listening(port: u16) {
     let deadline = Instant::now() + Duration::from_secs(10);
     while http(port, "GET", "/healthz", &[], "").0 == 0 {
         assert!(Instant::now() < deadline, "the HTTP endpoint did not start");
