@@ -256,6 +256,12 @@ impl BusTask {
             }
             () = tokio::time::sleep_until(wake) => {}
         }
+        self.after_wait(core, i)
+    }
+
+    /// After the wait between polls: the state flush and the bus stats when due; `Next::Poll`
+    /// when device `i` is due now.
+    fn after_wait<D: Driver>(&mut self, core: &mut Core<D>, i: usize) -> Next {
         let now = Instant::now();
         if now >= core.flush_at {
             let state = core.durable.snapshot(&core.devices, false);

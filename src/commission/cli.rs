@@ -671,24 +671,59 @@ async fn setup(
         .channels(&modes)
         .map_err(|e| CommissionError::Failed(e.to_string()))?;
     let changes = plan_changes(&profile, &channels, wanted)?;
-    if let Some(c) = changes.iter().find(|c| c.setting.name == "unit") {
-        let new = c.field as u8;
-        if new != unit {
-            let id_timeout = link.timeout_for(answer, 3);
-            if let Ok(Some(_)) =
-                crate::driver::modbus::probe::identify(&mut link, profiles, new, id_timeout, true)
-                    .await
-            {
-                return Err(CommissionError::BadInput(format!(
-                    "unit {new} already answers on this line; choose a free unit id"
-                )));
-            }
+    refuse_taken_unit(&mut link, &changes, unit, profiles, answer).await?;
+    let words = current_words(&mut link, &target, unit, &changes, answer).await?;
+    let plan = describe_plan(unit, &profile.model, &changes, &words);
+    eprint!("{plan}");
+    if !yes && !confirm("write these settings?".into()).await {
+        return Err(CommissionError::BadInput(
+            "not confirmed; nothing written".into(),
+        ));
+    }
+    write_changes(&mut link, &target, unit, &changes, &words, answer).await?;
+    drop(link);
+    let (unit, baud) = read_back(&target, &changes, unit, baud, &profile).await?;
+    println!("written and read back at unit {unit}, {baud} baud:");
+    let mut seen = std::collections::BTreeSet::new();
+    for c in &changes {
+        if seen.insert(c.setting.name.clone()) {
+            println!("  {}", explain(c, unit));
         }
     }
-    let words = current_words(&mut link, &target, unit, &changes, answer).await?;
-    let mut plan = format!("unit {} ({}):\n", unit, profile.model);
+    Ok(())
+}
+
+/// A new unit id that another module already answers at is refused before anything is written.
+async fn refuse_taken_unit(
+    link: &mut crate::driver::modbus::link::Link,
+    changes: &[super::setup::Change],
+    unit: u8,
+    profiles: &Profiles,
+    answer: std::time::Duration,
+) -> Result<(), CommissionError> {
+    let Some(c) = changes.iter().find(|c| c.setting.name == "unit") else {
+        return Ok(());
+    };
+    let new = c.field as u8;
+    if new == unit {
+        return Ok(());
+    }
+    let id_timeout = link.timeout_for(answer, 3);
+    if let Ok(Some(_)) =
+        crate::driver::modbus::probe::identify(link, profiles, new, id_timeout, true).await
+    {
+        return Err(CommissionError::BadInput(format!(
+            "unit {new} already answers on this line; choose a free unit id"
+        )));
+    }
+    Ok(())
+}
+
+/// What `setup` will write, a line a setting (sixteen counters changed alike are one line).
+fn describe_plan(unit: u8, model: &str, changes: &[super::setup::Change], words: &[u16]) -> String {
+    let mut plan = format!("unit {unit} ({model}):\n");
     let mut lines: Vec<(String, usize)> = Vec::new();
-    for (c, w) in changes.iter().zip(&words) {
+    for (c, w) in changes.iter().zip(words) {
         let from_to = format!(
             "{} -> {}",
             c.setting.describe(c.setting.field(*w)),
@@ -716,23 +751,7 @@ async fn setup(
         };
         plan += &format!("  {line}{times}\n");
     }
-    eprint!("{plan}");
-    if !yes && !confirm("write these settings?".into()).await {
-        return Err(CommissionError::BadInput(
-            "not confirmed; nothing written".into(),
-        ));
-    }
-    write_changes(&mut link, &target, unit, &changes, &words, answer).await?;
-    drop(link);
-    let (unit, baud) = read_back(&target, &changes, unit, baud, &profile).await?;
-    println!("written and read back at unit {unit}, {baud} baud:");
-    let mut seen = std::collections::BTreeSet::new();
-    for c in &changes {
-        if seen.insert(c.setting.name.clone()) {
-            println!("  {}", explain(c, unit));
-        }
-    }
-    Ok(())
+    plan
 }
 
 async fn raw(

@@ -189,6 +189,25 @@ pub fn found_table(found: &[FoundMeter]) -> String {
 
 /// A whole config file (gateway, MQTT, one M-Bus bus) for the meters found: each by its
 /// primary address where it alone answers there, else by its id (and manufacturer).
+/// The keys of the scanned segment's bus: its serial port or its TCP converter.
+fn bus_keys(segment: &Segment) -> String {
+    match &segment.target {
+        Target::Serial { port, parity } => {
+            let p = match parity {
+                Parity::None => "none",
+                Parity::Even => "even",
+                Parity::Odd => "odd",
+            };
+            format!(
+                "port = {:?}\nbaud = {}\nparity = \"{p}\"\n",
+                port.display().to_string(),
+                segment.baud
+            )
+        }
+        Target::Tcp { host, port } => format!("host = \"{host}:{port}\"\n"),
+    }
+}
+
 pub fn config_snippet(segment: &Segment, found: &[FoundMeter]) -> String {
     let mut t = String::from(
         "# Written by `pulsegate scan --protocol mbus --toml`. Check it with \
@@ -200,24 +219,7 @@ pub fn config_snippet(segment: &Segment, found: &[FoundMeter]) -> String {
         return t;
     }
     t += "[buses.mbus1]\nprotocol = \"mbus\"\n";
-    match &segment.target {
-        Target::Serial { port, parity } => {
-            let p = match parity {
-                Parity::None => "none",
-                Parity::Even => "even",
-                Parity::Odd => "odd",
-            };
-            let _ = writeln!(
-                t,
-                "port = {:?}\nbaud = {}\nparity = \"{p}\"",
-                port.display().to_string(),
-                segment.baud
-            );
-        }
-        Target::Tcp { host, port } => {
-            let _ = writeln!(t, "host = \"{host}:{port}\"");
-        }
-    }
+    t += &bus_keys(segment);
     let mut at: BTreeMap<u8, usize> = BTreeMap::new();
     for m in found {
         *at.entry(m.primary).or_default() += 1;

@@ -29,6 +29,38 @@ pub struct Change {
 
 /// Checks every wanted change against the profile; nothing is written when one is wrong.
 /// `channels` are the module's channels in its current work modes.
+/// A per-channel setting of channel `name`, where the module's current work modes have it.
+fn channel_change(
+    profile: &Profile,
+    channels: &[ChannelSpec],
+    w: &Wanted,
+    setting: &crate::profile::Setting,
+    name: &str,
+    field: u16,
+) -> Result<Change, CommissionError> {
+    let bad = |e: String| CommissionError::BadInput(e);
+    let ch = channels.iter().find(|c| c.name == name).ok_or_else(|| {
+        bad(format!(
+            "{} has no channel {name} in its current work modes (it has: {})",
+            profile.model,
+            channels
+                .iter()
+                .map(|c| c.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    })?;
+    let reg = ch
+        .ppr
+        .ok_or_else(|| bad(format!("channel {name} has no {} register", w.setting)))?;
+    Ok(Change {
+        setting: setting.clone(),
+        label: format!("{} {name}", w.setting),
+        register: reg.address,
+        field,
+    })
+}
+
 pub fn plan_changes(
     profile: &Profile,
     channels: &[ChannelSpec],
@@ -43,26 +75,7 @@ pub fn plan_changes(
         let field = setting.encode(&w.value).map_err(|e| bad(e.to_string()))?;
         match (&setting.place, &w.channel) {
             (Place::Channel(_), Some(name)) => {
-                let ch = channels.iter().find(|c| &c.name == name).ok_or_else(|| {
-                    bad(format!(
-                        "{} has no channel {name} in its current work modes (it has: {})",
-                        profile.model,
-                        channels
-                            .iter()
-                            .map(|c| c.name.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ))
-                })?;
-                let reg = ch
-                    .ppr
-                    .ok_or_else(|| bad(format!("channel {name} has no {} register", w.setting)))?;
-                out.push(Change {
-                    setting: setting.clone(),
-                    label: format!("{} {name}", w.setting),
-                    register: reg.address,
-                    field,
-                });
+                out.push(channel_change(profile, channels, w, setting, name, field)?);
             }
             (Place::Channel(_), None) => {
                 return Err(bad(format!(

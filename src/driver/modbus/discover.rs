@@ -132,29 +132,41 @@ impl DeviceRt<ModbusDevice> {
             self.build_channels(specs);
             self.proto.modes = Some(modes);
         }
+        self.read_pprs(link, preempt).await?;
+        self.read_windows(link, preempt).await?;
+        self.set_power_on(link).await;
+        self.replan_with_turnaround(link);
+        self.proto.last_slow = Some(Instant::now());
+        Ok(())
+    }
+
+    /// Reads the pulses per revolution of the channels whose module has a register for it (a
+    /// configured `ppr` wins).
+    async fn read_pprs(
+        &mut self,
+        link: &mut Link,
+        preempt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), PollError> {
         let ppr_regs: Vec<Register> = self
             .proto
             .channels
             .iter()
             .filter_map(|c| c.spec.ppr)
             .collect();
-        if !ppr_regs.is_empty() {
-            let snap = self.read_registers(link, &ppr_regs, preempt).await?;
-            let order = self.profile.word_order;
-            for ch in &mut self.proto.channels {
-                let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
-                let read = ch
-                    .spec
-                    .ppr
-                    .and_then(|r| snap.get(&r))
-                    .map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
-                ch.ppr = configured.or(read.filter(|p| *p > 0.0));
-            }
+        if ppr_regs.is_empty() {
+            return Ok(());
         }
-        self.read_windows(link, preempt).await?;
-        self.set_power_on(link).await;
-        self.replan_with_turnaround(link);
-        self.proto.last_slow = Some(Instant::now());
+        let snap = self.read_registers(link, &ppr_regs, preempt).await?;
+        let order = self.profile.word_order;
+        for ch in &mut self.proto.channels {
+            let configured = self.config.channels.get(&*ch.name).and_then(|c| c.ppr);
+            let read = ch
+                .spec
+                .ppr
+                .and_then(|r| snap.get(&r))
+                .map(|(w, _)| decode(w, ValueType::U16, order).as_f64());
+            ch.ppr = configured.or(read.filter(|p| *p > 0.0));
+        }
         Ok(())
     }
 

@@ -312,6 +312,17 @@ impl Link {
         self.busy += end - started;
         self.answer_time = Some(end - started);
         self.last_io = Some(end);
+        self.judge(result, bytes_before, timeout)
+    }
+
+    /// What a transaction's result says of the line and the client: counted, and the client
+    /// rebuilt where a late or broken answer could otherwise be read as the next one.
+    fn judge(
+        &mut self,
+        result: Result<Result<Result<Response, ExceptionCode>, tokio_modbus::Error>, ()>,
+        bytes_before: u64,
+        timeout: Duration,
+    ) -> Answer<Response> {
         match result {
             Err(_elapsed) => {
                 // A late answer may still arrive: rebuild so it cannot be read as the next one.
