@@ -170,6 +170,14 @@ fn sleep_until(t: Instant) {
     }
 }
 
+/// The path a pseudo-terminal's end is opened by.
+fn pty_name(p: &TTYPort) -> std::io::Result<PathBuf> {
+    use serialport::SerialPort;
+    p.name()
+        .map(PathBuf::from)
+        .ok_or_else(|| std::io::Error::other("pseudo-terminal has no name"))
+}
+
 impl Line {
     /// Starts a line; returns it and the path of the pseudo-terminal the module side (the
     /// simulator's RTU server) opens.
@@ -179,14 +187,8 @@ impl Line {
         let (mod_master, mod_slave) = TTYPort::pair().map_err(std::io::Error::other)?;
         let (gw_master, gw_slave) = (private(gw_master), private(gw_slave));
         let (mod_master, mod_slave) = (private(mod_master), private(mod_slave));
-        let name = |p: &TTYPort| {
-            use serialport::SerialPort;
-            p.name()
-                .map(PathBuf::from)
-                .ok_or_else(|| std::io::Error::other("pseudo-terminal has no name"))
-        };
-        let gateway_path = name(&gw_slave)?;
-        let module_path = name(&mod_slave)?;
+        let gateway_path = pty_name(&gw_slave)?;
+        let module_path = pty_name(&mod_slave)?;
         let stop = Arc::new(AtomicBool::new(false));
         let noisy = Arc::new(AtomicBool::new(true));
         let seed = spec.seed.unwrap_or(seed);

@@ -30,26 +30,7 @@ pub async fn idle_step(
     out: &tokio::sync::mpsc::UnboundedSender<Output>,
     shutdown: &CancellationToken,
 ) -> bool {
-    if let Some(rx) = requests.as_mut() {
-        while let Ok(req) = rx.try_recv() {
-            if survey.is_some() {
-                let busy = ScanOutcome::Refused {
-                    bus: bus.to_string(),
-                    id: req.id.clone(),
-                    code: "busy",
-                    message: "a scan of this bus is under way".into(),
-                };
-                send(out, &req.reply, busy);
-            } else {
-                tracing::info!(
-                    bus,
-                    units = req.units.len(),
-                    "scan requested; asking units in idle line time"
-                );
-                *survey = Some(Survey::new(req, configured, Instant::now()));
-            }
-        }
-    }
+    take_requests(survey, requests, configured, bus, out);
     let Some(s) = survey.as_mut() else {
         return false;
     };
@@ -93,6 +74,35 @@ pub async fn idle_step(
         *survey = None;
     }
     used
+}
+
+/// New scan requests: the first starts a survey, any while one runs is answered "busy".
+fn take_requests(
+    survey: &mut Option<Survey>,
+    requests: &mut Option<Receiver<ScanRequest>>,
+    configured: &[u8],
+    bus: &str,
+    out: &tokio::sync::mpsc::UnboundedSender<Output>,
+) {
+    let Some(rx) = requests.as_mut() else { return };
+    while let Ok(req) = rx.try_recv() {
+        if survey.is_some() {
+            let busy = ScanOutcome::Refused {
+                bus: bus.to_string(),
+                id: req.id.clone(),
+                code: "busy",
+                message: "a scan of this bus is under way".into(),
+            };
+            send(out, &req.reply, busy);
+        } else {
+            tracing::info!(
+                bus,
+                units = req.units.len(),
+                "scan requested; asking units in idle line time"
+            );
+            *survey = Some(Survey::new(req, configured, Instant::now()));
+        }
+    }
 }
 
 fn send(out: &tokio::sync::mpsc::UnboundedSender<Output>, reply: &Reply, outcome: ScanOutcome) {

@@ -445,8 +445,16 @@ fn a_metered_channel_has_a_meter_reading_and_one_consumption_sensor_per_interval
             format!("sensor.edge_meter_a0_interval_{period}")
         );
     }
-    // An encoder's position is no meter: no reading, no intervals; the press has no intervals
-    // and no scale: neither.
+}
+
+/// An encoder's position is no meter: no reading, no intervals; the press has no intervals and
+/// no scale: neither.
+#[test]
+fn only_a_metered_counter_has_a_reading_and_interval_sensors() {
+    let text = CONFIG.replace(
+        "[buses.line1.devices.meter.channels.a0]",
+        "intervals = [\"15min\", \"1d\"]\n[buses.line1.devices.meter.channels.a0]",
+    );
     use crate::publish::homeassistant::entities::{channel_entities, channel_spec};
     use crate::publish::homeassistant::entity::{Module, Site};
     let c = config(&text);
