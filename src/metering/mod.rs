@@ -7,6 +7,8 @@
 //! published `reading` match its meter's display; [`tariff`] says which time-of-use tariff
 //! each record belongs to.
 
+pub mod account;
+pub mod billing;
 pub mod clock;
 pub mod interval;
 pub mod meter;
