@@ -355,6 +355,14 @@ fn check(path: &std::path::Path, register_map: bool, json: bool) -> anyhow::Resu
         return Ok(ExitCode::SUCCESS);
     }
     print!("{}", pulsegate::report::poll_plan(&config));
+    if let Some(cal) = &config.gateway.tariffs {
+        let now = pulsegate::reading::unix_ms(std::time::SystemTime::now()) as i64;
+        let clock = &config.gateway.clock;
+        print!(
+            "{}",
+            pulsegate::metering::tariff::describe(cal, clock, now, 6)
+        );
+    }
     let spool = config.gateway.state_dir.join("spool");
     if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
         println!(

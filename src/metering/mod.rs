@@ -10,6 +10,7 @@
 pub mod account;
 pub mod billing;
 pub mod clock;
+pub mod demand;
 pub mod interval;
 pub mod meter;
 pub mod period;

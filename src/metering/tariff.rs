@@ -250,6 +250,28 @@ impl Calendar {
     }
 }
 
+/// What `check` prints of a calendar: its tariffs and the next `n` switches after `now_ms`,
+/// in UTC and on the local clock.
+pub fn describe(cal: &Calendar, clock: &Clock, now_ms: i64, n: usize) -> String {
+    use std::fmt::Write;
+    let mut out = format!(
+        "tariffs ({}): {}; now {}\n",
+        clock.name(),
+        cal.names()
+            .iter()
+            .enumerate()
+            .map(|(i, n)| format!("{} = {n}", i + 1))
+            .collect::<Vec<_>>()
+            .join(", "),
+        cal.at(clock, now_ms)
+    );
+    for (at, name) in cal.changes(clock, now_ms, n) {
+        let local = clock.local(at).strftime("%a %Y-%m-%d %H:%M %Z").to_string();
+        let _ = writeln!(out, "  {}  {local}  -> {name}", super::clock::iso(at));
+    }
+    out
+}
+
 fn rule(raw: &RawRule, names: &[String]) -> Result<Rule, Vec<TariffError>> {
     let mut errs = Vec::new();
     let mut days = [false; 7];

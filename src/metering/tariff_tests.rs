@@ -213,3 +213,15 @@ fn a_rule_partly_covered_by_an_earlier_one_still_applies_where_it_is_not() {
     assert_eq!(cal.at(&utc, at("2026-12-08T08:00:00Z")), "shoulder");
     assert_eq!(cal.at(&utc, at("2026-12-07T08:00:00Z")), "peak");
 }
+
+#[test]
+fn check_describes_the_tariffs_and_the_next_switches_on_both_clocks() {
+    let berlin = Clock::named("Europe/Berlin").unwrap();
+    let text = describe(&peak_calendar(), &berlin, at("2026-12-04T05:58:00Z"), 2);
+    assert_eq!(
+        text,
+        "tariffs (Europe/Berlin): 1 = offpeak, 2 = peak; now offpeak\n  \
+         2026-12-04T06:00:00Z  Fri 2026-12-04 07:00 CET  -> peak\n  \
+         2026-12-04T20:00:00Z  Fri 2026-12-04 21:00 CET  -> offpeak\n"
+    );
+}
