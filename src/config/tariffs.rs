@@ -28,6 +28,16 @@ fn tariffs(mut t: Table<'_>, errs: &mut Errors) -> Option<Calendar> {
     let origin = t.origin().map(str::to_string);
     let path = t.path.clone();
     t.finish(errs);
+    let names = default.iter().chain(rules.iter().map(|r| &r.tariff));
+    for n in names.filter(|n| !crate::topics::is_topic_safe(n)) {
+        errs.push(
+            &path,
+            origin.as_deref(),
+            format!(
+                "{n:?} is not a tariff name: letters, digits, '-' or '_' (it is a topic level)"
+            ),
+        );
+    }
     match Calendar::new(&default?, &holidays, &rules) {
         Ok(c) => Some(c),
         Err(list) => {

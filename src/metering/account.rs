@@ -12,39 +12,11 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use super::billing::{BillingConfig, BillingRecord, OpenPeriod};
+use super::billing::{BillingConfig, OpenPeriod};
+pub use super::booking::{BillingRecord, Booking, Register};
 use super::clock::Clock;
 use super::interval::{Read, Record};
 use super::tariff::Calendar;
-
-/// What the account said about one record; it travels with the record (and is kept with it in
-/// a state file while unsent), so a record sent again carries the same.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Booking {
-    /// The tariff in force at the record's start, the one it is booked to.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub tariff: Option<String>,
-    /// Every tariff in force during the record, when more than one (a merged record, or a
-    /// longer period's).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub tariffs: Vec<String>,
-    /// The register of `tariff` after this record was booked (records of the shortest period).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub register: Option<Register>,
-    /// The billing periods this record closed (one; or also one that closed at the read that
-    /// opened the first interval, which closed no record and so goes out with the next).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub billing: Vec<BillingRecord>,
-}
-
-/// A tariff register's state as published.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Register {
-    /// Pulses booked to the tariff since the register began.
-    pub total: i64,
-    /// Counts the register's publications; never repeats.
-    pub seq: u64,
-}
 
 /// The rules an account books by: the clock, the calendar, the billing periods.
 #[derive(Debug, Clone, Copy)]

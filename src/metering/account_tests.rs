@@ -138,7 +138,7 @@ fn across_a_friday_morning_peak_rule_each_register_moves_by_exactly_its_records(
                     .register
                     .filter(|_| r.booking.as_ref().unwrap().tariff.as_deref() == Some(name))
             })
-            .last()
+            .next_back()
             .unwrap();
         assert_eq!(last.total, ch.account.registers[name], "{name}");
     }

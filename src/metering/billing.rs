@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use jiff::civil::{Date, DateTime, Time};
 use serde::{Deserialize, Serialize};
 
+pub use super::booking::{BillingRecord, Peak, PeriodStatus};
 use super::clock::Clock;
 use super::interval::{Read, Record, Status};
 use super::period::Period;
@@ -58,27 +59,6 @@ impl BillingConfig {
     }
 }
 
-/// Why a billing record covers what it covers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PeriodStatus {
-    /// The whole period, from its start boundary to its end.
-    Complete,
-    /// The gateway began (or the channel appeared) inside the period: from the first reading.
-    Partial,
-    /// The read at the period's end was missed: the period runs on to the next boundary that
-    /// was read (the records' `merged`), never guessed.
-    Merged,
-}
-
-/// The largest demand record of a period: its delta and where it lies.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Peak {
-    pub delta: i64,
-    pub start_ms: i64,
-    pub ms: i64,
-}
-
 /// The period being billed, as the state file keeps it.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct OpenPeriod {
@@ -92,24 +72,6 @@ pub struct OpenPeriod {
     pub peak: Option<Peak>,
     #[serde(default)]
     pub partial: bool,
-}
-
-/// A closed billing period of one channel.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-pub struct BillingRecord {
-    pub start_ms: i64,
-    pub end_ms: i64,
-    pub total_start: i64,
-    pub total_end: i64,
-    /// Exactly `total_end - total_start`.
-    pub delta: i64,
-    /// Pulses per tariff, summing to `delta` (empty without `[tariffs]`).
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub by_tariff: BTreeMap<String, i64>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub peak: Option<Peak>,
-    pub status: PeriodStatus,
-    pub seq: u64,
 }
 
 impl OpenPeriod {

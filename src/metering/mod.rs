@@ -9,6 +9,7 @@
 
 pub mod account;
 pub mod billing;
+pub mod booking;
 pub mod clock;
 pub mod demand;
 pub mod interval;

@@ -42,8 +42,6 @@ pub struct Calendar {
 /// A calendar that cannot be kept, in words a field engineer understands.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum TariffError {
-    #[error("{0:?} is not a tariff name: letters, digits, '-' or '_' (it is a topic level)")]
-    Name(String),
     #[error("at most 9 tariffs (an OBIS tariff group is one digit): {0} are named")]
     TooMany(usize),
     #[error("{0:?} is not a day: write one of mon, tue, wed, thu, fri, sat, sun")]
@@ -89,11 +87,6 @@ impl Calendar {
         for r in rules {
             if !names.contains(&r.tariff) {
                 names.push(r.tariff.clone());
-            }
-        }
-        for n in &names {
-            if !crate::topics::is_topic_safe(n) {
-                errs.push((None, TariffError::Name(n.clone())));
             }
         }
         if names.len() > 9 {

@@ -178,7 +178,6 @@ fn unknown_days_bad_times_empty_and_shadowed_rules_are_refused_each_by_its_rule(
     )
     .unwrap_err();
     let want = [
-        (None, TariffError::Name("bad name".into())),
         (None, TariffError::Holiday("2026-13-01".into())),
         (Some(0), TariffError::Day("monday".into())),
         (Some(0), TariffError::DayTwice("tue".into())),
