@@ -143,6 +143,9 @@ pub struct CounterState {
     /// The offset of the channel's meter reading (`set_reading`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter: Option<crate::metering::meter::MeterOffset>,
+    /// Its tariff registers and open billing period (`[tariffs]`, `[billing]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub account: Option<crate::metering::account::Account>,
     /// Only in a state file, when it differs from `seq` and `total`: the channel's last
     /// reading handed to the MQTT side before the save. The pulses between it and `total`
     /// (deltas the publish policy carried, readings a crash took while they waited for a

@@ -13,6 +13,7 @@
 
 pub mod admission;
 pub mod app;
+pub mod billing_report;
 pub mod boot;
 pub mod bus;
 pub mod bus_health;

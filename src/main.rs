@@ -56,6 +56,17 @@ enum Command {
         #[arg(long, requires = "register_map")]
         json: bool,
     },
+    /// Print the billing periods each metered channel keeps (the state files'; 12 by default).
+    Billing {
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+        /// One JSON object per period and channel, one a line.
+        #[arg(long)]
+        json: bool,
+        /// How many periods per channel, the newest last.
+        #[arg(long, default_value_t = 12)]
+        last: usize,
+    },
     /// Print the compiled poll plan per bus with line time per cycle.
     Plan {
         #[arg(long, default_value = DEFAULT_PATH)]
@@ -277,6 +288,17 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             json,
         } => check(&config, register_map, json),
         Command::Plan { config } => check(&config, false, false),
+        Command::Billing { config, json, last } => {
+            let config = match load(&config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            match pulsegate::billing_report::billing(&config, json, last) {
+                Ok(text) => print!("{text}"),
+                Err(e) => anyhow::bail!(e),
+            }
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Run { config: path } => {
             let config = match load(&path) {
                 Ok(c) => c,
@@ -355,6 +377,14 @@ fn check(path: &std::path::Path, register_map: bool, json: bool) -> anyhow::Resu
         return Ok(ExitCode::SUCCESS);
     }
     print!("{}", pulsegate::report::poll_plan(&config));
+    if let Some(cal) = &config.gateway.tariffs {
+        let now = pulsegate::reading::unix_ms(std::time::SystemTime::now()) as i64;
+        let clock = &config.gateway.clock;
+        print!(
+            "{}",
+            pulsegate::metering::tariff::describe(cal, clock, now, 6)
+        );
+    }
     let spool = config.gateway.state_dir.join("spool");
     if let Err(e) = pulsegate::publish::spool_place::usable(&spool) {
         println!(

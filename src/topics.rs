@@ -90,6 +90,16 @@ impl Topics {
         format!("{}/interval/{period}", self.reading(device, channel))
     }
 
+    /// `<root>/<device>/<channel>/tariff/<tariff>`: a channel's register of one tariff.
+    pub fn tariff(&self, device: &str, channel: &str, tariff: &str) -> String {
+        format!("{}/{device}/{channel}/tariff/{tariff}", self.root)
+    }
+
+    /// `<root>/<device>/<channel>/billing`: a channel's billing records.
+    pub fn billing(&self, device: &str, channel: &str) -> String {
+        format!("{}/{device}/{channel}/billing", self.root)
+    }
+
     /// `<root>/bus/<bus>/stats`: bus health.
     pub fn bus_stats(&self, bus: &str) -> String {
         format!("{}/bus/{bus}/stats", self.root)

@@ -35,6 +35,7 @@ const FLOORS: &[(&str, &[&str])] = &[
     ("report", &["config", "plan", "profile"]),
     ("state", &["config", "counter"]),
     ("boot", &["config", "state"]),
+    ("billing_report", &["config", "state", "metering"]),
     ("systemd", &["health"]),
     // Commands and what becomes of them; the events a bus sends.
     ("command", &["decimal", "topics"]),

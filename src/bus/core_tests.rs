@@ -607,6 +607,7 @@ fn closed_record(
         status,
         seq,
         events: vec![event],
+        booking: None,
     }
 }
 

@@ -78,11 +78,38 @@ impl Emitter {
                 total: r.update.total,
                 event: r.update.event,
             };
+            let shortest = periods
+                .iter()
+                .min_by_key(|(p, _)| p.ms())
+                .map(|(_, t)| t.clone());
+            let open = |s: &crate::counter::CounterState| {
+                let st = shortest.as_deref().and_then(|t| s.intervals.get(t));
+                st.and_then(|st| st.open.as_ref()).map(|o| o.start_ms)
+            };
+            let before = open(&counter.state);
+            let mut closed = Vec::new();
             for (period, text) in periods {
                 let state = counter.state.intervals.entry(text.to_string());
-                let Some(record) = state.or_default().observe(&self.clock, &period, read) else {
-                    continue;
+                if let Some(record) = state.or_default().observe(&self.clock, &period, read) {
+                    closed.push((text, record));
+                }
+            }
+            let booking = self.gateway.tariffs.is_some() || self.gateway.billing.is_some();
+            if let Some(shortest) = shortest.as_ref().filter(|_| booking) {
+                let books = crate::metering::account::Books {
+                    clock: &self.clock,
+                    calendar: self.gateway.tariffs.as_deref(),
+                    billing: self.gateway.billing.as_deref(),
                 };
+                let shortest = crate::metering::account::Shortest {
+                    period: shortest,
+                    fresh: before.is_none(),
+                    opened: open(&counter.state).filter(|_| before.is_none()),
+                };
+                let account = counter.state.account.get_or_insert_with(Default::default);
+                account.book(&books, &shortest, read, &mut closed);
+            }
+            for (text, record) in closed {
                 out.push(interval(
                     &device,
                     r.channel.clone(),

@@ -32,7 +32,8 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     let mut root = Table::of(tree, "", errs)?;
     let config_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
 
-    let gateway = gateway(root.table("gateway", errs), &config_dir, errs);
+    let mut gateway = gateway(root.table("gateway", errs), &config_dir, errs);
+    (gateway.tariffs, gateway.billing) = super::tariffs::read(&mut root, errs);
     let (mqtt, legacy) = match root.table("mqtt", errs) {
         Some(mut t) => {
             let mqtt = super::mqtt::mqtt(&mut t, &gateway.id, errs);
@@ -81,6 +82,8 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
             }
         }
     }
+
+    super::tariffs::check_grid(&gateway, &buses, errs);
 
     // A Modbus server output's map is a contract: unit ids and blocks that collide are errors.
     if !outputs.modbus.is_empty() {
@@ -137,6 +140,8 @@ fn gateway(table: Option<Table<'_>>, config_dir: &Path, errs: &mut Errors) -> Ga
         payload: Default::default(),
         clock: Default::default(),
         intervals: None,
+        tariffs: None,
+        billing: None,
     };
     let Some(mut t) = table else {
         refuse_unusable_host(&g, errs);

@@ -20,6 +20,7 @@ pub mod policy;
 pub mod publish;
 pub mod remote;
 mod socket;
+mod tariffs;
 pub mod tls;
 pub mod units;
 mod walk;

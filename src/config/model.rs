@@ -61,6 +61,10 @@ pub struct Gateway {
     pub clock: crate::metering::Clock,
     /// `intervals` of every channel unless a device or channel says otherwise.
     pub intervals: Option<Vec<crate::metering::Period>>,
+    /// `[tariffs]` (a table of its own, kept here because every bus books by it).
+    pub tariffs: Option<Arc<crate::metering::tariff::Calendar>>,
+    /// `[billing]` (likewise).
+    pub billing: Option<Arc<crate::metering::billing::BillingConfig>>,
 }
 
 /// `[buses.<name>]`

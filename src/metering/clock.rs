@@ -53,6 +53,28 @@ impl Clock {
         &self.name
     }
 
+    /// The local date and time at `ms`: what a tariff rule and a billing day are read against.
+    pub fn local(&self, ms: i64) -> jiff::ZonedDateTime {
+        ts(ms).to_zoned_datetime(self.tz.clone())
+    }
+
+    /// The instant a local date and time names (in a spring gap: as if the clock had not
+    /// jumped, which lands after the gap; in an autumn fold: the first of the two).
+    pub fn instant(&self, local: jiff::civil::DateTime) -> i64 {
+        self.tz
+            .to_ambiguous_zoned_datetime(local)
+            .compatible()
+            .map_or(i64::MAX, |z| z.timestamp().as_millisecond())
+    }
+
+    /// The next change of the zone's offset after `ms` (a daylight-saving change), if any.
+    pub fn next_change(&self, ms: i64) -> Option<i64> {
+        self.tz
+            .following(ts(ms))
+            .next()
+            .map(|t| t.timestamp().as_millisecond())
+    }
+
     fn offset_ms(&self, ms: i64) -> i64 {
         i64::from(self.tz.to_offset(ts(ms)).seconds()) * 1000
     }

@@ -71,6 +71,9 @@ pub struct Record {
     pub seq: u64,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub events: Vec<Event>,
+    /// Its tariff, register and the billing period it closed (see `super::account`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub booking: Option<Box<super::booking::Booking>>,
 }
 
 /// One booked read of the channel's counter.
@@ -139,6 +142,7 @@ impl IntervalState {
             },
             seq: self.seq,
             events: std::mem::take(&mut open.events),
+            booking: None,
         };
         *open = Open {
             start_ms: boundary,

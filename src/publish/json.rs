@@ -81,12 +81,10 @@ impl Format for Json {
             }
             Output::Interval(i) => {
                 let topic = t.interval(&i.device, &i.channel, &i.period);
-                vec![Message::new(
-                    topic,
-                    payload::interval(i),
-                    self.qos,
-                    self.retain,
-                )]
+                let record = Message::new(topic, payload::interval(i), self.qos, self.retain);
+                let mut out = vec![record];
+                out.extend(super::account::messages(t, i, self.qos));
+                out
             }
             _ => Vec::new(),
         }

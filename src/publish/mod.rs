@@ -3,6 +3,7 @@
 //! encoders ([`format`], built per kind in [`formats`]); how a message is delivered is decided
 //! in [`delivery`]; the gateway's own status and answers are its [`voice`].
 
+pub mod account;
 pub mod batch;
 pub mod delivery;
 pub mod dialer;

@@ -76,6 +76,11 @@ struct IntervalJson {
     seq: u64,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     events: Vec<Event>,
+    /// The tariff the record is booked to, and every tariff it spanned when more than one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    tariff: Option<String>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    tariffs: Vec<String>,
 }
 
 /// How long after each boundary its read was.
@@ -108,6 +113,12 @@ pub fn interval(i: &IntervalRecord) -> String {
         status: r.status,
         seq: r.seq,
         events: r.events.clone(),
+        tariff: r.booking.as_ref().and_then(|b| b.tariff.clone()),
+        tariffs: r
+            .booking
+            .as_ref()
+            .map(|b| b.tariffs.clone())
+            .unwrap_or_default(),
     };
     serde_json::to_string(&json).expect("record serializes")
 }

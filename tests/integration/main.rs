@@ -3,6 +3,7 @@
 
 mod batching;
 mod big_messages;
+mod billing;
 mod burn_in;
 mod clock;
 mod commands;
