@@ -299,24 +299,7 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Run { config: path } => {
-            let config = match load(&path) {
-                Ok(c) => c,
-                Err(code) => return Ok(code),
-            };
-            let shutdown = CancellationToken::new();
-            on_signals(shutdown.clone())?;
-            let reloads = on_hangup(path)?;
-            tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
-            if let Some(host) = &config.gateway.id_from_hostname {
-                tracing::warn!(hostname = %host, gateway = %config.gateway.id, "gateway.id is not set: using one derived from the hostname; set gateway.id to make it explicit");
-            }
-            match pulsegate::app::run_with_reloads(config, shutdown, reloads).await {
-                pulsegate::app::Ended::Stopped => Ok(ExitCode::SUCCESS),
-                pulsegate::app::Ended::Reboot => Ok(ExitCode::from(pulsegate::app::REBOOT_STATUS)),
-                pulsegate::app::Ended::Restart => Ok(start_again()),
-            }
-        }
+        Command::Run { config: path } => run_gateway(path).await,
         Command::State { config, action } => {
             let config = match load(&config) {
                 Ok(c) => c,
@@ -331,23 +314,7 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             value,
             wait,
         } => set_reading(&config, &device, &channel, &value, wait.into()).await,
-        Command::Simulate { config } => {
-            let text = std::fs::read_to_string(&config)
-                .with_context(|| format!("reading {}", config.display()))?;
-            let sim = pulsegate::sim::SimConfig::from_toml(&text)?;
-            let plant = pulsegate::sim::Plant::start(&sim).await?;
-            for bus in &plant.buses {
-                println!("bus {}: {:?}", bus.name, bus.endpoint);
-            }
-            for seg in &plant.segments {
-                println!("M-Bus segment {}: {:?}", seg.name, seg.endpoint);
-            }
-            let shutdown = CancellationToken::new();
-            on_signals(shutdown.clone())?;
-            shutdown.cancelled().await;
-            plant.stop();
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Simulate { config } => simulate(&config).await,
         Command::Config { action } => config_command(action),
         Command::Demo { mqtt, duration } => {
             if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
@@ -359,6 +326,45 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `pulsegate run`: the gateway until SIGTERM, reloading at SIGHUP.
+async fn run_gateway(path: PathBuf) -> anyhow::Result<ExitCode> {
+    let config = match load(&path) {
+        Ok(c) => c,
+        Err(code) => return Ok(code),
+    };
+    let shutdown = CancellationToken::new();
+    on_signals(shutdown.clone())?;
+    let reloads = on_hangup(path)?;
+    tracing::info!(config = %config.source.display(), gateway = %config.gateway.id, "pulsegate starting");
+    if let Some(host) = &config.gateway.id_from_hostname {
+        tracing::warn!(hostname = %host, gateway = %config.gateway.id, "gateway.id is not set: using one derived from the hostname; set gateway.id to make it explicit");
+    }
+    match pulsegate::app::run_with_reloads(config, shutdown, reloads).await {
+        pulsegate::app::Ended::Stopped => Ok(ExitCode::SUCCESS),
+        pulsegate::app::Ended::Reboot => Ok(ExitCode::from(pulsegate::app::REBOOT_STATUS)),
+        pulsegate::app::Ended::Restart => Ok(start_again()),
+    }
+}
+
+/// `pulsegate simulate`: simulated modules until SIGTERM.
+async fn simulate(config: &std::path::Path) -> anyhow::Result<ExitCode> {
+    let text =
+        std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
+    let sim = pulsegate::sim::SimConfig::from_toml(&text)?;
+    let plant = pulsegate::sim::Plant::start(&sim).await?;
+    for bus in &plant.buses {
+        println!("bus {}: {:?}", bus.name, bus.endpoint);
+    }
+    for seg in &plant.segments {
+        println!("M-Bus segment {}: {:?}", seg.name, seg.endpoint);
+    }
+    let shutdown = CancellationToken::new();
+    on_signals(shutdown.clone())?;
+    shutdown.cancelled().await;
+    plant.stop();
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `pulsegate check` (and `plan`): the poll plan and warnings, or the register map.

@@ -407,25 +407,14 @@ impl DeviceRt<ModbusDevice> {
             tries.answered();
             match answer {
                 Ok(words) => {
-                    self.resize(link, |s, p| s.answered(b.len, p));
-                    let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
-                    self.record_latency(latency, link, b.len);
+                    self.took(link, b.len, started);
                     out.push((b, words, At::now()));
                     i += 1;
                 }
-                Err(ExceptionCode::IllegalDataAddress) if !b.gaps(regs).is_empty() => {
-                    let gaps = b.gaps(regs);
-                    tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
-                    self.proto.holes.extend(gaps);
+                Err(exception) => {
+                    self.refused(b, regs, exception)?;
                     blocks.truncate(i);
                     blocks.extend(self.plan_rest(regs, &out, &left_out));
-                }
-                Err(exception) => {
-                    return Err(PollError::Protocol(ModbusError::Refused {
-                        start: b.start,
-                        len: b.len,
-                        exception,
-                    }));
                 }
             }
         }
@@ -434,6 +423,34 @@ impl DeviceRt<ModbusDevice> {
             Some(e) if out.is_empty() => Err(e.into()),
             _ => Ok(Snapshot { blocks: out }),
         }
+    }
+
+    /// A block answered: the read may grow again, and its latency is recorded.
+    fn took(&mut self, link: &Link, len: u16, started: Instant) {
+        self.resize(link, |s, p| s.answered(len, p));
+        let latency = link.answer_time().unwrap_or_else(|| started.elapsed());
+        self.record_latency(latency, link, len);
+    }
+
+    /// A block refused with `exception`: a bridged read refused with exception 02 leaves its
+    /// gaps out from now on (`Ok`: plan the rest again); any other refusal fails the poll.
+    fn refused(
+        &mut self,
+        b: Block,
+        regs: &[Register],
+        exception: ExceptionCode,
+    ) -> Result<(), PollError> {
+        let gaps = b.gaps(regs);
+        if exception == ExceptionCode::IllegalDataAddress && !gaps.is_empty() {
+            tracing::info!(device = %self.name, ?gaps, "device refused bridged registers; reading around them from now on");
+            self.proto.holes.extend(gaps);
+            return Ok(());
+        }
+        Err(PollError::Protocol(ModbusError::Refused {
+            start: b.start,
+            len: b.len,
+            exception,
+        }))
     }
 
     /// The reads of the registers in `regs` neither read (`done`) nor given up (`left_out`)
