@@ -101,8 +101,37 @@ pub(super) fn channel(
             );
         }
     }
-    let run = ct.opt::<Run>("run", errs).unwrap_or_default();
     let enabled = ct.opt::<bool>("enabled", errs).unwrap_or(true);
+    let (run, power_on, resume_paused) = run_keys(&mut ct, cname, profile, errs);
+    let units = units(&mut ct, errs);
+    let publish = super::publish::policy(&mut ct, errs);
+    let intervals = super::metering::intervals(&mut ct, errs);
+    let register = ct.int::<u16>("register", errs);
+    ct.finish(errs);
+    ChannelConfig {
+        ppr,
+        max_rate_hz,
+        run,
+        enabled,
+        power_on,
+        resume_paused,
+        units,
+        publish,
+        intervals,
+        record: None,
+        register,
+    }
+}
+
+/// `run`, `power_on` and `resume_paused`, which only make sense together.
+fn run_keys(
+    ct: &mut Table<'_>,
+    cname: &str,
+    profile: Option<&Profile>,
+    errs: &mut Errors,
+) -> (Run, bool, bool) {
+    let cpath = ct.path.clone();
+    let run = ct.opt::<Run>("run", errs).unwrap_or_default();
     let power_on = ct.opt::<bool>("power_on", errs).unwrap_or(false);
     let resume_paused = ct.opt::<bool>("resume_paused", errs).unwrap_or(false);
     if resume_paused && run == Run::Leave {
@@ -132,24 +161,7 @@ pub(super) fn channel(
             format!("model {} has no power-on state to set", p.model),
         );
     }
-    let units = units(&mut ct, errs);
-    let publish = super::publish::policy(&mut ct, errs);
-    let intervals = super::metering::intervals(&mut ct, errs);
-    let register = ct.int::<u16>("register", errs);
-    ct.finish(errs);
-    ChannelConfig {
-        ppr,
-        max_rate_hz,
-        run,
-        enabled,
-        power_on,
-        resume_paused,
-        units,
-        publish,
-        intervals,
-        record: None,
-        register,
-    }
+    (run, power_on, resume_paused)
 }
 
 /// Reads the unit keys of one channel table; every problem goes to `errs`.

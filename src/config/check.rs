@@ -55,34 +55,12 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         }
     };
 
-    let mut buses = Vec::new();
-    let bus_entries = root.entries("buses", errs);
-    if bus_entries.is_empty() {
-        errs.push("buses", root.origin(), "no bus configured");
-    }
-    for (name, value) in bus_entries {
-        if let Some(bus) = bus(&name, value, &profiles, errs) {
-            buses.push(bus);
-        }
-    }
+    let buses = buses(&mut root, &profiles, errs);
     let outputs = super::outputs::read(&mut root, legacy, &mqtt, &gateway.id, errs);
     let remote = super::remote::read(root.table("remote", errs), errs);
     root.finish(errs);
 
-    // Device names become topic levels, so they are unique across the gateway.
-    let mut seen: HashMap<&str, &str> = HashMap::new();
-    for bus in &buses {
-        for d in &bus.devices {
-            if let Some(other) = seen.insert(&d.name, &bus.name) {
-                errs.push(
-                    &format!("buses.{}.devices.{}", bus.name, d.name),
-                    None,
-                    format!("device name is already used on bus {other}"),
-                );
-            }
-        }
-    }
-
+    unique_device_names(&buses, errs);
     super::tariffs::check_grid(&gateway, &buses, errs);
 
     // A Modbus server output's map is a contract: unit ids and blocks that collide are errors.
@@ -99,6 +77,34 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
         outputs,
         remote,
     })
+}
+
+/// Every `[buses.NAME]`; none is an error.
+fn buses(root: &mut Table<'_>, profiles: &Profiles, errs: &mut Errors) -> Vec<Bus> {
+    let entries = root.entries("buses", errs);
+    if entries.is_empty() {
+        errs.push("buses", root.origin(), "no bus configured");
+    }
+    entries
+        .into_iter()
+        .filter_map(|(name, value)| bus(&name, value, profiles, errs))
+        .collect()
+}
+
+/// Device names become topic levels, so they are unique across the gateway.
+fn unique_device_names(buses: &[Bus], errs: &mut Errors) {
+    let mut seen: HashMap<&str, &str> = HashMap::new();
+    for bus in buses {
+        for d in &bus.devices {
+            if let Some(other) = seen.insert(&d.name, &bus.name) {
+                errs.push(
+                    &format!("buses.{}.devices.{}", bus.name, d.name),
+                    None,
+                    format!("device name is already used on bus {other}"),
+                );
+            }
+        }
+    }
 }
 
 /// The machine's hostname as the kernel has it.
@@ -397,21 +403,7 @@ fn device(
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
     super::names::device_name(&t, &path, name, errs);
-    if !t.has("unit") {
-        errs.push(&join(&path, "unit"), t.origin(), "missing");
-    }
-    let unit = t.int::<i64>("unit", errs).and_then(|u| {
-        if (1..=247).contains(&u) {
-            Some(u as u8)
-        } else {
-            errs.push(
-                &join(&path, "unit"),
-                t.origin(),
-                format!("unit {u} is outside 1..247"),
-            );
-            None
-        }
-    });
+    let unit = unit(&mut t, &path, errs);
     let model = t.req::<String>("model", errs);
     let profile = model
         .as_ref()
@@ -437,15 +429,7 @@ fn device(
     let payload = super::publish::payload(&mut t, errs);
     let intervals = super::metering::intervals(&mut t, errs);
     let server_unit = super::outputs::modbus::server_unit(&mut t, &path, errs);
-    let mut channels = BTreeMap::new();
-    for (cname, cvalue) in t.entries("channels", errs) {
-        let cpath = format!("{path}.channels.{cname}");
-        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
-            continue;
-        };
-        let c = super::channel::channel(ct, &cname, profile.as_deref(), errs);
-        channels.insert(cname, c);
-    }
+    let channels = channels(&mut t, &path, profile.as_deref(), errs);
     t.finish(errs);
     Some(Device {
         name: name.to_string(),
@@ -464,6 +448,40 @@ fn device(
         meter: None,
         server_unit,
     })
+}
+
+/// A device's `unit`: required, 1..247.
+fn unit(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
+    if !t.has("unit") {
+        errs.push(&join(path, "unit"), t.origin(), "missing");
+    }
+    let u = t.int::<i64>("unit", errs)?;
+    if (1..=247).contains(&u) {
+        Some(u as u8)
+    } else {
+        let why = format!("unit {u} is outside 1..247");
+        errs.push(&join(path, "unit"), t.origin(), why);
+        None
+    }
+}
+
+/// A device's `[….channels.NAME]` tables.
+fn channels(
+    t: &mut Table<'_>,
+    path: &str,
+    profile: Option<&crate::profile::Profile>,
+    errs: &mut Errors,
+) -> BTreeMap<String, super::channel::ChannelConfig> {
+    let mut channels = BTreeMap::new();
+    for (cname, cvalue) in t.entries("channels", errs) {
+        let cpath = format!("{path}.channels.{cname}");
+        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
+            continue;
+        };
+        let c = super::channel::channel(ct, &cname, profile, errs);
+        channels.insert(cname, c);
+    }
+    channels
 }
 
 /// The profile of `model`; an unknown model is an error naming the known ones.
