@@ -289,20 +289,37 @@ pub fn i64_of(words: &[u16]) -> Option<i64> {
     Some(i64::from_be_bytes(b))
 }
 
-/// The block fields' result code for the device block, by a command's outcome.
+/// The device block's `result` for a command's outcome, read from its type: `FAILED` when the
+/// command reached the device and the write or its read-back failed (or it never answered),
+/// `REFUSED` when it was turned down before anything was written (a value out of range, busy,
+/// commands off, a device that cannot be written).
 pub fn result_code(outcome: &crate::outcome::Outcome) -> u16 {
-    match outcome.refusal() {
-        None => result::DONE,
-        Some("bad_request" | "unknown_device" | "unknown_channel" | "disabled" | "busy") => {
-            result::REFUSED
-        }
-        Some(_) => result::FAILED,
+    use crate::command::CommandError;
+    let crate::outcome::Outcome::Command(c) = outcome else {
+        return result::FAILED;
+    };
+    match &c.result {
+        Ok(_) => result::DONE,
+        Err(
+            CommandError::Offline(_) | CommandError::WriteFailed(_) | CommandError::ReadBack { .. },
+        ) => result::FAILED,
+        Err(_) => result::REFUSED,
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::command::CommandError;
+    use crate::outcome::{CommandOutcome, Outcome};
+
+    fn outcome(result: Result<Option<i64>, CommandError>) -> Outcome {
+        Outcome::Command(CommandOutcome {
+            id: Some("modbus-plc-1-0".into()),
+            op: Some("preset".into()),
+            result,
+        })
+    }
 
     #[test]
     fn a_read_in_the_gap_a_pinned_block_leaves_is_outside_the_map() {
@@ -327,5 +344,42 @@ mod tests {
         assert_eq!(reads(999, 2), None, "into the pinned block from the gap");
         assert_eq!(reads(1019, 2), None, "past the end");
         assert_eq!(reads(0, 0), None);
+    }
+
+    #[test]
+    fn a_preset_out_of_range_or_a_busy_device_is_refused_not_failed() {
+        let out_of_range = CommandError::OutOfRange {
+            channel: "a0".into(),
+            value: -5,
+        };
+        assert_eq!(result_code(&outcome(Err(out_of_range))), result::REFUSED);
+        let busy = CommandError::Busy {
+            device: "m".into(),
+            why: "too many commands",
+        };
+        assert_eq!(result_code(&outcome(Err(busy))), result::REFUSED);
+        let meter = CommandError::NotWritable {
+            device: "heat".into(),
+            why: "an M-Bus meter",
+        };
+        assert_eq!(result_code(&outcome(Err(meter))), result::REFUSED);
+        let off = CommandError::Disabled("m".into());
+        assert_eq!(result_code(&outcome(Err(off))), result::REFUSED);
+    }
+
+    #[test]
+    fn a_write_that_failed_or_was_never_answered_is_failed_and_one_read_back_is_done() {
+        let failed = [
+            CommandError::Offline("m".into()),
+            CommandError::WriteFailed("exception 02".into()),
+            CommandError::ReadBack {
+                expected: 0,
+                got: 12,
+            },
+        ];
+        for e in failed {
+            assert_eq!(result_code(&outcome(Err(e))), result::FAILED);
+        }
+        assert_eq!(result_code(&outcome(Ok(Some(0)))), result::DONE);
     }
 }
