@@ -123,7 +123,10 @@ pub async fn run(
             _ = beat.tick() => heart.beat(),
         }
     }
+    // The listener is closed when the aborted task is dropped, which abort only asks for: a
+    // rebuilt output binds the same port as soon as this returns.
     serving.abort();
+    let _ = serving.await;
     heart.set_up(false);
 }
 
