@@ -24,7 +24,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::config::model::{Bus, Device};
+use crate::config::model::{Bus, Config, Device, MeterAddress};
 
 use super::super::super::walk::Errors;
 
@@ -170,7 +170,7 @@ pub struct Entry {
 
 impl RegisterMap {
     /// The map of a checked config (its collisions and overlaps were refused by the check).
-    pub fn of(config: &crate::config::Config) -> RegisterMap {
+    pub fn of(config: &Config) -> RegisterMap {
         let mut errs = Errors::default();
         RegisterMap::build(&config.buses, &mut errs)
     }
@@ -247,7 +247,7 @@ fn unit_of(d: &Device, path: &str, errs: &mut Errors) -> Option<u8> {
     }
     match &d.meter {
         None => Some(d.unit),
-        Some(crate::config::MeterAddress::Primary(a)) if (1..=247).contains(a) => Some(*a),
+        Some(MeterAddress::Primary(a)) if (1..=247).contains(a) => Some(*a),
         Some(_) => {
             let why = "a meter at primary address 0, above 247 or by secondary address has no unit id of its own on the Modbus server output: set server_unit = N (1..247)";
             errs.push(&format!("{path}.server_unit"), None, why);
