@@ -305,6 +305,10 @@ pub(crate) fn mbpoll_write(
     }
 }
 
+/// 45 reads of a counting channel's total, taking turns between tokio-modbus, pymodbus and
+/// mbpoll: each lies between the last total the subscriber had before the read was sent and
+/// the first it got after the answer (every poll goes to the broker at once, `batch = "0s"`,
+/// and the image has a reading before the broker does).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_total_a_plc_reads_lies_between_the_mqtt_totals_published_around_it() {
     let rig = Rig::start("plc-around", Setup::default()).await;
