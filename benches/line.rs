@@ -14,11 +14,15 @@
 //! - the status page: CPU per transaction with 50 clients polling `/api/v1/status` against
 //!   none (`status`);
 //! - M-Bus: 250 meters on one TCP segment read as fast as they answer, CPU a transaction and
-//!   peak RSS beside the Modbus TCP figure (`mbus`).
+//!   peak RSS beside the Modbus TCP figure (`mbus`);
+//! - the Modbus server output: 10 clients reading as fast as answered, requests a second, CPU
+//!   a request and the bus's poll rate against no client (`plc`).
 //!
 //! `cargo bench --bench line NAME` runs only the parts whose name contains NAME (saturated,
-//! silent, cpu, mbpoll, command, outputs, thousand, status, mbus).
+//! silent, cpu, mbpoll, command, outputs, thousand, status, mbus, plc).
 
+#[path = "line/plc_server.rs"]
+mod plc_server;
 #[path = "line/sidebyside.rs"]
 mod sidebyside;
 #[path = "line/status_poll.rs"]
@@ -797,6 +801,9 @@ fn main() {
         }
         if want("status") {
             status_poll::run(&mut figures).await;
+        }
+        if want("plc") {
+            plc_server::run(&mut figures).await;
         }
     });
     report(&figures);

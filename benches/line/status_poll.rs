@@ -22,7 +22,7 @@ use super::{Figure, Mosquitto, free_port, gateway_toml, tcp_plant, temp_dir};
 const CLIENTS: usize = 50;
 
 /// Nanoseconds of CPU every thread of `pid` has used.
-fn cpu_ns(pid: u32) -> u64 {
+pub(super) fn cpu_ns(pid: u32) -> u64 {
     let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) else {
         return 0;
     };
@@ -34,7 +34,7 @@ fn cpu_ns(pid: u32) -> u64 {
 }
 
 /// FC03 answers the plant's modules gave.
-fn reads(plant: &Plant) -> u64 {
+pub(super) fn reads(plant: &Plant) -> u64 {
     let b = plant.bus("hall0").expect("bus of the plant");
     let modules = b.modules.lock().unwrap_or_else(|e| e.into_inner());
     modules.values().map(|m| m.reads).sum()
@@ -119,7 +119,7 @@ fn scripts(port: u16, on: Arc<AtomicBool>, stop: Arc<AtomicBool>, answered: Arc<
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }

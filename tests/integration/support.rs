@@ -343,8 +343,26 @@ impl Gateway {
 
     /// Starts the gateway with extra environment variables (e.g. libfaketime's).
     pub fn start_with_env(config: &Path, env: &[(&str, &str)]) -> Gateway {
+        Self::spawn(config, env, &[])
+    }
+
+    /// Starts the gateway under `wrapper`, a command that sets something up and then runs its
+    /// remaining arguments in its own process (`prlimit --nofile=64:64`): same process id.
+    pub fn start_under(config: &Path, wrapper: &[&str]) -> Gateway {
+        Self::spawn(config, &[], wrapper)
+    }
+
+    fn spawn(config: &Path, env: &[(&str, &str)], wrapper: &[&str]) -> Gateway {
         let log = config.with_extension("log");
-        let child = Command::new(bin())
+        let mut command = match wrapper {
+            [] => Command::new(bin()),
+            [first, rest @ ..] => {
+                let mut c = Command::new(first);
+                c.args(rest).arg(bin());
+                c
+            }
+        };
+        let child = command
             .args(["run", "--config"])
             .arg(config)
             .envs(env.iter().copied())

@@ -4,6 +4,7 @@
 //! the next: a 64-bit total is never torn. Pure: events and time in, words out.
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::sync::Arc;
 use std::time::SystemTime;
 
@@ -21,6 +22,8 @@ pub struct DeviceWords {
     pub online: bool,
     /// When its last answer arrived.
     pub last_answer: Option<SystemTime>,
+    /// The addresses in its blocks, as runs of adjacent blocks: a read must lie in one.
+    spans: Arc<[Range<u32>]>,
 }
 
 impl DeviceWords {
@@ -35,6 +38,7 @@ impl DeviceWords {
             }
         }
         DeviceWords {
+            spans: spans(&map).into(),
             map: Arc::new(map),
             words: words.into(),
             online: false,
@@ -43,12 +47,15 @@ impl DeviceWords {
     }
 
     /// `count` registers from `address`, with the device block as of `now`; `None` when they
-    /// are not all in the map.
+    /// are not all in the map (beyond its end, or in a gap a pinned block or an unpicked
+    /// record leaves: read as zeros, a wrong address in a PLC program would go unnoticed).
     pub fn read(&self, address: u16, count: u16, now: SystemTime) -> Option<Vec<u16>> {
-        let end = usize::from(address) + usize::from(count);
-        if end > self.words.len() || count == 0 {
+        let (start, end) = (u32::from(address), u32::from(address) + u32::from(count));
+        let inside = self.spans.iter().any(|s| s.start <= start && end <= s.end);
+        if !inside || count == 0 {
             return None;
         }
+        let end = end as usize;
         let mut out = self.words[usize::from(address)..end].to_vec();
         let mut head = self.words[..usize::from(BLOCK)].to_vec();
         put(
@@ -76,6 +83,22 @@ impl DeviceWords {
         }
         Some(out)
     }
+}
+
+/// The device block and every channel block of `map`, adjacent blocks joined.
+fn spans(map: &DeviceMap) -> Vec<Range<u32>> {
+    let mut bases: Vec<u32> = map.channels.values().map(|b| u32::from(*b)).collect();
+    bases.push(0);
+    bases.sort_unstable();
+    let mut out: Vec<Range<u32>> = Vec::new();
+    for base in bases {
+        let block = base..base + u32::from(BLOCK);
+        match out.last_mut() {
+            Some(last) if last.end >= block.start => last.end = last.end.max(block.end),
+            _ => out.push(block),
+        }
+    }
+    out
 }
 
 /// Every device's words, by unit id.
@@ -266,13 +289,97 @@ pub fn i64_of(words: &[u16]) -> Option<i64> {
     Some(i64::from_be_bytes(b))
 }
 
-/// The block fields' result code for the device block, by a command's outcome.
+/// The device block's `result` for a command's outcome, read from its type: `FAILED` when the
+/// command reached the device and the write or its read-back failed (or it never answered),
+/// `REFUSED` when it was turned down before anything was written (a value out of range, busy,
+/// commands off, a device that cannot be written).
 pub fn result_code(outcome: &crate::outcome::Outcome) -> u16 {
-    match outcome.refusal() {
-        None => result::DONE,
-        Some("bad_request" | "unknown_device" | "unknown_channel" | "disabled" | "busy") => {
-            result::REFUSED
+    use crate::command::CommandError;
+    let crate::outcome::Outcome::Command(c) = outcome else {
+        return result::FAILED;
+    };
+    match &c.result {
+        Ok(_) => result::DONE,
+        Err(
+            CommandError::Offline(_) | CommandError::WriteFailed(_) | CommandError::ReadBack { .. },
+        ) => result::FAILED,
+        Err(_) => result::REFUSED,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::command::CommandError;
+    use crate::outcome::{CommandOutcome, Outcome};
+
+    fn outcome(result: Result<Option<i64>, CommandError>) -> Outcome {
+        Outcome::Command(CommandOutcome {
+            id: Some("modbus-plc-1-0".into()),
+            op: Some("preset".into()),
+            result,
+        })
+    }
+
+    #[test]
+    fn a_read_in_the_gap_a_pinned_block_leaves_is_outside_the_map() {
+        let map = DeviceMap {
+            device: "pack".into(),
+            unit: 40,
+            channels: [("di1".to_string(), 20), ("di2".to_string(), 1000)].into(),
+        };
+        let d = DeviceWords::new(map);
+        let now = SystemTime::now();
+        let reads = |a: u16, n: u16| d.read(a, n, now).map(|w| w.len());
+        assert_eq!(
+            reads(0, 40),
+            Some(40),
+            "the device's block and di1's, adjacent"
+        );
+        assert_eq!(reads(20, 20), Some(20));
+        assert_eq!(reads(1000, 20), Some(20), "the pinned block");
+        assert_eq!(reads(40, 1), None, "di2's place before the pin: a gap");
+        assert_eq!(reads(30, 20), None, "from di1 into the gap");
+        assert_eq!(reads(500, 4), None);
+        assert_eq!(reads(999, 2), None, "into the pinned block from the gap");
+        assert_eq!(reads(1019, 2), None, "past the end");
+        assert_eq!(reads(0, 0), None);
+    }
+
+    #[test]
+    fn a_preset_out_of_range_or_a_busy_device_is_refused_not_failed() {
+        let out_of_range = CommandError::OutOfRange {
+            channel: "a0".into(),
+            value: -5,
+        };
+        assert_eq!(result_code(&outcome(Err(out_of_range))), result::REFUSED);
+        let busy = CommandError::Busy {
+            device: "m".into(),
+            why: "too many commands",
+        };
+        assert_eq!(result_code(&outcome(Err(busy))), result::REFUSED);
+        let meter = CommandError::NotWritable {
+            device: "heat".into(),
+            why: "an M-Bus meter",
+        };
+        assert_eq!(result_code(&outcome(Err(meter))), result::REFUSED);
+        let off = CommandError::Disabled("m".into());
+        assert_eq!(result_code(&outcome(Err(off))), result::REFUSED);
+    }
+
+    #[test]
+    fn a_write_that_failed_or_was_never_answered_is_failed_and_one_read_back_is_done() {
+        let failed = [
+            CommandError::Offline("m".into()),
+            CommandError::WriteFailed("exception 02".into()),
+            CommandError::ReadBack {
+                expected: 0,
+                got: 12,
+            },
+        ];
+        for e in failed {
+            assert_eq!(result_code(&outcome(Err(e))), result::FAILED);
         }
-        Some(_) => result::FAILED,
+        assert_eq!(result_code(&outcome(Ok(Some(0)))), result::DONE);
     }
 }

@@ -123,7 +123,10 @@ pub async fn run(
             _ = beat.tick() => heart.beat(),
         }
     }
+    // The listener is closed when the aborted task is dropped, which abort only asks for: a
+    // rebuilt output binds the same port as soon as this returns.
     serving.abort();
+    let _ = serving.await;
     heart.set_up(false);
 }
 
@@ -143,8 +146,39 @@ async fn serve(listener: tokio::net::TcpListener, shared: Arc<Shared>) {
         }
         tracing::debug!("a Modbus connection ended: {e}");
     };
-    if let Err(e) = server.serve(&on_connected, on_error).await {
-        tracing::error!("the Modbus server stopped accepting: {e}");
+    let name = shared.server.name.as_str();
+    // A flood beyond the file descriptors fails an accept every ACCEPT_PAUSE or so.
+    let mut budget = crate::log_budget::LogBudget::new(3);
+    keep_serving(
+        || server.serve(&on_connected, on_error.clone()),
+        |e| {
+            let (log, before) = budget.allow(tokio::time::Instant::now());
+            if let Some(n) = before {
+                tracing::warn!(output = %name, "{n} more failed accepts in the last minute");
+            }
+            if log {
+                tracing::error!(output = %name, "the Modbus server could not accept a connection ({e}): it closes those it holds and listens again in {ACCEPT_PAUSE:?}");
+            }
+        },
+    )
+    .await;
+}
+
+/// How long after a failed accept the server listens again.
+pub const ACCEPT_PAUSE: Duration = Duration::from_millis(500);
+
+/// Runs `serve` again `ACCEPT_PAUSE` after each error it ends with. tokio-modbus's accept loop
+/// ends at the first accept that fails (the process out of file descriptors, a flood of
+/// connections beyond them) and closes the connections it serves as it ends; without this the
+/// listener would be gone for good while the rest of the gateway runs on.
+async fn keep_serving<F, S>(mut serve: F, mut failed: impl FnMut(&std::io::Error))
+where
+    F: FnMut() -> S,
+    S: Future<Output = std::io::Result<()>>,
+{
+    while let Err(e) = serve().await {
+        failed(&e);
+        tokio::time::sleep(ACCEPT_PAUSE).await;
     }
 }
 
@@ -275,3 +309,32 @@ impl tokio_modbus::server::Service for Service {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod accept_tests {
+    use super::*;
+
+    #[tokio::test(start_paused = true)]
+    async fn an_accept_loop_that_ended_on_an_error_listens_again_after_a_pause() {
+        let mut ends = vec![
+            Err(std::io::Error::from_raw_os_error(24)),
+            Err(std::io::Error::from_raw_os_error(24)),
+            Ok(()),
+        ]
+        .into_iter();
+        let mut runs = 0;
+        let mut failures = Vec::new();
+        let started = tokio::time::Instant::now();
+        keep_serving(
+            || {
+                runs += 1;
+                std::future::ready(ends.next().expect("asked at most three times"))
+            },
+            |e| failures.push(e.raw_os_error()),
+        )
+        .await;
+        assert_eq!(runs, 3, "served again after each failure");
+        assert_eq!(failures, [Some(24), Some(24)]);
+        assert_eq!(started.elapsed(), 2 * ACCEPT_PAUSE, "a pause between runs");
+    }
+}
