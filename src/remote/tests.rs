@@ -229,3 +229,22 @@ fn a_push_stays_when_its_connection_is_up_and_every_device_answered_again() {
     assert_eq!(w.verdict(end, true), Some(Ok(())));
     assert!(w.verdict(end, false).unwrap().unwrap_err().contains("json"));
 }
+
+#[test]
+fn an_unsigned_push_may_add_to_a_plcs_register_map_but_not_move_it() {
+    use guard::{Signed, forbidden_changes};
+    let server = "[outputs.json]\nkind = \"json\"\n[outputs.plc]\nkind = \"modbus\"\n";
+    let old = config(server);
+    let more = config(&format!(
+        "[buses.l.devices.e]\nunit = 2\nmodel = \"yl67\"\n{server}"
+    ));
+    assert!(forbidden_changes(&old, &more, Signed::No).is_empty());
+    let moved = config(&format!("server_unit = 7\n{server}"));
+    let f = forbidden_changes(&old, &moved, Signed::No);
+    assert!(
+        f.iter()
+            .any(|c| c.contains("register map") && c.contains("d/")),
+        "{f:?}"
+    );
+    assert!(forbidden_changes(&old, &moved, Signed::Yes).is_empty());
+}
