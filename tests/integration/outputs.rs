@@ -349,17 +349,25 @@ async fn ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted() {
         sample(t, "pulsegate_commands_received_total") == Some(N as f64)
     })
     .await;
-    tokio::time::sleep(Duration::from_secs(3)).await;
-    let lines = host.lines();
-    let answered = of_type(&lines, "NDATA")
-        .filter(|n| metric(n, "Command/Metric").is_some_and(|m| m["value"] == "enc0/Clear"))
-        .count() as u64;
-    let text = scrape_until(http, Duration::from_secs(5), "a scrape", |_| true).await;
-    let dropped = sample(
-        &text,
-        "pulsegate_mqtt_chatter_dropped_total{output=\"scada\"}",
-    )
-    .unwrap_or(0.0) as u64;
+    // The answers trail the count (the host reads them one by one): wait until every DCMD is
+    // answered or counted as dropped, and no longer.
+    let deadline = std::time::Instant::now() + Duration::from_secs(60);
+    let (lines, answered, dropped, text) = loop {
+        let lines = host.lines();
+        let answered = of_type(&lines, "NDATA")
+            .filter(|n| metric(n, "Command/Metric").is_some_and(|m| m["value"] == "enc0/Clear"))
+            .count() as u64;
+        let text = scrape_until(http, Duration::from_secs(5), "a scrape", |_| true).await;
+        let dropped = sample(
+            &text,
+            "pulsegate_mqtt_chatter_dropped_total{output=\"scada\"}",
+        )
+        .unwrap_or(0.0) as u64;
+        if answered + dropped >= N || std::time::Instant::now() > deadline {
+            break (lines, answered, dropped, text);
+        }
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    };
     println!("DCMD burst: {answered} answered to the host, {dropped} answers dropped and counted");
     assert_eq!(
         answered + dropped,
