@@ -17,6 +17,8 @@ use crate::outbox::Message;
 use crate::reading::IntervalRecord;
 use crate::topics::Topics;
 
+use super::signed::Signer;
+
 /// `{"total":1234,"value":1.234,"unit":"kWh","seq":17}`
 #[derive(Debug, Serialize)]
 struct RegisterJson {
@@ -96,7 +98,13 @@ pub fn billing_json(i: &IntervalRecord, b: &BillingRecord) -> String {
 }
 
 /// The register and billing messages that ride on record `i` (none without a booking).
-pub fn messages(topics: &Topics, i: &IntervalRecord, qos: u8) -> Vec<Message> {
+/// Billing records are signed by `signer` when there is one.
+pub fn messages(
+    topics: &Topics,
+    i: &IntervalRecord,
+    qos: u8,
+    signer: Option<&Signer>,
+) -> Vec<Message> {
     let Some(booking) = &i.record.booking else {
         return Vec::new();
     };
@@ -114,7 +122,11 @@ pub fn messages(topics: &Topics, i: &IntervalRecord, qos: u8) -> Vec<Message> {
     }
     for b in &booking.billing {
         let topic = topics.billing(&i.device, &i.channel);
-        out.push(Message::new(topic, billing_json(i, b), qos, true));
+        let mut body = billing_json(i, b);
+        if let Some(s) = signer {
+            body = s.billing(i, body);
+        }
+        out.push(Message::new(topic, body, qos, true));
     }
     out
 }

@@ -5,6 +5,7 @@
 
 use super::format::Format;
 use super::payload;
+use super::signed::Signer;
 use crate::topics::Topics;
 use std::collections::HashSet;
 
@@ -23,6 +24,8 @@ pub struct Json {
     qos: u8,
     /// The devices whose polls go as one message (`payload = "device"`, theirs or inherited).
     per_device: HashSet<String>,
+    /// Signs interval and billing records (`[billing] signing_key`), the key read at start.
+    signer: Option<Signer>,
 }
 
 impl Json {
@@ -34,6 +37,7 @@ impl Json {
             retain: mqtt.retain,
             qos: mqtt.qos,
             per_device: per_device(config),
+            signer: Signer::of(config),
         }
     }
 
@@ -81,9 +85,14 @@ impl Format for Json {
             }
             Output::Interval(i) => {
                 let topic = t.interval(&i.device, &i.channel, &i.period);
-                let record = Message::new(topic, payload::interval(i), self.qos, self.retain);
+                let mut body = payload::interval(i);
+                if let Some(s) = &self.signer {
+                    body = s.interval(i, body);
+                }
+                let record = Message::new(topic, body, self.qos, self.retain);
                 let mut out = vec![record];
-                out.extend(super::account::messages(t, i, self.qos));
+                let signer = self.signer.as_ref();
+                out.extend(super::account::messages(t, i, self.qos, signer));
                 out
             }
             _ => Vec::new(),
