@@ -3,6 +3,7 @@
 //! [`super::payload`]; topics in [`crate::topics`]. The gateway's own status and results are
 //! its voice's ([`super::voice`]), not this format's.
 
+use super::account::Ledger;
 use super::format::Format;
 use super::payload;
 use super::signed::Signer;
@@ -24,8 +25,9 @@ pub struct Json {
     qos: u8,
     /// The devices whose polls go as one message (`payload = "device"`, theirs or inherited).
     per_device: HashSet<String>,
-    /// Signs interval and billing records (`[billing] signing_key`), the key read at start.
-    signer: Option<Signer>,
+    /// Signs interval and billing records (`[billing] signing_key`), the key read at start;
+    /// numbers the tariff registers.
+    ledger: Ledger,
 }
 
 impl Json {
@@ -37,7 +39,10 @@ impl Json {
             retain: mqtt.retain,
             qos: mqtt.qos,
             per_device: per_device(config),
-            signer: Signer::of(config),
+            ledger: Ledger {
+                calendar: config.gateway.tariffs.clone(),
+                signer: Signer::of(config),
+            },
         }
     }
 
@@ -86,13 +91,12 @@ impl Format for Json {
             Output::Interval(i) => {
                 let topic = t.interval(&i.device, &i.channel, &i.period);
                 let mut body = payload::interval(i);
-                if let Some(s) = &self.signer {
+                if let Some(s) = &self.ledger.signer {
                     body = s.interval(i, body);
                 }
                 let record = Message::new(topic, body, self.qos, self.retain);
                 let mut out = vec![record];
-                let signer = self.signer.as_ref();
-                out.extend(super::account::messages(t, i, self.qos, signer));
+                out.extend(super::account::messages(t, i, self.qos, &self.ledger));
                 out
             }
             _ => Vec::new(),
@@ -102,6 +106,7 @@ impl Format for Json {
     /// A device's payload shape may change with the config.
     fn reload(&mut self, config: &Config) -> Vec<Message> {
         self.per_device = per_device(config);
+        self.ledger.calendar = config.gateway.tariffs.clone();
         Vec::new()
     }
 }
