@@ -19,6 +19,10 @@ pub struct Boot {
     pub id: String,
     #[serde(default)]
     pub previous: Option<String>,
+    /// The public key that signs this run's records (base64 of its 32 bytes), said in the
+    /// marker so that anyone can check them; not kept in `boot.json`.
+    #[serde(skip)]
+    pub signing_key: Option<String>,
 }
 
 fn random_id() -> String {
@@ -59,6 +63,7 @@ impl Boot {
         let boot = Boot {
             id: random_id(),
             previous: previous(&file),
+            signing_key: None,
         };
         if let Err(e) = boot.save(state_dir) {
             tracing::warn!(
@@ -78,15 +83,18 @@ impl Boot {
     /// The retained marker this run publishes on `<root>/gateway`, with the hash of the config
     /// in force (`Config::hash`).
     pub fn marker(&self, client_id: &str, config: &str) -> String {
-        serde_json::json!({
+        let mut marker = serde_json::json!({
             "boot": self.id,
             "host": crate::config::host_name_raw(),
             "pid": std::process::id(),
             "client_id": client_id,
             "config": config,
             "version": env!("CARGO_PKG_VERSION"),
-        })
-        .to_string()
+        });
+        if let Some(key) = &self.signing_key {
+            marker["signing_key"] = key.as_str().into();
+        }
+        marker.to_string()
     }
 
     /// What a marker found on `<root>/gateway` is.
@@ -168,7 +176,19 @@ mod tests {
         Boot {
             id: "aaaa".into(),
             previous: Some("bbbb".into()),
+            signing_key: None,
         }
+    }
+
+    #[test]
+    fn the_marker_says_the_public_key_that_signs_records_when_there_is_one() {
+        let mut b = boot();
+        let plain: serde_json::Value = serde_json::from_str(&b.marker("c", "h")).unwrap();
+        assert!(plain.get("signing_key").is_none(), "{plain}");
+        b.signing_key = Some("AAAA".into());
+        let signed: serde_json::Value = serde_json::from_str(&b.marker("c", "h")).unwrap();
+        assert_eq!(signed["signing_key"], "AAAA");
+        assert_eq!(signed["boot"], "aaaa");
     }
 
     fn judge(b: &Boot, marker: &str) -> Marker {
@@ -205,6 +225,7 @@ mod tests {
         let b = Boot {
             id: "aaaa".into(),
             previous: None,
+            signing_key: None,
         };
         for earlier in [
             r#"{"boot":"cccc","host":"edge-1","pid":400}"#,

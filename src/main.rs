@@ -67,6 +67,25 @@ enum Command {
         #[arg(long, default_value_t = 12)]
         last: usize,
     },
+    /// Check signed interval and billing records (docs/metering.md): each is valid, tampered,
+    /// or missing (a seq skipped). Exit 0 when every record is valid and none is missing.
+    Verify {
+        /// Captured lines (`mosquitto_sub -v` or plain JSON, one a line); `-` for standard input.
+        #[arg(required_unless_present = "topic")]
+        file: Option<PathBuf>,
+        /// Read this topic (e.g. `pulsegate/+/+/billing`) from the broker of --config instead.
+        #[arg(long, conflicts_with = "file", requires = "seconds")]
+        topic: Option<String>,
+        /// With --topic: how long to listen.
+        #[arg(long)]
+        seconds: Option<u64>,
+        /// The gateway's public key (base64 of 32 bytes); default: from its `<root>/gateway`
+        /// marker in the capture.
+        #[arg(long)]
+        key: Option<String>,
+        #[arg(long, default_value = DEFAULT_PATH)]
+        config: PathBuf,
+    },
     /// Print the compiled poll plan per bus with line time per cycle.
     Plan {
         #[arg(long, default_value = DEFAULT_PATH)]
@@ -316,6 +335,13 @@ async fn run(command: Command) -> anyhow::Result<ExitCode> {
         } => set_reading(&config, &device, &channel, &value, wait.into()).await,
         Command::Simulate { config } => simulate(&config).await,
         Command::Config { action } => config_command(action),
+        Command::Verify {
+            file,
+            topic,
+            seconds,
+            key,
+            config,
+        } => verify_command(file, topic, seconds, key, &config).await,
         Command::Demo { mqtt, duration } => {
             if duration.is_some_and(|d| *d > std::time::Duration::from_secs(7 * 24 * 3600)) {
                 anyhow::bail!("--duration: at most 7 days");
@@ -432,13 +458,67 @@ async fn set_reading(
     })
 }
 
+/// `pulsegate verify`: the lines of a file, or of a topic read from the broker, judged.
+async fn verify_command(
+    file: Option<PathBuf>,
+    topic: Option<String>,
+    seconds: Option<u64>,
+    key: Option<String>,
+    config: &std::path::Path,
+) -> anyhow::Result<ExitCode> {
+    let lines = match (file, topic) {
+        (Some(file), _) => read_lines(&file)?,
+        (None, Some(topic)) => {
+            let config = match load(config) {
+                Ok(c) => c,
+                Err(code) => return Ok(code),
+            };
+            let secs = std::time::Duration::from_secs(seconds.unwrap_or(10));
+            pulsegate::verify::capture(&config, &topic, secs).await?
+        }
+        (None, None) => anyhow::bail!("give a file of captured records or --topic"),
+    };
+    verify(key.as_deref(), &lines)
+}
+
+/// The lines of `file` (`-`: standard input).
+fn read_lines(file: &std::path::Path) -> anyhow::Result<Vec<String>> {
+    let text = if file == std::path::Path::new("-") {
+        std::io::read_to_string(std::io::stdin())?
+    } else {
+        std::fs::read_to_string(file).with_context(|| format!("reading {}", file.display()))?
+    };
+    Ok(text.lines().map(str::to_string).collect())
+}
+
+/// Prints what each captured line says; fails when one is not what the gateway signed.
+fn verify(key: Option<&str>, lines: &[String]) -> anyhow::Result<ExitCode> {
+    use pulsegate::verify::{Finding, judge_all, parse_key};
+    let key = key.map(parse_key).transpose().map_err(anyhow::Error::msg)?;
+    let found = judge_all(key, lines);
+    for f in &found {
+        println!("{f}");
+    }
+    let valid = found
+        .iter()
+        .filter(|f| matches!(f, Finding::Valid { .. }))
+        .count();
+    let bad = found.iter().filter(|f| f.is_bad()).count();
+    println!("{valid} valid, {bad} not");
+    Ok(if bad == 0 && valid > 0 {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
+
 /// `pulsegate config keygen|sign`.
 fn config_command(action: ConfigAction) -> anyhow::Result<ExitCode> {
     use pulsegate::remote::signature::{SigningKey, signed_push};
     match action {
         ConfigAction::Keygen { out } => {
             let pem = SigningKey::generate_pem()?;
-            let public = SigningKey::from_pem(&pem)?.public();
+            let public = SigningKey::from_pem(&pem)?.public_base64();
             match out {
                 Some(path) => {
                     use std::io::Write as _;

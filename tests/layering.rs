@@ -20,7 +20,8 @@ const FLOORS: &[(&str, &[&str])] = &[
     ("health", &[]),
     ("log_budget", &[]),
     ("bus_health", &[]),
-    ("metering", &["decimal", "event"]),
+    ("signing", &[]),
+    ("metering", &["decimal", "event", "signing"]),
     ("counter", &["event", "metering"]),
     ("profile", &["topics"]),
     ("plan", &["profile"]),
@@ -29,7 +30,7 @@ const FLOORS: &[(&str, &[&str])] = &[
     (
         "config",
         &[
-            "counter", "decimal", "metering", "plan", "profile", "topics",
+            "counter", "decimal", "metering", "plan", "profile", "signing", "topics",
         ],
     ),
     ("report", &["config", "plan", "profile"]),
@@ -139,7 +140,7 @@ const FLOORS: &[(&str, &[&str])] = &[
     ),
     // Commands in, messages out.
     // A pushed config: read, guarded, watched (pure).
-    ("remote", &["config"]),
+    ("remote", &["config", "signing"]),
     (
         "dispatch",
         &[
@@ -190,6 +191,7 @@ const FLOORS: &[(&str, &[&str])] = &[
             "outcome",
             "profile",
             "reading",
+            "signing",
             "state",
             "status",
             "topics",
@@ -218,6 +220,7 @@ const FLOORS: &[(&str, &[&str])] = &[
     ),
     ("sim", &["decode", "driver::modbus", "profile"]),
     ("setreading", &["config", "decimal", "publish", "topics"]),
+    ("verify", &["config", "publish", "signing", "topics"]),
     (
         "app",
         &[

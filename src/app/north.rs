@@ -88,9 +88,13 @@ impl Northbound {
         shutdown: &CancellationToken,
     ) -> Northbound {
         let boot_dir = config.gateway.state_dir.clone();
-        let boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
+        let mut boot = tokio::task::spawn_blocking(move || crate::boot::Boot::start(&boot_dir))
             .await
             .unwrap_or_default();
+        let billing = config.gateway.billing.as_deref();
+        boot.signing_key = billing
+            .and_then(|b| b.signer.as_deref())
+            .map(|k| k.public_base64());
         let (answers, answers_rx) = unbounded_channel();
         let (swaps, swaps_rx) = unbounded_channel();
         let wiring = Wiring {

@@ -152,7 +152,8 @@ impl Emitter {
                 let units = config
                     .filter(|c| c.units.scale.is_some())
                     .map(|c| Arc::new(c.units.clone()))
-                    .or_else(|| declared.and_then(|c| c.units.clone()));
+                    .or_else(|| declared.and_then(|c| c.units.clone()))
+                    .map(|u| named(u, config.and_then(|c| c.units.obis)));
                 let periods = d
                     .config
                     .intervals_of(all.intervals.as_deref(), channel)
@@ -240,4 +241,15 @@ fn interval(
         record,
         units,
     }))
+}
+
+/// A meter's declared units with the OBIS name the config gives its channel.
+fn named(units: Arc<ChannelUnits>, obis: Option<crate::metering::obis::Obis>) -> Arc<ChannelUnits> {
+    match obis {
+        Some(o) if units.obis != Some(o) => Arc::new(ChannelUnits {
+            obis: Some(o),
+            ..(*units).clone()
+        }),
+        _ => units,
+    }
 }

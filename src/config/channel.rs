@@ -189,6 +189,11 @@ pub(crate) fn units(t: &mut Table<'_>, errs: &mut Errors) -> ChannelUnits {
             Err(message) => errs.push(&join(&t.path, "device_class"), t.origin(), message),
         }
     }
+    let obis = t.opt::<String>("obis", errs).and_then(|text| {
+        text.parse()
+            .map_err(|e| errs.push(&join(&t.path, "obis"), t.origin(), e))
+            .ok()
+    });
     for key in ["unit", "rate_unit", "rate_per", "device_class"] {
         if !t.has("scale") && t.has(key) {
             errs.push(
@@ -204,6 +209,7 @@ pub(crate) fn units(t: &mut Table<'_>, errs: &mut Errors) -> ChannelUnits {
         rate_unit,
         rate_per,
         device_class,
+        obis,
     }
 }
 

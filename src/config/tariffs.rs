@@ -10,6 +10,7 @@ use super::walk::{Errors, Table, join};
 use crate::metering::Period;
 use crate::metering::billing::{BillingConfig, Cycle};
 use crate::metering::tariff::{Calendar, RawRule};
+use crate::signing::SigningKey;
 
 /// Reads `[tariffs]` and `[billing]` of the root table.
 pub(crate) fn read(
@@ -98,12 +99,27 @@ fn billing(mut t: Table<'_>, errs: &mut Errors) -> Option<BillingConfig> {
         Some(p)
     });
     let signing_key = t.opt::<PathBuf>("signing_key", errs);
+    let signer = signing_key.as_deref().and_then(|file| {
+        read_key(file)
+            .map_err(|e| errs.push(&join(&path, "signing_key"), t.origin(), e))
+            .ok()
+    });
     t.finish(errs);
     Some(BillingConfig {
         cycle: cycle?,
         demand,
         signing_key,
+        signer,
     })
+}
+
+/// The Ed25519 key of `[billing] signing_key`, read once when the config is checked.
+fn read_key(file: &std::path::Path) -> Result<Arc<SigningKey>, String> {
+    let text = std::fs::read_to_string(file)
+        .map_err(|e| format!("cannot read the signing key {}: {e}", file.display()))?;
+    SigningKey::from_pem(&text)
+        .map(Arc::new)
+        .map_err(|e| format!("{}: {e}", file.display()))
 }
 
 /// Every interval list that applies to some channel, with where it is written.
@@ -263,5 +279,34 @@ intervals = ["1h"]
                 "billing.demand: \"2h\" does not divide an hour: demand is a mean power per hour",
             ]
         );
+    }
+
+    #[test]
+    fn a_signing_key_is_read_when_checked_and_a_missing_or_foreign_one_is_refused() {
+        let dir = std::env::temp_dir().join(format!("pg-signing-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let good = dir.join("good.pem");
+        use crate::signing::SigningKey;
+        std::fs::write(&good, SigningKey::generate_pem().unwrap()).unwrap();
+        let bad = dir.join("bad.pem");
+        std::fs::write(&bad, "hello").unwrap();
+        let with = |file: &Path| {
+            format!(
+                "{BASE}[billing]\nperiod = \"daily\"\nsigning_key = \"{}\"\n",
+                file.display()
+            )
+        };
+        let c = Config::from_toml(&with(&good), Path::new("/etc/p.toml"), Some(HashMap::new()));
+        let b = c.unwrap().gateway.billing.unwrap();
+        let pem = std::fs::read_to_string(&good).unwrap();
+        let want = SigningKey::from_pem(&pem).unwrap();
+        assert_eq!(b.signer.as_deref(), Some(&want));
+        for (file, says) in [(dir.join("none.pem"), "cannot read"), (bad, "not a PEM")] {
+            let errs = errors(&with(&file)[BASE.len()..]);
+            assert_eq!(errs.len(), 1, "{errs:?}");
+            assert!(errs[0].starts_with("billing.signing_key: "), "{errs:?}");
+            assert!(errs[0].contains(says), "{errs:?}");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -16,6 +16,8 @@ pub struct ChannelUnits {
     pub rate_per: RatePer,
     /// Home Assistant's device class of the total (energy, water, gas, volume, distance…).
     pub device_class: Option<String>,
+    /// `obis`: the OBIS name of the channel's total (`1-0:1.8.0`), in its readings and records.
+    pub obis: Option<crate::metering::obis::Obis>,
 }
 
 /// The time base of a rate: pulses per second × scale × this many seconds.
@@ -161,6 +163,7 @@ mod tests {
             rate_unit: Some("kW".into()),
             rate_per: per,
             device_class: Some("energy".into()),
+            obis: None,
         }
     }
 

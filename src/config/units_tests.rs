@@ -147,3 +147,19 @@ fn zero_min_interval_or_heartbeat_is_accepted_and_undoes_the_gateway_value() {
     let e = errors("min_interval = \"-1s\"\n");
     assert!(e.contains("min_interval"), "{e}");
 }
+
+#[test]
+fn a_channel_names_its_total_by_obis_and_a_name_not_a_b_c_d_e_is_refused() {
+    let c = check(
+        "[buses.line1.devices.meter.channels.a0]\nscale = 0.001\nunit = \"kWh\"\nobis = \"1-0:1.8.0\"\n",
+        &[],
+    )
+    .unwrap();
+    let u = &c.buses[0].devices[0].channels["a0"].units;
+    assert_eq!(u.obis.map(|o| o.to_string()).as_deref(), Some("1-0:1.8.0"));
+    let e = errors("[buses.line1.devices.meter.channels.a0]\nscale = 1\nobis = \"1.8.0\"\n");
+    assert!(
+        e.contains("channels.a0.obis: \"1.8.0\" is not an OBIS name: write A-B:C.D.E"),
+        "{e}"
+    );
+}

@@ -187,6 +187,7 @@ fn daily(demand: &str) -> Option<BillingConfig> {
         cycle: Cycle::Daily,
         demand: Some(Period::parse(demand).unwrap()),
         signing_key: None,
+        signer: None,
     })
 }
 

@@ -34,6 +34,9 @@ pub struct BillingConfig {
     pub demand: Option<Period>,
     /// `signing_key`: where the Ed25519 key that signs records is.
     pub signing_key: Option<std::path::PathBuf>,
+    /// The key read from `signing_key` when the config was checked: it signs every interval
+    /// and billing record.
+    pub signer: Option<std::sync::Arc<crate::signing::SigningKey>>,
 }
 
 impl BillingConfig {

@@ -10,6 +10,7 @@ fn monthly(day: i8) -> BillingConfig {
         cycle: Cycle::Monthly { day },
         demand: None,
         signing_key: None,
+        signer: None,
     }
 }
 
@@ -41,6 +42,7 @@ fn a_daily_period_on_the_spring_forward_day_lasts_23_hours() {
         cycle: Cycle::Daily,
         demand: None,
         signing_key: None,
+        signer: None,
     };
     let start = at("2026-03-28T23:00:00Z");
     assert_eq!(b.close_after(&berlin, start) - start, 23 * 3_600_000);

@@ -14,6 +14,7 @@ pub mod clock;
 pub mod demand;
 pub mod interval;
 pub mod meter;
+pub mod obis;
 pub mod period;
 pub mod tariff;
 

@@ -3,8 +3,10 @@
 //! [`super::payload`]; topics in [`crate::topics`]. The gateway's own status and results are
 //! its voice's ([`super::voice`]), not this format's.
 
+use super::account::Ledger;
 use super::format::Format;
 use super::payload;
+use super::signed::Signer;
 use crate::topics::Topics;
 use std::collections::HashSet;
 
@@ -23,6 +25,9 @@ pub struct Json {
     qos: u8,
     /// The devices whose polls go as one message (`payload = "device"`, theirs or inherited).
     per_device: HashSet<String>,
+    /// Signs interval and billing records (`[billing] signing_key`), the key read at start;
+    /// numbers the tariff registers.
+    ledger: Ledger,
 }
 
 impl Json {
@@ -34,6 +39,10 @@ impl Json {
             retain: mqtt.retain,
             qos: mqtt.qos,
             per_device: per_device(config),
+            ledger: Ledger {
+                calendar: config.gateway.tariffs.clone(),
+                signer: Signer::of(config),
+            },
         }
     }
 
@@ -81,9 +90,13 @@ impl Format for Json {
             }
             Output::Interval(i) => {
                 let topic = t.interval(&i.device, &i.channel, &i.period);
-                let record = Message::new(topic, payload::interval(i), self.qos, self.retain);
+                let mut body = payload::interval(i);
+                if let Some(s) = &self.ledger.signer {
+                    body = s.interval(i, body);
+                }
+                let record = Message::new(topic, body, self.qos, self.retain);
                 let mut out = vec![record];
-                out.extend(super::account::messages(t, i, self.qos));
+                out.extend(super::account::messages(t, i, self.qos, &self.ledger));
                 out
             }
             _ => Vec::new(),
@@ -93,6 +106,7 @@ impl Format for Json {
     /// A device's payload shape may change with the config.
     fn reload(&mut self, config: &Config) -> Vec<Message> {
         self.per_device = per_device(config);
+        self.ledger.calendar = config.gateway.tariffs.clone();
         Vec::new()
     }
 }

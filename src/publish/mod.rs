@@ -17,6 +17,7 @@ pub mod mqtt;
 pub mod payload;
 pub mod poller;
 pub mod session;
+pub mod signed;
 pub mod sparkplug;
 pub mod spool;
 pub mod spool_place;

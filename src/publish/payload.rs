@@ -41,6 +41,9 @@ struct ReadingJson {
     /// The unit of `value` and `reading`.
     #[serde(skip_serializing_if = "Option::is_none")]
     unit: Option<String>,
+    /// The channel's OBIS name (`obis` in its config).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    obis: Option<String>,
 }
 
 /// The JSON of a gauge's reading: its value (an exact decimal, a number or text) in its unit.
@@ -50,6 +53,8 @@ struct GaugeJson {
     value: Box<RawValue>,
     #[serde(skip_serializing_if = "Option::is_none")]
     unit: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    obis: Option<String>,
 }
 
 /// A count's or a gauge's JSON.
@@ -81,6 +86,8 @@ struct IntervalJson {
     tariff: Option<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     tariffs: Vec<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    obis: Option<String>,
 }
 
 /// How long after each boundary its read was.
@@ -119,8 +126,14 @@ pub fn interval(i: &IntervalRecord) -> String {
             .as_ref()
             .map(|b| b.tariffs.clone())
             .unwrap_or_default(),
+        obis: obis(i.units.as_deref()),
     };
     serde_json::to_string(&json).expect("record serializes")
+}
+
+/// The OBIS name of a channel with these units, as text.
+pub(crate) fn obis(units: Option<&crate::config::units::ChannelUnits>) -> Option<String> {
+    units?.obis.map(|o| o.to_string())
 }
 
 /// Rounds to 3 decimals so payloads stay short and stable.
@@ -145,6 +158,7 @@ fn json_of(r: &Reading) -> AnyJson {
             ts: humantime::format_rfc3339_millis(r.ts).to_string(),
             value: measure_json(m),
             unit: r.units.as_deref().and_then(|u| u.unit.clone()),
+            obis: obis(r.units.as_deref()),
         }),
         None => AnyJson::Count(count_json(r)),
     }
@@ -197,6 +211,7 @@ fn count_json(r: &Reading) -> ReadingJson {
         unit: units
             .filter(|u| u.scale.is_some())
             .and_then(|u| u.unit.clone()),
+        obis: obis(units),
     }
 }
 

@@ -15,9 +15,10 @@
 
 use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD;
-use ring::signature::{ED25519, Ed25519KeyPair, KeyPair as _, UnparsedPublicKey};
+use ring::signature::{ED25519, UnparsedPublicKey};
 
 pub use crate::config::remote::TrustedKey;
+pub use crate::signing::{KeyError, SigningKey};
 
 /// The first line of the signed bytes: the version of this format.
 pub const DOMAIN: &str = "pulsegate-config-v1";
@@ -57,62 +58,6 @@ pub fn verify(keys: &[TrustedKey], bytes: &[u8], signature: &str) -> Result<(), 
     }
 }
 
-/// Why a signing key cannot be used.
-#[derive(Debug, thiserror::Error)]
-pub enum KeyError {
-    #[error(
-        "not a PEM private key (-----BEGIN PRIVATE KEY-----, as `openssl genpkey -algorithm ed25519` writes)"
-    )]
-    NotPem,
-    #[error("not an Ed25519 PKCS#8 private key: {0}")]
-    NotEd25519(String),
-    #[error("cannot make a key: {0}")]
-    Random(String),
-}
-
-/// A signer's key pair.
-pub struct SigningKey(Ed25519KeyPair);
-
-/// The PKCS#8 v1 (RFC 8410) prefix of an Ed25519 private key, before its 32-byte seed: the form
-/// openssl writes and reads.
-const PKCS8_V1_PREFIX: [u8; 16] = [
-    0x30, 0x2e, 0x02, 0x01, 0x00, 0x30, 0x05, 0x06, 0x03, 0x2b, 0x65, 0x70, 0x04, 0x22, 0x04, 0x20,
-];
-
-impl SigningKey {
-    /// Reads a PKCS#8 PEM private key.
-    pub fn from_pem(text: &str) -> Result<SigningKey, KeyError> {
-        let der = pem_body(text, "PRIVATE KEY").ok_or(KeyError::NotPem)?;
-        Ed25519KeyPair::from_pkcs8_maybe_unchecked(&der)
-            .map(SigningKey)
-            .map_err(|e| KeyError::NotEd25519(e.to_string()))
-    }
-
-    /// A new key, as PKCS#8 PEM (the v1 form openssl writes).
-    pub fn generate_pem() -> Result<String, KeyError> {
-        use ring::rand::SecureRandom as _;
-        let mut seed = [0u8; 32];
-        ring::rand::SystemRandom::new()
-            .fill(&mut seed)
-            .map_err(|e| KeyError::Random(e.to_string()))?;
-        let mut der = PKCS8_V1_PREFIX.to_vec();
-        der.extend_from_slice(&seed);
-        Ok(pem("PRIVATE KEY", &der))
-    }
-
-    /// The public key, as `[remote] trusted_keys` lists it.
-    pub fn public(&self) -> TrustedKey {
-        let mut raw = [0u8; 32];
-        raw.copy_from_slice(self.0.public_key().as_ref());
-        TrustedKey(raw)
-    }
-
-    /// The signature of `bytes`, base64.
-    pub fn sign(&self, bytes: &[u8]) -> String {
-        STANDARD.encode(self.0.sign(bytes).as_ref())
-    }
-}
-
 /// A push ready to publish on `<root>/config/set`: the JSON `config sign` prints.
 pub fn signed_push(key: &SigningKey, gateway: &str, id: &str, serial: u64, toml: &str) -> String {
     let signature = key.sign(&signed_bytes(gateway, id, serial, toml));
@@ -120,33 +65,10 @@ pub fn signed_push(key: &SigningKey, gateway: &str, id: &str, serial: u64, toml:
         .to_string()
 }
 
-/// The DER inside a PEM block labelled `label`.
-fn pem_body(text: &str, label: &str) -> Option<Vec<u8>> {
-    let begin = format!("-----BEGIN {label}-----");
-    let end = format!("-----END {label}-----");
-    let start = text.find(&begin)? + begin.len();
-    let stop = start + text[start..].find(&end)?;
-    let b64: String = text[start..stop]
-        .chars()
-        .filter(|c| !c.is_whitespace())
-        .collect();
-    STANDARD.decode(b64).ok()
-}
-
-fn pem(label: &str, der: &[u8]) -> String {
-    let b64 = STANDARD.encode(der);
-    let mut out = format!("-----BEGIN {label}-----\n");
-    for line in b64.as_bytes().chunks(64) {
-        out.push_str(std::str::from_utf8(line).unwrap_or_default());
-        out.push('\n');
-    }
-    out.push_str(&format!("-----END {label}-----\n"));
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::signing::{PKCS8_V1_PREFIX, pem};
 
     /// RFC 8032 section 7.1, TEST 2: a published key, message and signature.
     const RFC8032_SEED: &str = "4ccd089b28ff96da9db6c346ec114e0f5b8a319f35aba624da8cf6ed4fb8a6fb";
@@ -169,10 +91,10 @@ mod tests {
     #[test]
     fn the_rfc_8032_test_vector_signs_and_verifies() {
         let key = rfc_key();
-        assert_eq!(key.public().0.to_vec(), hex(RFC8032_PUBLIC));
+        assert_eq!(key.public().to_vec(), hex(RFC8032_PUBLIC));
         let sig = key.sign(&[0x72]);
         assert_eq!(STANDARD.decode(&sig).unwrap(), hex(RFC8032_SIG));
-        assert_eq!(verify(&[key.public()], &[0x72], &sig), Ok(()));
+        assert_eq!(verify(&[TrustedKey(key.public())], &[0x72], &sig), Ok(()));
     }
 
     #[test]
@@ -189,22 +111,26 @@ mod tests {
         let other = SigningKey::from_pem(&SigningKey::generate_pem().unwrap()).unwrap();
         let bytes = signed_bytes("g", "p", 1, "x");
         let sig = key.sign(&bytes);
-        let untrusted = [other.public()];
+        let untrusted = [TrustedKey(other.public())];
         assert_eq!(
             verify(&untrusted, &bytes, &sig),
             Err(SignatureError::NotTrusted)
         );
         let changed = signed_bytes("g", "p", 2, "x");
         assert_eq!(
-            verify(&[key.public()], &changed, &sig),
+            verify(&[TrustedKey(key.public())], &changed, &sig),
             Err(SignatureError::NotTrusted)
         );
         assert_eq!(
-            verify(&[key.public()], &bytes, "abc"),
+            verify(&[TrustedKey(key.public())], &bytes, "abc"),
             Err(SignatureError::Malformed)
         );
         assert_eq!(
-            verify(&[other.public(), key.public()], &bytes, &sig),
+            verify(
+                &[TrustedKey(other.public()), TrustedKey(key.public())],
+                &bytes,
+                &sig
+            ),
             Ok(())
         );
     }

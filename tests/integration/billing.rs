@@ -22,7 +22,7 @@ fn libfaketime() -> &'static str {
     .expect("libfaketime is not installed: run the README's test command (scripts/test)")
 }
 
-fn ms_of(text: &str) -> i64 {
+pub(crate) fn ms_of(text: &str) -> i64 {
     let t = humantime::parse_rfc3339(text).unwrap();
     t.duration_since(SystemTime::UNIX_EPOCH)
         .unwrap()
@@ -34,14 +34,14 @@ fn iso_ms(v: &Value) -> i64 {
 }
 
 /// A gateway whose wall clock reads `fake` (RFC 3339) now and runs on from there.
-struct Faked {
+pub(crate) struct Faked {
     rc: PathBuf,
     /// Fake minus real, in ms.
     offset_ms: i64,
 }
 
 impl Faked {
-    fn at(dir: &Path, fake: &str) -> Faked {
+    pub(crate) fn at(dir: &Path, fake: &str) -> Faked {
         let offset_s = (ms_of(fake) - wall_ms()) / 1000;
         let rc = dir.join("faketime.rc");
         std::fs::write(&rc, format!("{offset_s:+}\n")).unwrap();
@@ -51,7 +51,7 @@ impl Faked {
         }
     }
 
-    fn start(&self, config: &Path) -> Gateway {
+    pub(crate) fn start(&self, config: &Path) -> Gateway {
         Gateway::start_with_env(
             config,
             &[
@@ -73,15 +73,15 @@ const TARIFFS: &str = "[tariffs]\ndefault = \"offpeak\"\nholidays = [\"2026-12-2
     [[tariffs.rule]]\ntariff = \"peak\"\ndays = [\"mon\", \"tue\", \"wed\", \"thu\", \"fri\"]\n\
     from = \"07:00\"\nto = \"21:00\"\n";
 
-struct Run {
-    dir: PathBuf,
-    broker: Broker,
-    sub: Subscriber,
-    config: PathBuf,
+pub(crate) struct Run {
+    pub(crate) dir: PathBuf,
+    pub(crate) broker: Broker,
+    pub(crate) sub: Subscriber,
+    pub(crate) config: PathBuf,
     _plant: pulsegate::sim::Plant,
 }
 
-async fn setup(name: &str, rate: f64, gateway: &str, extra: &str) -> Run {
+pub(crate) async fn setup(name: &str, rate: f64, gateway: &str, extra: &str) -> Run {
     let dir = temp_dir(name);
     let broker = Broker::start();
     let plant = plant(&format!(
@@ -111,7 +111,7 @@ async fn setup(name: &str, rate: f64, gateway: &str, extra: &str) -> Run {
 }
 
 /// Waits for the record of `topic` that starts at `start`.
-async fn record_from(sub: &Subscriber, topic: &str, start: &str, secs: u64) -> Value {
+pub(crate) async fn record_from(sub: &Subscriber, topic: &str, start: &str, secs: u64) -> Value {
     let at = ms_of(start);
     sub.wait_for(topic, Duration::from_secs(secs), |m| {
         m.json()["start"].as_str().map(ms_of) == Some(at)

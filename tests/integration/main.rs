@@ -36,6 +36,7 @@ mod protocol;
 mod pushes;
 mod readings_first;
 mod service;
+mod signed;
 mod sparkplug;
 mod spool_truth;
 mod status_page;

@@ -521,6 +521,7 @@ fn meter_reading(device: &str, channel: &str, gauge: bool) -> Reading {
             rate_unit: Some("m³/h".into()),
             rate_per: RatePer::Hour,
             device_class: Some("water".into()),
+            obis: None,
         },
     }));
     if gauge {

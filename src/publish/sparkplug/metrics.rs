@@ -19,6 +19,9 @@ use crate::reading::{Reading, unix_ms};
 /// The property Ignition (and most hosts) read as a tag's engineering unit.
 pub const UNIT_PROPERTY: &str = "engUnit";
 
+/// The property that names a channel's total and value by OBIS (`1-0:1.8.0`).
+pub const OBIS_PROPERTY: &str = "obis";
+
 /// What one channel publishes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ChannelShape {
@@ -33,6 +36,8 @@ pub struct ChannelShape {
     /// `Some(numeric)` for a gauge: its one metric is `<c>/Value` (Double, or String for text
     /// such as a date), in its unit.
     pub gauge: Option<bool>,
+    /// The channel's OBIS name (`obis`), a property of its `Total` and `Value`.
+    pub obis: Option<String>,
 }
 
 impl ChannelShape {
@@ -56,6 +61,7 @@ impl ChannelShape {
             value_unit,
             writable: false,
             gauge,
+            obis: units.and_then(|u| u.obis).map(|o| o.to_string()),
         }
     }
 
@@ -181,6 +187,11 @@ pub fn data(r: &Reading, shape: &ChannelShape, aliases: &mut Aliases) -> Vec<Met
         .collect()
 }
 
+/// Whether a metric is what the channel's OBIS name names: its total or its scaled value.
+fn is_register(name: &str) -> bool {
+    name.ends_with("/Total") || name.ends_with("/Value")
+}
+
 /// Every metric of a device for its DBIRTH, with the last values seen (null before any).
 pub fn birth(
     device: &str,
@@ -204,6 +215,9 @@ pub fn birth(
             }
             if name.ends_with("/Rate") || name.ends_with("/Frequency") {
                 m = m.with_property(UNIT_PROPERTY, "Hz");
+            }
+            if let (true, Some(obis)) = (is_register(&name), &shape.obis) {
+                m = m.with_property(OBIS_PROPERTY, obis);
             }
             out.push(m);
         }

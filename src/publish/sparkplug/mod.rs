@@ -112,6 +112,7 @@ pub fn shapes(config: &Config, commands: bool) -> Vec<(String, Vec<ChannelShape>
                 value_unit: units.and_then(|u| u.scale.map(|_| u.unit.clone())),
                 writable: commands && d.commands && d.writable_counts(),
                 gauge: None,
+                obis: units.and_then(|u| u.obis).map(|o| o.to_string()),
             });
         }
         out.push((d.name.clone(), shapes));

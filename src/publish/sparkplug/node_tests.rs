@@ -15,6 +15,7 @@ fn shape(name: &str, kind: ChannelKind) -> ChannelShape {
         value_unit: None,
         writable: true,
         gauge: None,
+        obis: None,
     }
 }
 
@@ -597,4 +598,31 @@ fn a_rebirth_behind_waiting_readings_is_numbered_when_it_leaves() {
         .map(|(_, p)| p.seq.unwrap())
         .collect();
     assert_eq!(seqs, [6, 7, 8, 9, 10, 0, 1, 2, 3]);
+}
+
+#[test]
+fn a_channel_named_by_obis_says_it_as_a_property_of_its_total_and_value_in_the_dbirth() {
+    use crate::publish::sparkplug::metrics::{Aliases, OBIS_PROPERTY, birth};
+    use crate::publish::sparkplug::proto::PropertyKind;
+    let mut named = shape("a0", ChannelKind::Counter);
+    named.value_unit = Some(Some("kWh".into()));
+    named.obis = Some("1-0:1.8.0".into());
+    let metrics = birth(
+        "press",
+        &[named],
+        &Default::default(),
+        &mut Aliases::default(),
+    );
+    let obis_of = |name: &str| {
+        let m = metrics.iter().find(|m| m.name.as_deref() == Some(name))?;
+        let set = m.properties.as_ref()?;
+        let at = set.keys.iter().position(|k| k == OBIS_PROPERTY)?;
+        match &set.values[at].value {
+            Some(PropertyKind::String(s)) => Some(s.clone()),
+            _ => None,
+        }
+    };
+    assert_eq!(obis_of("a0/Total").as_deref(), Some("1-0:1.8.0"));
+    assert_eq!(obis_of("a0/Value").as_deref(), Some("1-0:1.8.0"));
+    assert_eq!(obis_of("a0/Delta"), None, "a delta is not the register");
 }

@@ -137,6 +137,7 @@ pub fn register_units(r: &Record, medium: Option<u8>) -> Option<ChannelUnits> {
         rate_unit: rate_unit.map(str::to_string),
         rate_per: RatePer::Hour,
         device_class: class.map(str::to_string),
+        obis: None,
     })
 }
 
