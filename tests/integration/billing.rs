@@ -152,7 +152,13 @@ fn registers_match_records(sub: &Subscriber, records: &[Value], base: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_friday_morning_across_the_peak_rule_books_each_record_to_its_tariff_and_register() {
-    let r = setup("friday", 40.0, "intervals = [\"10s\"]\n", "").await;
+    let r = setup(
+        "friday",
+        40.0,
+        "intervals = [\"10s\"]\n",
+        "obis = \"1-0:1.8.0\"\n",
+    )
+    .await;
     let text = std::fs::read_to_string(&r.config).unwrap() + TARIFFS;
     std::fs::write(&r.config, text).unwrap();
     // Friday 4 December 2026, 06:59:32 CET.
@@ -176,6 +182,24 @@ async fn a_friday_morning_across_the_peak_rule_books_each_record_to_its_tariff_a
     }
     assert!(records.iter().any(|r| r["tariff"] == "offpeak"));
     registers_match_records(&r.sub, &records, base);
+    // The channel's OBIS name rides on its readings and records; a tariff's register takes
+    // the tariff's number in the calendar (the default first) as its last group.
+    let read = readings(&r.sub, base);
+    assert!(
+        !read.is_empty() && read.iter().all(|m| m["obis"] == "1-0:1.8.0"),
+        "{read:?}"
+    );
+    assert!(
+        records.iter().all(|m| m["obis"] == "1-0:1.8.0"),
+        "{records:?}"
+    );
+    for (tariff, obis) in [("offpeak", "1-0:1.8.1"), ("peak", "1-0:1.8.2")] {
+        let regs = readings(&r.sub, &format!("{base}/tariff/{tariff}"));
+        assert!(
+            !regs.is_empty() && regs.iter().all(|m| m["obis"] == obis),
+            "{regs:?}"
+        );
+    }
     let _ = &r.broker;
 }
 
@@ -238,7 +262,13 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
     let tariffs = "[tariffs]\ndefault = \"offpeak\"\n[[tariffs.rule]]\ntariff = \"peak\"\n\
         days = [\"fri\"]\nfrom = \"23:59\"\nto = \"00:00\"\n\
         [billing]\nperiod = \"daily\"\ndemand = \"10s\"\n";
-    let r = setup("daily", 25.0, "intervals = [\"10s\"]\n", "").await;
+    let r = setup(
+        "daily",
+        25.0,
+        "intervals = [\"10s\"]\n",
+        "obis = \"1-0:1.8.0\"\n",
+    )
+    .await;
     let text = std::fs::read_to_string(&r.config).unwrap() + tariffs;
     std::fs::write(&r.config, text).unwrap();
     // Friday 4 December 2026, 23:58:44 CET; local midnight is 23:00Z.
@@ -321,6 +351,11 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
     );
     assert_eq!(billing["demand"]["unit"], "kW");
     assert_eq!(billing["demand"]["start"], best["start"]);
+    assert_eq!(billing["obis"], "1-0:1.8.0");
+    assert_eq!(
+        billing["demand"]["obis"], "1-0:1.6.0",
+        "the maximum demand's OBIS name"
+    );
 
     // `pulsegate billing` prints the same period from the state file.
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_pulsegate"))

@@ -148,6 +148,7 @@ pub fn channel_entities(site: &Site, m: Module<'_>, spec: &Shape) -> Vec<Entity>
     let state = State::of(site, m, ch);
     let mut out = vec![total(site, m, spec, &units), rate(site, m, spec, &units)];
     out.extend(super::meter_entities::entities(site, m, spec, &units));
+    out.extend(super::account_entities::entities(site, m, spec, &units));
     if spec.freq {
         let more = json!({
             "state_topic": state.topic,

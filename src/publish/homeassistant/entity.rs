@@ -25,6 +25,10 @@ pub struct Site {
     pub payload: PayloadMode,
     /// `gateway.intervals`: interval periods of channels that do not say otherwise.
     pub intervals: Option<Vec<crate::metering::Period>>,
+    /// `[tariffs]`: the tariffs, each a register of every metered channel.
+    pub tariffs: Vec<String>,
+    /// `[billing]`: metered channels close billing periods.
+    pub billing: Option<super::account_entities::BillingSite>,
 }
 
 impl Site {
@@ -35,6 +39,17 @@ impl Site {
             topics: Topics::new(&config.mqtt.topic_root),
             payload: config.gateway.payload,
             intervals: config.gateway.intervals.clone(),
+            tariffs: config
+                .gateway
+                .tariffs
+                .as_ref()
+                .map(|c| c.names().to_vec())
+                .unwrap_or_default(),
+            billing: config.gateway.billing.as_ref().map(|b| {
+                super::account_entities::BillingSite {
+                    demand: b.demand.is_some(),
+                }
+            }),
         }
     }
 
@@ -206,14 +221,14 @@ impl State {
         }
     }
 
-    /// The attributes template: count, event and seq of the last reading.
+    /// The attributes template: count, event, seq and OBIS name of the last reading.
     pub(super) fn attributes(&self) -> String {
         let r = match &self.channel {
             None => "value_json".to_string(),
             Some(c) => format!("value_json.get('{c}', {{}})"),
         };
         format!(
-            "{{{{ {{'count': {r}.get('count'), 'event': {r}.get('event'), 'seq': {r}.get('seq')}} | tojson }}}}"
+            "{{{{ {{'count': {r}.get('count'), 'event': {r}.get('event'), 'seq': {r}.get('seq'), 'obis': {r}.get('obis')}} | tojson }}}}"
         )
     }
 }

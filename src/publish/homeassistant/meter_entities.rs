@@ -72,7 +72,7 @@ pub fn entities(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) 
 }
 
 /// The channel's unit, class and precision (pulses without a scale).
-fn with_units(mut more: Value, units: &ChannelUnits) -> Value {
+pub(super) fn with_units(mut more: Value, units: &ChannelUnits) -> Value {
     match units.scale {
         Some(s) => {
             if let Some(u) = &units.unit {

@@ -15,6 +15,7 @@ use std::time::Duration;
 
 use tokio::time::Instant;
 
+pub mod account_entities;
 pub mod entities;
 pub mod entity;
 pub mod meter_entities;

@@ -575,3 +575,117 @@ fn a_meters_register_and_gauges_are_announced_from_their_readings_without_clear_
     let stale = "homeassistant/sensor/edge/mb_id87654321_power/config";
     assert!(d.config_seen(stale, b"{}").is_some());
 }
+
+/// With a calendar and billing periods, a metered channel has a `total_increasing` sensor per
+/// tariff register (what the Energy dashboard takes), its period's maximum demand as a power
+/// `measurement`, and its last billing record with the record's fields as attributes; a channel
+/// without intervals has none of them.
+#[test]
+fn tariff_registers_demand_and_the_last_billing_period_are_sensors_of_a_metered_channel() {
+    let text = CONFIG.replace(
+        "[buses.line1]",
+        "[tariffs]\ndefault = \"offpeak\"\n[[tariffs.rule]]\ntariff = \"peak\"\n\
+         days = [\"mon\"]\nfrom = \"07:00\"\nto = \"21:00\"\n\
+         [billing]\nperiod = \"monthly\"\nday = 1\ndemand = \"15min\"\n[buses.line1]",
+    )
+    .replace(
+        "[buses.line1.devices.meter.channels.a0]",
+        "intervals = [\"15min\"]\n[buses.line1.devices.meter.channels.a0]\nobis = \"1-0:1.8.0\"",
+    );
+    let mut d = discovery(&config(&text));
+    d.start();
+    assert!(!d.reading(&reading("meter", "a0")).is_empty());
+    for tariff in ["offpeak", "peak"] {
+        let v = json(
+            &mut d,
+            &format!("homeassistant/sensor/edge/line1_u3_a0_tariff_{tariff}/config"),
+        );
+        assert_eq!(v["state_class"], "total_increasing");
+        assert_eq!(v["device_class"], "energy");
+        assert_eq!(v["unit_of_measurement"], "kWh");
+        assert_eq!(v["value_template"], "{{ value_json.value }}");
+        assert_eq!(
+            v["state_topic"],
+            format!("pulsegate/edge/meter/a0/tariff/{tariff}")
+        );
+        assert!(
+            v["json_attributes_template"]
+                .as_str()
+                .unwrap()
+                .contains("obis")
+        );
+    }
+    let demand = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u3_a0_demand/config",
+    );
+    assert_eq!(demand["state_class"], "measurement");
+    assert_eq!(demand["device_class"], "power");
+    assert_eq!(demand["unit_of_measurement"], "kW");
+    assert_eq!(demand["state_topic"], "pulsegate/edge/meter/a0/billing");
+    assert!(
+        demand["value_template"]
+            .as_str()
+            .unwrap()
+            .contains("demand.value")
+    );
+    let period = json(
+        &mut d,
+        "homeassistant/sensor/edge/line1_u3_a0_billing/config",
+    );
+    assert_eq!(period["state_class"], "total");
+    assert_eq!(
+        period["last_reset_value_template"],
+        "{{ value_json.start }}"
+    );
+    assert_eq!(
+        period["json_attributes_topic"],
+        "pulsegate/edge/meter/a0/billing"
+    );
+    assert!(
+        period.get("json_attributes_template").is_none(),
+        "every field of the record is an attribute"
+    );
+    let total = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
+    assert!(
+        total["json_attributes_template"]
+            .as_str()
+            .unwrap()
+            .contains("'obis'")
+    );
+    // The press counts without intervals: no account, no such sensors.
+    assert!(!d.reading(&reading("press", "a0")).is_empty());
+    let all = d.everything();
+    assert!(
+        all.iter().all(|a| !a.topic.contains("line1_u4_a0_tariff")
+            && !a.topic.contains("line1_u4_a0_billing")
+            && !a.topic.contains("line1_u4_a0_demand")),
+        "{:?}",
+        all.iter().map(|a| &a.topic).collect::<Vec<_>>()
+    );
+}
+
+/// Without `demand`, billing records carry none, and there is no demand sensor.
+#[test]
+fn billing_without_demand_has_no_demand_sensor() {
+    let text = CONFIG
+        .replace(
+            "[buses.line1]",
+            "[billing]\nperiod = \"daily\"\n[buses.line1]",
+        )
+        .replace(
+            "[buses.line1.devices.meter.channels.a0]",
+            "intervals = [\"15min\"]\n[buses.line1.devices.meter.channels.a0]",
+        );
+    let mut d = discovery(&config(&text));
+    d.start();
+    d.reading(&reading("meter", "a0"));
+    let topics: Vec<String> = d.everything().into_iter().map(|a| a.topic).collect();
+    assert!(
+        topics
+            .iter()
+            .any(|t| t.ends_with("line1_u3_a0_billing/config"))
+    );
+    assert!(!topics.iter().any(|t| t.ends_with("_demand/config")));
+    assert!(!topics.iter().any(|t| t.contains("_tariff_")));
+}
