@@ -576,25 +576,32 @@ fn a_meters_register_and_gauges_are_announced_from_their_readings_without_clear_
     assert!(d.config_seen(stale, b"{}").is_some());
 }
 
-/// With a calendar and billing periods, a metered channel has a `total_increasing` sensor per
-/// tariff register (what the Energy dashboard takes), its period's maximum demand as a power
-/// `measurement`, and its last billing record with the record's fields as attributes; a channel
-/// without intervals has none of them.
-#[test]
-fn tariff_registers_demand_and_the_last_billing_period_are_sensors_of_a_metered_channel() {
-    let text = CONFIG.replace(
-        "[buses.line1]",
-        "[tariffs]\ndefault = \"offpeak\"\n[[tariffs.rule]]\ntariff = \"peak\"\n\
-         days = [\"mon\"]\nfrom = \"07:00\"\nto = \"21:00\"\n\
-         [billing]\nperiod = \"monthly\"\nday = 1\ndemand = \"15min\"\n[buses.line1]",
-    )
-    .replace(
-        "[buses.line1.devices.meter.channels.a0]",
-        "intervals = [\"15min\"]\n[buses.line1.devices.meter.channels.a0]\nobis = \"1-0:1.8.0\"",
-    );
+/// The example config with a calendar, monthly billing with demand, and intervals and an OBIS
+/// name on the meter's a0 (the press has no intervals).
+fn account_discovery() -> Discovery {
+    let text = CONFIG
+        .replace(
+            "[buses.line1]",
+            "[tariffs]\ndefault = \"offpeak\"\n[[tariffs.rule]]\ntariff = \"peak\"\n\
+             days = [\"mon\"]\nfrom = \"07:00\"\nto = \"21:00\"\n\
+             [billing]\nperiod = \"monthly\"\nday = 1\ndemand = \"15min\"\n[buses.line1]",
+        )
+        .replace(
+            "[buses.line1.devices.meter.channels.a0]",
+            "intervals = [\"15min\"]\n[buses.line1.devices.meter.channels.a0]\nobis = \"1-0:1.8.0\"",
+        );
     let mut d = discovery(&config(&text));
     d.start();
     assert!(!d.reading(&reading("meter", "a0")).is_empty());
+    assert!(!d.reading(&reading("press", "a0")).is_empty());
+    d
+}
+
+/// With a calendar, a metered channel has a `total_increasing` sensor per tariff register (what
+/// the Energy dashboard takes); a channel without intervals has none.
+#[test]
+fn each_tariff_register_of_a_metered_channel_is_a_total_increasing_sensor() {
+    let mut d = account_discovery();
     for tariff in ["offpeak", "peak"] {
         let v = json(
             &mut d,
@@ -615,6 +622,28 @@ fn tariff_registers_demand_and_the_last_billing_period_are_sensors_of_a_metered_
                 .contains("obis")
         );
     }
+    let total = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
+    assert!(
+        total["json_attributes_template"]
+            .as_str()
+            .unwrap()
+            .contains("'obis'")
+    );
+    let all = d.everything();
+    assert!(
+        all.iter().all(|a| !a.topic.contains("line1_u4_a0_tariff")
+            && !a.topic.contains("line1_u4_a0_billing")
+            && !a.topic.contains("line1_u4_a0_demand")),
+        "the press has no account: {:?}",
+        all.iter().map(|a| &a.topic).collect::<Vec<_>>()
+    );
+}
+
+/// With billing, a metered channel has its period's maximum demand as a power `measurement`
+/// and its last billing record, the record's fields as attributes.
+#[test]
+fn the_demand_and_the_last_billing_period_are_sensors_of_a_metered_channel() {
+    let mut d = account_discovery();
     let demand = json(
         &mut d,
         "homeassistant/sensor/edge/line1_u3_a0_demand/config",
@@ -645,23 +674,6 @@ fn tariff_registers_demand_and_the_last_billing_period_are_sensors_of_a_metered_
     assert!(
         period.get("json_attributes_template").is_none(),
         "every field of the record is an attribute"
-    );
-    let total = json(&mut d, "homeassistant/sensor/edge/line1_u3_a0_total/config");
-    assert!(
-        total["json_attributes_template"]
-            .as_str()
-            .unwrap()
-            .contains("'obis'")
-    );
-    // The press counts without intervals: no account, no such sensors.
-    assert!(!d.reading(&reading("press", "a0")).is_empty());
-    let all = d.everything();
-    assert!(
-        all.iter().all(|a| !a.topic.contains("line1_u4_a0_tariff")
-            && !a.topic.contains("line1_u4_a0_billing")
-            && !a.topic.contains("line1_u4_a0_demand")),
-        "{:?}",
-        all.iter().map(|a| &a.topic).collect::<Vec<_>>()
     );
 }
 
