@@ -9,8 +9,7 @@
 
 use serde_json::json;
 
-use super::entity::{Entity, Module, Shape, Site, sensor};
-use super::meter_entities::with_units;
+use super::entity::{Entity, Module, Shape, Site, sensor, with_units};
 use crate::config::units::ChannelUnits;
 use crate::profile::ChannelKind;
 
@@ -36,13 +35,6 @@ pub fn entities(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) 
         }
     }
     out
-}
-
-/// Where billing goes, as discovery needs it.
-#[derive(Debug, Clone, Copy)]
-pub struct BillingSite {
-    /// `[billing] demand` is set: billing records carry a demand.
-    pub demand: bool,
 }
 
 /// The value a template reads from a register or billing record: in the unit with a scale,

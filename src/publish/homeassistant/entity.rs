@@ -28,7 +28,7 @@ pub struct Site {
     /// `[tariffs]`: the tariffs, each a register of every metered channel.
     pub tariffs: Vec<String>,
     /// `[billing]`: metered channels close billing periods.
-    pub billing: Option<super::account_entities::BillingSite>,
+    pub billing: Option<BillingSite>,
 }
 
 impl Site {
@@ -45,10 +45,8 @@ impl Site {
                 .as_ref()
                 .map(|c| c.names().to_vec())
                 .unwrap_or_default(),
-            billing: config.gateway.billing.as_ref().map(|b| {
-                super::account_entities::BillingSite {
-                    demand: b.demand.is_some(),
-                }
+            billing: config.gateway.billing.as_ref().map(|b| BillingSite {
+                demand: b.demand.is_some(),
             }),
         }
     }
@@ -66,6 +64,13 @@ impl Site {
     pub(super) fn gateway_identifier(&self) -> String {
         format!("pulsegate_{}", self.gateway)
     }
+}
+
+/// Where billing goes, as discovery needs it.
+#[derive(Debug, Clone, Copy)]
+pub struct BillingSite {
+    /// `[billing] demand` is set: billing records carry a demand.
+    pub demand: bool,
 }
 
 /// One discovered entity: its component (`sensor`, `button`), object id and config payload.
@@ -281,4 +286,21 @@ impl Shape {
             declared: r.units.as_deref().cloned(),
         }
     }
+}
+
+/// The channel's unit, class and precision (pulses without a scale).
+pub(super) fn with_units(mut more: Value, units: &ChannelUnits) -> Value {
+    match units.scale {
+        Some(s) => {
+            if let Some(u) = &units.unit {
+                more["unit_of_measurement"] = u.clone().into();
+            }
+            if let Some(class) = &units.device_class {
+                more["device_class"] = class.clone().into();
+            }
+            more["suggested_display_precision"] = s.places().into();
+        }
+        None => more["unit_of_measurement"] = "pulses".into(),
+    }
+    more
 }

@@ -8,9 +8,9 @@
 //! record's consumption with `last_reset` at the record's start, so every record is added once
 //! to the long-term statistics (the Energy dashboard takes both).
 
-use serde_json::{Value, json};
+use serde_json::json;
 
-use super::entity::{Entity, Module, Shape, Site, State, sensor};
+use super::entity::{Entity, Module, Shape, Site, State, sensor, with_units};
 use crate::config::units::ChannelUnits;
 use crate::profile::ChannelKind;
 
@@ -69,21 +69,4 @@ pub fn entities(site: &Site, m: Module<'_>, spec: &Shape, units: &ChannelUnits) 
         ));
     }
     out
-}
-
-/// The channel's unit, class and precision (pulses without a scale).
-pub(super) fn with_units(mut more: Value, units: &ChannelUnits) -> Value {
-    match units.scale {
-        Some(s) => {
-            if let Some(u) = &units.unit {
-                more["unit_of_measurement"] = u.clone().into();
-            }
-            if let Some(class) = &units.device_class {
-                more["device_class"] = class.clone().into();
-            }
-            more["suggested_display_precision"] = s.places().into();
-        }
-        None => more["unit_of_measurement"] = "pulses".into(),
-    }
-    more
 }
