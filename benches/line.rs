@@ -141,7 +141,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
                 &gateway,
                 tx.clone(),
                 crx,
-                health.heart(&bus.name),
+                health.heart(pulsegate::health::Loop::Bus(bus.name.clone())),
             )
             .run(Modbus::for_bus(bus), shutdown.clone()),
         ));

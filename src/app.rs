@@ -11,7 +11,7 @@ use tokio_util::sync::CancellationToken;
 use crate::bus::{BusCommand, BusTask};
 use crate::config::{Bus, Config};
 use crate::dispatch::Router;
-use crate::health::Health;
+use crate::health::{Health, Loop};
 use crate::metrics::Metrics;
 use crate::reading::Output;
 
@@ -315,7 +315,7 @@ fn start_bus(
     // One scan runs, one may wait: further requests are answered "busy" (bounded).
     let (scan_tx, scan_rx) = tokio::sync::mpsc::channel(1);
     let stop = shutdown.child_token();
-    let heart = health.heart(&format!("bus/{}", bus.name));
+    let heart = health.heart(Loop::Bus(bus.name.clone()));
     let task = BusTask::new(bus.clone(), &config.gateway, out.clone(), cmd_rx, heart)
         .with_metrics(metrics.bus(&bus.name));
     Running {
@@ -369,7 +369,7 @@ async fn apply(
         let r = running.remove(&name).expect("listed above");
         r.stop.cancel();
         let _ = r.task.await;
-        health.forget(&format!("bus/{name}"));
+        health.forget(Loop::Bus(name.clone()));
         tracing::info!(bus = %name, "bus stopped for the new config");
     }
     for bus in new.buses.iter().filter(|b| b.enabled) {

@@ -9,7 +9,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::config::Config;
-use crate::health::Health;
+use crate::health::{Health, Loop};
 use crate::metrics::Metrics;
 use crate::publish::format::{Control, Format};
 use crate::reading::Output;
@@ -42,7 +42,7 @@ pub(super) struct Northbound {
 /// What an output runs: an MQTT connection with its formats, or a Modbus server.
 enum Job {
     Mqtt(Box<crate::publish::mqtt::Task>),
-    Modbus(crate::publish::modbus::Task),
+    Modbus(Box<crate::publish::modbus::Task>),
 }
 
 /// An output ready to run: its task's settings and channels.
@@ -65,7 +65,7 @@ impl Prepared {
                 w.shutdown.clone(),
             )),
             Job::Modbus(task) => tokio::spawn(crate::publish::modbus::run(
-                task,
+                *task,
                 self.events_rx,
                 w.incoming.clone(),
                 self.reloads_rx,
@@ -210,7 +210,7 @@ fn prepare_one(
         config: mqtt.clone(),
         spool_dir: crate::publish::spool_place::output_dir(&config.gateway.state_dir, name),
         flush_every: config.gateway.state_flush,
-        heart: w.health.heart(&format!("output/{name}")),
+        heart: w.health.heart(Loop::Output(name.to_string())),
         boot: w.boot.clone(),
         metrics: w.metrics.output(name),
         formats,
@@ -241,11 +241,11 @@ fn prepare_server(
         server: server.clone(),
         map: crate::config::outputs::modbus::map::RegisterMap::of(config),
         root: config.mqtt.topic_root.clone(),
-        heart: w.health.heart(&format!("output/{}", server.name)),
+        heart: w.health.heart(Loop::Output(server.name.clone())),
         metrics: w.metrics.output(&server.name),
     };
     Prepared {
-        task: Job::Modbus(task),
+        task: Job::Modbus(Box::new(task)),
         events,
         events_rx,
         reloads,

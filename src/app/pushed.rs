@@ -179,7 +179,9 @@ impl Gateway {
     pub(super) async fn watch(&mut self, pending: &mut Option<Pending>) -> Next {
         let Some(p) = pending else { return Next::Run };
         p.watch.online(&self.health.online_devices());
-        let up = self.health.is_up(&format!("output/{}", p.watch.connection));
+        let up = self
+            .health
+            .is_up(&crate::health::Loop::Output(p.watch.connection.clone()));
         let Some(verdict) = p.watch.verdict(Instant::now(), up) else {
             return Next::Run;
         };

@@ -243,7 +243,7 @@ fn start_counting(
     let (out_tx, out) = unbounded_channel();
     let out = answering_checkpoints(out, answer);
     let (commands, rx) = unbounded_channel();
-    let heart = crate::health::Health::default().heart("bus/l");
+    let heart = crate::health::Health::default().heart(crate::health::Loop::Bus("l".into()));
     let task = BusTask::new(config.buses[0].clone(), &config.gateway, out_tx, rx, heart);
     let log = Arc::new(Mutex::new(Vec::new()));
     let driver = Scripted {

@@ -14,7 +14,7 @@ use super::log::{self, Log};
 use super::view::*;
 use crate::bus_health::BusStats;
 use crate::config::{Config, Device};
-use crate::health::LoopView;
+use crate::health::{Loop, LoopView};
 use crate::metering::{Clock, Period, Record};
 use crate::metrics::{BusLook, DeviceLook};
 use crate::outcome::Outcome;
@@ -325,20 +325,22 @@ impl Board {
 impl Board {
     /// The snapshot at `now_ms`, with what the running gateway `measured`.
     pub fn status(&self, now_ms: u64, measured: &Measured) -> Status {
-        let loop_of = |name: &str| measured.loops.iter().find(|l| l.name == name);
+        let loop_of = |of: &Loop| measured.loops.iter().find(|l| l.of == *of);
         let mut gateway = self.gateway.clone();
         gateway.uptime_s = measured.uptime_s;
         let outputs = measured
             .loops
             .iter()
-            .filter_map(|l| Some((l.name.strip_prefix("output/")?, l)))
-            .map(|(name, l)| self.output_view(name, l))
+            .filter_map(|l| match &l.of {
+                Loop::Output(name) => Some(self.output_view(name, l)),
+                Loop::Bus(_) => None,
+            })
             .collect();
         let buses = self
             .buses
             .iter()
             .map(|(name, link)| {
-                let l = loop_of(&format!("bus/{name}"));
+                let l = loop_of(&Loop::Bus(name.clone()));
                 let look = measured.buses.get(name).copied().unwrap_or_default();
                 BusView {
                     name: name.clone(),

@@ -8,7 +8,7 @@ use super::board::{Board, MAX_CHANNELS, Measured};
 use crate::config::Config;
 use crate::counter::Update;
 use crate::event::Event;
-use crate::health::LoopView;
+use crate::health::{Loop, LoopView};
 use crate::reading::{Output, Reading};
 
 const CONFIG: &str = r#"
@@ -218,7 +218,7 @@ fn outputs_show_their_connection_spool_and_last_error() {
     let measured = Measured {
         uptime_s: 42,
         loops: vec![LoopView {
-            name: "output/json".into(),
+            of: Loop::Output("json".into()),
             up: false,
             held: None,
             problem: None,

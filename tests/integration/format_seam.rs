@@ -50,7 +50,7 @@ fn run_toy(port: u16, dir: &std::path::Path, stop: std::sync::mpsc::Receiver<()>
             config: config.mqtt,
             spool_dir: dir_spool(&config.gateway.state_dir),
             flush_every: Duration::from_secs(1),
-            heart: health.heart("output/toy"),
+            heart: health.heart(pulsegate::health::Loop::Output("toy".into())),
             boot: pulsegate::boot::Boot::default(),
             metrics: pulsegate::metrics::OutputMetrics::default(),
             formats: vec![Box::new(Toy)],

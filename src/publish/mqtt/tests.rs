@@ -99,7 +99,7 @@ fn task(name: &str) -> Task {
         name: "json".into(),
         spool_dir: std::env::temp_dir().join(format!("pulsegate-mqtt-{name}")),
         flush_every: Duration::from_secs(1),
-        heart: health.heart("output/json"),
+        heart: health.heart(crate::health::Loop::Output("json".into())),
         boot: crate::boot::Boot::default(),
         metrics: crate::metrics::OutputMetrics::default(),
         formats: Vec::new(),
