@@ -64,8 +64,10 @@ struct Gateway {
     metrics: Metrics,
     out: UnboundedSender<Output>,
     shutdown: CancellationToken,
-    targets: crate::dispatch::Targets,
-    scans: crate::dispatch::Scans,
+    /// A reload's buses and devices, to the router.
+    rewire: UnboundedSender<crate::dispatch::Wiring>,
+    /// Ends the router once the buses have stopped (it answers what they still had).
+    router_stop: CancellationToken,
     north: Northbound,
     status: Option<Arc<crate::status::Live>>,
     router: JoinHandle<()>,
@@ -160,10 +162,19 @@ impl Gateway {
             running.insert(bus.name.clone(), r);
         }
         let (pushes_tx, pushes) = tokio::sync::mpsc::channel(1);
-        let router = Router::new(&config, &senders(&running), out.clone()).with_remote(pushes_tx);
-        let (targets, scans) = (router.targets(), router.scans());
-        *scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&running);
-        let router = tokio::spawn(router.run(incoming_rx));
+        let wiring = wiring(&config, &running);
+        let router = Router::new(&config, &running.keys().cloned().collect()).with_remote();
+        let (rewire, rewired) = unbounded_channel();
+        let router_stop = CancellationToken::new();
+        let router = tokio::spawn(crate::dispatch::run(
+            router,
+            wiring,
+            incoming_rx,
+            rewired,
+            Some(pushes_tx),
+            out.clone(),
+            router_stop.clone(),
+        ));
         let (controls_tx, controls) = unbounded_channel();
         let wires = (health.clone(), metrics.clone(), status.clone());
         let lines = (incoming_tx, controls_tx);
@@ -175,8 +186,8 @@ impl Gateway {
             metrics,
             out,
             shutdown,
-            targets,
-            scans,
+            rewire,
+            router_stop,
             north,
             status,
             router,
@@ -212,8 +223,7 @@ impl Gateway {
             board.reconfigure(&self.current);
         }
         self.metrics.config(&self.current.hash().to_string());
-        Router::set_targets(&self.targets, &self.current, &senders(&self.running));
-        *self.scans.write().unwrap_or_else(|e| e.into_inner()) = scan_senders(&self.running);
+        let _ = self.rewire.send(wiring(&self.current, &self.running));
     }
 
     /// The orderly stop: the buses (their state saved), the router, then the outputs (what
@@ -225,8 +235,12 @@ impl Gateway {
                 tracing::error!("bus task failed: {e}");
             }
         }
-        // The router holds a sender of the bus output: the fan-out ends once it is gone too.
-        self.router.abort();
+        // The router answers what the buses still had, then ends; it holds a sender of the
+        // bus output: the fan-out ends once it is gone too.
+        self.router_stop.cancel();
+        if let Err(e) = self.router.await {
+            tracing::error!("command router failed: {e}");
+        }
         self.north.finish().await;
         let _ = self.supervisor.await;
         if let Some(e) = self.endpoint {
@@ -341,6 +355,16 @@ fn senders(running: &BTreeMap<String, Running>) -> HashMap<String, UnboundedSend
         .iter()
         .map(|(n, r)| (n.clone(), r.commands.clone()))
         .collect()
+}
+
+/// The router's channels to the running buses, and the devices on them.
+fn wiring(config: &Config, running: &BTreeMap<String, Running>) -> crate::dispatch::Wiring {
+    let names = running.keys().cloned().collect();
+    crate::dispatch::Wiring {
+        buses: senders(running),
+        scans: scan_senders(running),
+        targets: crate::dispatch::targets_of(config, &names),
+    }
 }
 
 async fn apply(
