@@ -148,7 +148,7 @@ impl Gateway {
         };
         // The status page's board: fed by the fan-out, read by the HTTP endpoint.
         let status = config.metrics.as_ref().map(|_| {
-            Arc::new(crate::status::Live::new(
+            Arc::new(crate::status::Live::start(
                 &config,
                 health.clone(),
                 metrics.clone(),

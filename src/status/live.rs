@@ -1,12 +1,15 @@
-//! The board of a running gateway: the fan-out hands it every event, the HTTP endpoint asks it
-//! for the API's JSON. The answer is made at most every [`FRESH`] and shared by every client
-//! asking within that time (and by every open page's event stream), so fifty scripts or pages
-//! cost the gateway one snapshot a second, not fifty.
+//! The board of a running gateway, in a task of its own: the fan-out hands it every event, a
+//! reload its new config, and once every [`FRESH`] it makes the snapshot (the API's JSON) with
+//! what health and the metrics measure, shared through a `watch` by every client asking within
+//! that time and by every open page's event stream: fifty scripts or pages cost the gateway one
+//! snapshot a second, not fifty. The task owns the board: no lock.
 
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime};
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
 
 use bytes::Bytes;
+use tokio::sync::mpsc::{UnboundedReceiver, UnboundedSender, unbounded_channel};
+use tokio::sync::watch;
 
 use super::board::{Board, Measured};
 use crate::config::Config;
@@ -14,66 +17,94 @@ use crate::health::Health;
 use crate::metrics::Metrics;
 use crate::reading::{Output, unix_ms};
 
-/// How long a made answer is handed out again.
+/// How often the snapshot is made.
 pub const FRESH: Duration = Duration::from_secs(1);
 
-/// A board and what it reads of the running gateway.
-pub struct Live {
-    board: Mutex<Board>,
-    health: Arc<Health>,
-    metrics: Metrics,
-    made: Mutex<Option<(Instant, Bytes)>>,
+/// What the board hears.
+enum Fed {
+    Event(Box<Output>),
+    Config(Box<Config>),
 }
 
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|e| e.into_inner())
+/// The handle of the board's task: what feeds it and where its snapshot is.
+pub struct Live {
+    fed: UnboundedSender<Fed>,
+    snapshot: watch::Receiver<Bytes>,
+}
+
+/// What the board's task reads of the running gateway.
+struct Keeper {
+    board: Board,
+    health: Arc<Health>,
+    metrics: Metrics,
 }
 
 impl Live {
-    /// The board of a gateway that runs `config`, started now.
-    pub fn new(config: &Config, health: Arc<Health>, metrics: Metrics) -> Live {
+    /// Starts the board of a gateway that runs `config`; its task ends when the handle is
+    /// dropped.
+    pub fn start(config: &Config, health: Arc<Health>, metrics: Metrics) -> Live {
         let started = unix_ms(SystemTime::now()).saturating_sub(health.uptime().as_millis() as u64);
-        Live {
-            board: Mutex::new(Board::new(config, started)),
+        let live = Keeper {
+            board: Board::new(config, started),
             health,
             metrics,
-            made: Mutex::new(None),
-        }
+        };
+        let (snapshots, snapshot) = watch::channel(live.json());
+        let (fed, feed) = unbounded_channel();
+        tokio::spawn(live.run(feed, snapshots));
+        Live { fed, snapshot }
     }
 
     /// An event on its way to the outputs.
     pub fn hand(&self, event: &Output) {
-        lock(&self.board).hand(event, unix_ms(SystemTime::now()));
+        let _ = self.fed.send(Fed::Event(Box::new(event.clone())));
     }
 
     /// A reloaded config.
     pub fn reconfigure(&self, config: &Config) {
-        lock(&self.board).reconfigure(config);
-        *lock(&self.made) = None;
+        let _ = self.fed.send(Fed::Config(Box::new(config.clone())));
     }
 
-    /// `GET /api/v1/status`: the snapshot as JSON.
+    /// `GET /api/v1/status`: the latest snapshot as JSON.
     pub fn json(&self) -> Bytes {
-        let made = lock(&self.made);
-        if let Some((at, body)) = made.as_ref() {
-            if at.elapsed() < FRESH {
-                return body.clone();
-            }
-        }
-        drop(made);
-        self.fresh_json()
+        self.snapshot.borrow().clone()
     }
 
-    /// The snapshot made now (the event stream's, once every [`FRESH`]), kept for the API.
-    pub fn fresh_json(&self) -> Bytes {
-        let body = Bytes::from(serde_json::to_vec(&self.status()).unwrap_or_default());
-        *lock(&self.made) = Some((Instant::now(), body.clone()));
-        body
+    /// Every new snapshot, as it is made.
+    pub fn snapshots(&self) -> watch::Receiver<Bytes> {
+        self.snapshot.clone()
+    }
+}
+
+impl Keeper {
+    /// Takes events and configs as they come, and makes the snapshot every [`FRESH`] and at
+    /// once after a reload, until the handle is gone.
+    async fn run(mut self, mut feed: UnboundedReceiver<Fed>, snapshots: watch::Sender<Bytes>) {
+        let mut tick = tokio::time::interval(FRESH);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tokio::select! {
+                fed = feed.recv() => match fed {
+                    Some(Fed::Event(event)) => {
+                        self.board.hand(&event, unix_ms(SystemTime::now()));
+                        continue;
+                    }
+                    Some(Fed::Config(config)) => self.board.reconfigure(&config),
+                    None => return,
+                },
+                _ = tick.tick() => {}
+            }
+            snapshots.send_replace(self.json());
+        }
+    }
+
+    fn json(&self) -> Bytes {
+        Bytes::from(serde_json::to_vec(&self.status()).unwrap_or_default())
     }
 
     /// The snapshot now.
-    pub fn status(&self) -> super::view::Status {
-        let devices = lock(&self.board).devices();
+    fn status(&self) -> super::view::Status {
+        let devices = self.board.devices();
         let mut measured = Measured {
             uptime_s: self.health.uptime().as_secs(),
             loops: self.health.loops(),
@@ -89,6 +120,6 @@ impl Live {
                 }
             }
         }
-        lock(&self.board).status(unix_ms(SystemTime::now()), &measured)
+        self.board.status(unix_ms(SystemTime::now()), &measured)
     }
 }

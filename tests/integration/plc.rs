@@ -130,8 +130,14 @@ impl Rig {
             .collect()
     }
 
-    /// The last total published for a channel.
-    pub fn last_total(&self, device: &str, channel: &str) -> i64 {
+    /// The last total published for a channel (after waiting for its first: a device is
+    /// online before its first reading is out).
+    pub async fn last_total(&self, device: &str, channel: &str) -> i64 {
+        let topic = format!("pulsegate/test/{device}/{channel}");
+        let first = self.sub.wait_for(&topic, Duration::from_secs(10), |m| {
+            m.json()["total"].is_i64()
+        });
+        assert!(first.await.is_some(), "a published total on {topic}");
         *self
             .totals(device, channel)
             .last()
@@ -321,7 +327,7 @@ async fn every_total_a_plc_reads_lies_between_the_mqtt_totals_published_around_i
     for i in 0..45 {
         let client = ["tokio-modbus", "pymodbus", "mbpoll"][i % 3];
         // The last total seen before the read was sent ...
-        let before = rig.last_total("m", "a0");
+        let before = rig.last_total("m", "a0").await;
         let read = match client {
             "tokio-modbus" => i64_of(&ctx.read_input_registers(total, 4).await.unwrap().unwrap()),
             "pymodbus" => i64_of(&py.read(3, total, 4).unwrap()),

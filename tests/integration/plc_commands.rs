@@ -72,7 +72,7 @@ async fn a_clear_and_a_preset_written_with_commands_on_are_executed() {
     let rig = Rig::start("plc-writes-on", setup).await;
     let base = a1_block(&rig);
     let (clear, preset) = (base + 12, base + 13);
-    let total_before = rig.last_total("m", "a1");
+    let total_before = rig.last_total("m", "a1").await;
     let mut py = Pymodbus::connect(rig.port, None);
 
     // Clear (pymodbus, function 06): answered once done.
