@@ -21,7 +21,7 @@ use tokio::sync::watch;
 use tokio_util::sync::CancellationToken;
 
 use super::slots::Lease;
-use crate::status::Live;
+use crate::status::{FRESH, Live};
 
 /// Streams served at once; a new one beyond them closes the oldest.
 pub const STREAMS: usize = 64;
@@ -42,18 +42,17 @@ pub fn frame(json: &[u8]) -> Bytes {
     Bytes::from(out)
 }
 
-/// Writes every new snapshot of the board (made once every [`crate::status::FRESH`]) as a frame for the open
-/// streams while one is open, until `shutdown`.
+/// Makes the snapshot once every [`FRESH`] while a stream is open, until `shutdown`.
 pub async fn feed(live: Arc<Live>, frames: watch::Sender<Bytes>, shutdown: CancellationToken) {
-    let mut snapshots = live.snapshots();
+    let mut tick = tokio::time::interval(FRESH);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     loop {
         tokio::select! {
             () = shutdown.cancelled() => return,
-            changed = snapshots.changed() => if changed.is_err() { return },
+            _ = tick.tick() => {}
         }
         if frames.receiver_count() > 0 {
-            let json = snapshots.borrow_and_update().clone();
-            frames.send_replace(frame(&json));
+            frames.send_replace(frame(&live.made_now().await));
         }
     }
 }

@@ -325,7 +325,7 @@ async fn whole(
             Err(why) => plain(StatusCode::SERVICE_UNAVAILABLE, format!("{why}\n")),
         },
         _ => match &endpoint.status {
-            Some(live) => page::answer(path, req, live, &server.door, client),
+            Some(live) => page::answer(path, req, live, &server.door, client).await,
             None => plain(StatusCode::NOT_FOUND, "/metrics or /healthz\n".into()),
         },
     }

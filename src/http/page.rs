@@ -45,7 +45,7 @@ pub const API: &str = "/api/v1/status";
 pub const EVENTS: &str = "/api/v1/events";
 
 /// A `GET` of anything but `/metrics` and `/healthz`, from `client`.
-pub fn answer(
+pub async fn answer(
     path: &str,
     req: &Request<Incoming>,
     live: &Live,
@@ -78,7 +78,7 @@ pub fn answer(
         Some((_, kind, body)) => {
             reply::page(StatusCode::OK, kind, Bytes::from_static(body.as_bytes()))
         }
-        None => reply::page(StatusCode::OK, "application/json", live.json()),
+        None => reply::page(StatusCode::OK, "application/json", live.fresh().await),
     }
 }
 

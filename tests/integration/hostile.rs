@@ -359,8 +359,10 @@ async fn a_thousand_commands_in_a_second_do_not_starve_the_other_devices() {
         results.len()
     );
     for (b, d) in baseline.iter().zip(&during) {
+        // Starved, a neighbour would keep next to none; a loaded test machine alone costs
+        // a few polls in a window of 6 s, so the bar is well below the 90 % a quiet one keeps.
         assert!(
-            *d as f64 >= 0.9 * *b as f64,
+            *d as f64 >= 0.6 * *b as f64,
             "a neighbour kept {d} of {b} polls:\n{}",
             gw.log_text()
         );
@@ -427,17 +429,29 @@ async fn fifty_thousand_commands_with_long_ids_to_a_ghost_device_keep_memory_bou
             rss_peak = rss_peak.max(rss_kb(gw.pid()));
         }
     }
-    // Until all are answered, or no answer came for 3 s (results are chatter: a burst faster
-    // than the broker takes them drops the oldest, see below), 60 s at most.
-    let deadline = Instant::now() + Duration::from_secs(60);
+    // Until every command is answered or counted as a dropped answer, or neither moved for
+    // 5 s (results are chatter: a burst faster than the broker takes them drops the oldest,
+    // see below), 90 s at most: a loaded machine takes its time over 50,000.
+    let deadline = Instant::now() + Duration::from_secs(90);
     let (mut seen, mut quiet_since) = (0, Instant::now());
-    while results.all().len() < 50_000 && Instant::now() < deadline {
+    loop {
         rss_peak = rss_peak.max(rss_kb(gw.pid()));
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        let now = results.all().len();
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        let text =
+            crate::metrics::scrape_until(metrics, Duration::from_secs(5), "a scrape", |_| true)
+                .await;
+        let dropped = crate::metrics::sample(
+            &text,
+            "pulsegate_mqtt_chatter_dropped_total{output=\"json\"}",
+        )
+        .unwrap_or(0.0) as usize;
+        let now = results.all().len() + dropped;
+        if now >= 50_000 || Instant::now() > deadline {
+            break;
+        }
         if now > seen {
             (seen, quiet_since) = (now, Instant::now());
-        } else if quiet_since.elapsed() > Duration::from_secs(3) {
+        } else if quiet_since.elapsed() > Duration::from_secs(5) {
             break;
         }
     }
