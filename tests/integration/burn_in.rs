@@ -44,10 +44,11 @@ async fn sparkplug_historical_readings_after_a_30s_outage() {
 /// offline.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_percent_corrupted_bytes_at_9600_baud_take_no_device_offline() {
-    let secs: u64 = std::env::var("PULSEGATE_NOISE_SECS")
+    let noise = std::env::var("PULSEGATE_NOISE_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(60);
+        .map_or(Duration::from_secs(60), Duration::from_secs);
+    let secs = noise.as_secs();
     let broker = Broker::start();
     let plant = plant(
         r#"
@@ -93,7 +94,7 @@ channels.a0 = { rate = 20.0 }
             gw.log_text()
         );
     }
-    tokio::time::sleep(Duration::from_secs(secs)).await;
+    tokio::time::sleep(noise).await;
     let corrupted = plant
         .bus("line1")
         .unwrap()
@@ -137,11 +138,10 @@ channels.a0 = { rate = 20.0 }
 /// The noisy-line scenario: seconds of noise (40 by default; `PULSEGATE_SOAK_SECS` runs a
 /// longer soak, e.g. 600).
 fn soak() -> Duration {
-    let secs = std::env::var("PULSEGATE_SOAK_SECS")
+    std::env::var("PULSEGATE_SOAK_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(40);
-    Duration::from_secs(secs)
+        .map_or(Duration::from_secs(40), Duration::from_secs)
 }
 
 const NOISY_PLANT: &str = r#"
