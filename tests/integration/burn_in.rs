@@ -142,13 +142,13 @@ channels.a0 = { rate = 20.0 }
     assert!(counts.iter().all(|&n| n as u64 >= secs / 3), "{counts:?}");
 }
 
-/// The noisy-line scenario: seconds of noise (25 by default; `PULSEGATE_SOAK_SECS` runs a
+/// The noisy-line scenario: seconds of noise (40 by default; `PULSEGATE_SOAK_SECS` runs a
 /// longer soak, e.g. 600).
 fn soak() -> Duration {
     std::env::var("PULSEGATE_SOAK_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .map_or(Duration::from_secs(25), Duration::from_secs)
+        .map_or(Duration::from_secs(40), Duration::from_secs)
 }
 
 const NOISY_PLANT: &str = r#"
@@ -197,7 +197,7 @@ async fn stats_where(
     .map(|m| m.json())
 }
 
-/// 3% dropped and 1% corrupted bytes (seeded, even noise) at 19200 baud for 25 s: a module whose
+/// 3% dropped and 1% corrupted bytes (seeded, even noise) at 19200 baud for 40 s: a module whose
 /// poll reads a 64-register block (the ZH-YX1600) gets its reads shortened and keeps publishing
 /// every channel, whole (no wrong count, totals exact); when the noise stops, the reads grow back
 /// to the full block and the line use to its clean figure.
