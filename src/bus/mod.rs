@@ -86,19 +86,20 @@ impl BusTask {
     /// Polls over `driver` (the bus's protocol, built by the caller; a scripted one in tests)
     /// until `shutdown`, then finishes the transaction in flight and saves state.
     /// Commands go ahead of polls: a poll gives way after its transaction in flight.
-    pub async fn run<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
+    pub async fn run<D: Driver>(self, driver: D, shutdown: CancellationToken) {
+        // The watchdog test's stall is a driver around the real one, not a step of the loop.
+        #[cfg(feature = "test-hooks")]
+        let driver = stall::Stalling::wrap(driver, &self.bus.name, &shutdown);
+        self.serve(driver, shutdown).await;
+    }
+
+    /// The poll loop of [`BusTask::run`].
+    async fn serve<D: Driver>(mut self, driver: D, shutdown: CancellationToken) {
         let Some(mut core) = self.start(driver, &shutdown).await else {
             return;
         };
-        #[cfg(feature = "test-hooks")]
-        let stall = stall::after(&self.bus.name).map(|after| Instant::now() + after);
         while let Some(i) = earliest(&core.slots, Instant::now(), core.after_boundary) {
             self.heart.beat();
-            #[cfg(feature = "test-hooks")]
-            if stall.is_some_and(|at| Instant::now() >= at) {
-                stall::hang(&core.name, &shutdown).await;
-                break;
-            }
             match self.between_polls(&mut core, i, &shutdown).await {
                 Next::Loop => continue,
                 Next::Stop => break,

@@ -204,40 +204,49 @@ async fn a_friday_morning_across_the_peak_rule_books_each_record_to_its_tariff_a
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_berlin_spring_forward_night_keeps_minute_records_tiling_utc_and_the_tariff_local() {
+async fn the_berlin_spring_forward_night_keeps_records_tiling_utc_and_the_tariff_local() {
     let tariffs = "[tariffs]\ndefault = \"offpeak\"\n\
         [[tariffs.rule]]\ntariff = \"night\"\ndays = [\"sun\"]\nfrom = \"00:00\"\nto = \"03:00\"\n\
         [[tariffs.rule]]\ntariff = \"peak\"\ndays = [\"sun\"]\nfrom = \"03:00\"\nto = \"00:00\"\n";
-    let r = setup("spring", 30.0, "intervals = [\"1min\"]\n", "").await;
+    // Ten-second records: the jump is crossed in under a minute of wall clock.
+    let r = setup("spring", 30.0, "intervals = [\"10s\"]\n", "").await;
     let text = std::fs::read_to_string(&r.config).unwrap() + tariffs;
     std::fs::write(&r.config, text).unwrap();
-    // Sunday 29 March 2026, 01:58:45 CET; at 02:00 CET (01:00Z) the clock jumps to 03:00 CEST.
-    let fake = Faked::at(&r.dir, "2026-03-29T00:58:45Z");
+    // Sunday 29 March 2026, 01:59:32 CET; at 02:00 CET (01:00Z) the clock jumps to 03:00 CEST.
+    let fake = Faked::at(&r.dir, "2026-03-29T00:59:32Z");
     let gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
-    let topic = format!("{base}/interval/1min");
-    let after = record_from(&r.sub, &topic, "2026-03-29T01:00:00Z", 200).await;
+    let topic = format!("{base}/interval/10s");
+    let after = record_from(&r.sub, &topic, "2026-03-29T01:00:00Z", 90).await;
     drop(gw);
     let before = readings(&r.sub, &topic)
         .into_iter()
         .find(|x| x["end"] == after["start"])
         .expect("the record before the jump");
-    assert_eq!(before["start"], "2026-03-29T00:59:00Z", "01:59 CET");
+    assert_eq!(before["start"], "2026-03-29T00:59:50Z", "01:59:50 CET");
     assert_eq!(before["tariff"], "night", "{before}");
     assert_eq!(
-        after["end"], "2026-03-29T01:01:00Z",
-        "03:01 CEST: 60 s in UTC"
+        after["end"], "2026-03-29T01:00:10Z",
+        "03:00:10 CEST: 10 s in UTC"
     );
     assert_eq!(after["tariff"], "peak", "{after}");
     for rec in [&before, &after] {
-        assert_eq!(iso_ms(&rec["end"]) - iso_ms(&rec["start"]), 60_000);
+        assert_eq!(iso_ms(&rec["end"]) - iso_ms(&rec["start"]), 10_000);
         assert_eq!(rec["status"], "complete");
     }
     assert_eq!(after["total_start"], before["total_end"], "they tile");
-    let night = readings(&r.sub, &format!("{base}/tariff/night"));
-    let peak = readings(&r.sub, &format!("{base}/tariff/peak"));
-    assert_eq!(night.last().unwrap()["total"], before["delta"]);
-    assert_eq!(peak.last().unwrap()["total"], after["delta"]);
+    // Each tariff's register is the sum of the records booked to it.
+    let records = readings(&r.sub, &topic);
+    for tariff in ["night", "peak"] {
+        let register = readings(&r.sub, &format!("{base}/tariff/{tariff}"));
+        let booked: i64 = records
+            .iter()
+            .filter(|x| x["tariff"] == tariff)
+            .take(register.len())
+            .map(|x| x["delta"].as_i64().unwrap())
+            .sum();
+        assert_eq!(register.last().unwrap()["total"], booked, "{tariff}");
+    }
     let _ = &r.broker;
 }
 

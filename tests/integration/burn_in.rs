@@ -1,8 +1,12 @@
-//! Burn-in: the long real-time scenarios (a minute of a noisy line, of a broker away). They prove
-//! the real thing end to end; their minute each cannot be shortened without weakening them.
+//! Burn-in: the long real-time scenarios (a noisy line, a broker away). They prove the real thing
+//! end to end: a real broker's reconnect, a real line's noise, which paused time cannot show. Their
+//! windows are the shortest that still cross what they are about (the reconnect attempts backing
+//! off, reads shortened and grown back); the minute-long versions of the same logic run on
+//! tokio's paused clock in `src/` (`publish/mqtt/paused_tests.rs`, `bus/availability_tests.rs`).
+//! `PULSEGATE_NOISE_SECS` and `PULSEGATE_SOAK_SECS` run the noisy ones longer.
 //! They live in this module because libtest starts tests in name order: `burn_in::` sorts first,
-//! so the minute-long ones start at once, side by side, and the suite's wall time is the longest
-//! of them rather than whatever they queued behind.
+//! so the long ones start at once, side by side, and the suite's wall time is the longest of them
+//! rather than whatever they queued behind.
 
 use std::time::{Duration, Instant};
 
@@ -10,9 +14,11 @@ use crate::faults::a_broker_away_loses_no_reading;
 use crate::protocol::Protocol;
 use crate::support::*;
 
+/// Long enough for the reconnect attempts to back off to 20 s; a minute's outage of the same
+/// spool runs on paused time in `src/publish/mqtt/paused_tests.rs`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_broker_away_for_60s_loses_no_reading_and_keeps_their_order() {
-    a_broker_away_loses_no_reading(Protocol::V5, Duration::from_secs(60)).await;
+async fn a_broker_away_for_30s_loses_no_reading_and_keeps_their_order() {
+    a_broker_away_loses_no_reading(Protocol::V5, Duration::from_secs(30)).await;
 }
 
 /// Metering's whole story in ten-second records: a broker outage with a power cycle in it, a
@@ -22,10 +28,10 @@ async fn metering_records_through_a_stop_an_outage_and_a_power_cycle() {
     crate::metering::ten_second_records_tile_time_and_match_the_simulator_through_a_stop_an_outage_and_a_power_cycle().await;
 }
 
-/// Sparkplug B store and forward over a 30 s broker outage (body in `sparkplug`).
+/// JSON and Sparkplug B side by side through an outage of the SCADA broker (body in `outputs`).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn outputs_a_minute_without_the_scada_broker() {
-    crate::outputs::a_minute_without_the_scada_broker_costs_json_nothing_and_sparkplug_no_pulse()
+async fn outputs_twenty_seconds_without_the_scada_broker() {
+    crate::outputs::twenty_seconds_without_the_scada_broker_cost_json_nothing_and_sparkplug_no_pulse()
         .await;
 }
 
@@ -35,19 +41,21 @@ async fn outputs_a_primary_host_offline_holds_sparkplug_only() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sparkplug_historical_readings_after_a_30s_outage() {
-    crate::sparkplug::after_a_30s_broker_outage_the_historical_readings_follow_the_rebirth_in_order().await;
+async fn sparkplug_historical_readings_after_an_outage() {
+    crate::sparkplug::after_a_broker_outage_the_historical_readings_follow_the_rebirth_in_order()
+        .await;
 }
 
-/// 2% of the bytes corrupted, both ways, at 9600 baud for 60 s (`PULSEGATE_NOISE_SECS`): CRC
+/// 2% of the bytes corrupted, both ways, at 9600 baud for 30 s (`PULSEGATE_NOISE_SECS`): CRC
 /// errors and undecodable frames are garbled answers, not line faults, and no device goes
 /// offline.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_percent_corrupted_bytes_at_9600_baud_take_no_device_offline() {
-    let secs: u64 = std::env::var("PULSEGATE_NOISE_SECS")
+    let noise = std::env::var("PULSEGATE_NOISE_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(60);
+        .map_or(Duration::from_secs(30), Duration::from_secs);
+    let secs = noise.as_secs();
     let broker = Broker::start();
     let plant = plant(
         r#"
@@ -93,7 +101,7 @@ channels.a0 = { rate = 20.0 }
             gw.log_text()
         );
     }
-    tokio::time::sleep(Duration::from_secs(secs)).await;
+    tokio::time::sleep(noise).await;
     let corrupted = plant
         .bus("line1")
         .unwrap()
@@ -137,11 +145,10 @@ channels.a0 = { rate = 20.0 }
 /// The noisy-line scenario: seconds of noise (40 by default; `PULSEGATE_SOAK_SECS` runs a
 /// longer soak, e.g. 600).
 fn soak() -> Duration {
-    let secs = std::env::var("PULSEGATE_SOAK_SECS")
+    std::env::var("PULSEGATE_SOAK_SECS")
         .ok()
         .and_then(|s| s.parse().ok())
-        .unwrap_or(40);
-    Duration::from_secs(secs)
+        .map_or(Duration::from_secs(40), Duration::from_secs)
 }
 
 const NOISY_PLANT: &str = r#"

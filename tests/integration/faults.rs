@@ -252,9 +252,11 @@ async fn a_module_answering_nonsense_is_refused_without_a_panic_or_a_wrong_value
         ("line1", "b", 2, "yl67", "100ms"),
     ];
     let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
-    tokio::time::sleep(Duration::from_secs(3)).await;
+    // The nonsense module is polled between the sane one's polls all the while.
     assert!(
-        sub.on("pulsegate/test/a/enc0").len() > 10,
+        sub.wait_more_than("pulsegate/test/a/enc0", 10, Duration::from_secs(15))
+            .await
+            > 10,
         "the sane module is polled"
     );
     assert!(
@@ -287,7 +289,9 @@ async fn a_late_answer_is_never_taken_for_the_next_modules() {
         ("line1", "fast", 2, "yl67", "100ms"),
     ];
     let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
-    tokio::time::sleep(Duration::from_secs(5)).await;
+    // Each of these polls of the fast module follows one of the slow module's late answers.
+    sub.wait_more_than("pulsegate/test/fast/enc0", 10, Duration::from_secs(20))
+        .await;
     let fast = readings(&sub, "pulsegate/test/fast/enc0");
     assert!(
         fast.len() > 10,
@@ -303,7 +307,7 @@ async fn a_late_answer_is_never_taken_for_the_next_modules() {
         "answers after the timeout are not readings"
     );
     assert!(
-        sub.wait_for("pulsegate/test/slow/status", Duration::from_secs(1), |m| m
+        sub.wait_for("pulsegate/test/slow/status", Duration::from_secs(10), |m| m
             .payload
             == "offline")
             .await

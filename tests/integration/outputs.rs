@@ -141,11 +141,13 @@ async fn each_broker_gets_its_own_output_and_its_own_will() {
     no_errors(&host.lines());
 }
 
-/// The SCADA broker is away for a minute: JSON readings keep flowing on the other broker with
-/// no gap and no pause; when it returns, the Sparkplug output sends what it kept, flagged
-/// historical, and its totals run on without a pulse missing.
-/// Run from `burn_in` (a minute of wall clock: it starts with the other long runs).
-pub(crate) async fn a_minute_without_the_scada_broker_costs_json_nothing_and_sparkplug_no_pulse() {
+/// The SCADA broker is away for 20 s (the reconnect attempts back off to 10 s by then): JSON
+/// readings keep flowing on the other broker with no gap and no pause; when it returns, the
+/// Sparkplug output sends what it kept, flagged historical, and its totals run on without a
+/// pulse missing. Run from `burn_in` (it starts with the other long runs); a minute's outage of
+/// an output runs on paused time in `src/publish/mqtt/paused_tests.rs`.
+pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_and_sparkplug_no_pulse()
+ {
     let local = Broker::start();
     let scada_port = free_port();
     let scada_dir = temp_dir("outputs-scada-broker");
@@ -162,7 +164,7 @@ pub(crate) async fn a_minute_without_the_scada_broker_costs_json_nothing_and_spa
     .await;
     scada.terminate();
     let away = Instant::now();
-    tokio::time::sleep(Duration::from_secs(60)).await;
+    tokio::time::sleep(Duration::from_secs(20)).await;
     let during: Vec<Instant> = sub
         .on(topic)
         .iter()
@@ -172,8 +174,8 @@ pub(crate) async fn a_minute_without_the_scada_broker_costs_json_nothing_and_spa
     // Polled every 100 ms (batched up to 250 ms): a pause of a second would be the outage's.
     let longest = during.windows(2).map(|w| w[1] - w[0]).max().unwrap();
     assert!(
-        during.len() > 200,
-        "{} JSON readings in the minute",
+        during.len() > 70,
+        "{} JSON readings in the 20 s",
         during.len()
     );
     assert!(longest < Duration::from_secs(1), "JSON paused {longest:?}");
@@ -186,7 +188,7 @@ pub(crate) async fn a_minute_without_the_scada_broker_costs_json_nothing_and_spa
                 .filter(|d| d["device"] == "wj")
                 .filter(|d| metric(d, "a0/Total").is_some_and(|m| m["is_historical"] == true))
                 .count();
-            historical > 100
+            historical > 35
                 && of_type(l, "DDATA").filter(|d| d["device"] == "wj").count() > historical + 5
         },
     )
@@ -196,7 +198,7 @@ pub(crate) async fn a_minute_without_the_scada_broker_costs_json_nothing_and_spa
     assert_seq_unbroken(&lines);
     let totals = assert_sparkplug_exact(&lines, "wj", "a0");
     assert!(
-        totals.len() > 100,
+        totals.len() > 35,
         "{} totals after the outage",
         totals.len()
     );

@@ -431,11 +431,12 @@ async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
     no_errors(&host.lines());
 }
 
-/// The one long outage: 30 s without a broker, then the readings of that time arrive after the
-/// rebirth, in order, flagged historical, with their own timestamps. Run from `burn_in` (half a
-/// minute of wall clock: it starts with the other long runs).
-pub(crate) async fn after_a_30s_broker_outage_the_historical_readings_follow_the_rebirth_in_order()
-{
+/// The one long outage: 12 s without a broker (the gateway's reconnect attempts back off to
+/// 10 s by then), then the readings of that time arrive after the rebirth, in order, flagged
+/// historical, with their own timestamps. Run from `burn_in` (it starts with the other long runs).
+/// A minute's outage of the same store and forward runs on paused time in
+/// `src/publish/mqtt/paused_tests.rs`; this one proves it against a real broker.
+pub(crate) async fn after_a_broker_outage_the_historical_readings_follow_the_rebirth_in_order() {
     let dir = temp_dir("sparkplug-outage");
     let port = free_port();
     let mut broker = Broker::start_persistent(port, &dir);
@@ -450,7 +451,7 @@ pub(crate) async fn after_a_30s_broker_outage_the_historical_readings_follow_the
 
     broker.terminate();
     let away = SystemTime::now();
-    tokio::time::sleep(Duration::from_secs(30)).await;
+    tokio::time::sleep(Duration::from_secs(12)).await;
     let _broker = Broker::start_persistent(port, &dir);
     let back = SystemTime::now();
     let live = |l: &Value| l["type"] == "DDATA" && l["metrics"][0]["is_historical"] == false;
@@ -498,8 +499,8 @@ pub(crate) async fn after_a_30s_broker_outage_the_historical_readings_follow_the
             .iter()
             .filter(|t| (away_ms..back_ms).contains(t))
             .count();
-        // Polled ten times a second: 300 polls in the outage (half of them, on a busy machine).
-        assert!(during > 150, "{device}: {during} readings of the outage");
+        // Polled ten times a second: 120 polls in the outage (half of them, on a busy machine).
+        assert!(during > 60, "{device}: {during} readings of the outage");
         for l in &data[..historical] {
             let flags = l["metrics"].as_array().unwrap();
             assert!(flags.iter().all(|m| m["is_historical"] == true), "{l}");

@@ -311,6 +311,20 @@ impl Subscriber {
         }
     }
 
+    /// Waits until more than `n` messages arrived on `topic`, at most `timeout`; returns how
+    /// many did (a generous deadline instead of a fixed sleep: a loaded machine gets its time,
+    /// a fast one goes on at once).
+    pub async fn wait_more_than(&self, topic: &str, n: usize, timeout: Duration) -> usize {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let got = self.on(topic).len();
+            if got > n || Instant::now() >= deadline {
+                return got;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+
     /// Asserts that something arrives on `topic` within `timeout` (the gateway is up and
     /// publishing).
     pub async fn expect_any(&self, topic: &str, timeout: Duration) {
