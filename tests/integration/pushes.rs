@@ -121,7 +121,7 @@ fn finals(sub: &Subscriber, id: &str) -> Vec<serde_json::Value> {
 }
 
 async fn refused(sub: &Subscriber, id: &str, error: &str) -> serde_json::Value {
-    let r = final_result(sub, id, Duration::from_secs(10)).await;
+    let r = final_result(sub, id, Duration::from_secs(30)).await;
     assert_eq!(
         (r["status"].as_str(), r["error"].as_str()),
         (Some("refused"), Some(error)),
