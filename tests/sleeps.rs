@@ -26,8 +26,8 @@ use std::path::{Path, PathBuf};
 
 /// Issue 39's bar, not yet reached.
 const GOAL_MS: u64 = 100_000;
-/// Where the count stands (392 s when this was written, from 518 s): it may only go down.
-const RATCHET_MS: u64 = 395_000;
+/// Where the count stands (360 s when this was written, from 518 s): it may only go down.
+const RATCHET_MS: u64 = 362_000;
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).expect("readable tests") {

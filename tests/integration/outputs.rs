@@ -205,9 +205,11 @@ pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_an
     assert_json_exact(&sub, topic);
 }
 
-/// With its primary host offline the Sparkplug output holds (and `/healthz` says so after its
-/// grace); the JSON output keeps flowing all the while.
-/// Run from `burn_in` (over half a minute of wall clock).
+/// With its primary host offline the Sparkplug output holds, and `/healthz` names it held while
+/// within its grace; the JSON output keeps flowing all the while. That a hold past the grace
+/// makes the gateway not well is health's arithmetic, told on made-up instants in
+/// `src/health/vitals_tests.rs` (`an_output_held_or_down_is_not_well_after_the_grace_only`): no
+/// half minute of wall clock here.
 pub(crate) async fn a_primary_host_offline_holds_sparkplug_only() {
     let (local, scada) = (Broker::start(), Broker::start());
     let host = Host::start(scada.port, false);
@@ -233,22 +235,22 @@ pub(crate) async fn a_primary_host_offline_holds_sparkplug_only() {
         .unwrap();
     assert_eq!(code, 200, "within the grace: {body}");
     assert!(body.contains("output/scada held"), "{body}");
-    tokio::time::sleep(Duration::from_secs(32)).await;
+    let flowed = sub
+        .wait_more_than(topic, 100, Duration::from_secs(30))
+        .await;
+    assert!(flowed > 100, "JSON flowed while Sparkplug held: {flowed}");
     let (code, body) = tokio::task::spawn_blocking(move || http_get(http, "/healthz"))
         .await
         .unwrap();
-    assert_eq!(code, 503, "{body}");
-    assert!(body.contains("output/scada held for"), "{body}");
+    assert!(
+        body.contains("output/scada held"),
+        "still held: {code} {body}"
+    );
     assert!(
         of_type(&host.lines(), "NBIRTH").next().is_none(),
         "no birth without the host"
     );
-    let all = assert_json_exact(&sub, topic);
-    assert!(
-        all.len() > 200,
-        "JSON flowed while Sparkplug held: {}",
-        all.len()
-    );
+    assert_json_exact(&sub, topic);
 }
 
 /// A Sparkplug-only config: no output carries the gateway's JSON topics, so its voice has a
