@@ -106,13 +106,43 @@ pub enum Event {
     Reconfigured(HashMap<String, Target>),
 }
 
-/// Why a survey was refused after the router let it go.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Why a survey is refused.
+#[derive(Debug, Clone, PartialEq)]
 pub enum ScanRefusal {
     /// A survey of this bus already waits.
     Busy,
     /// The bus does not run.
     UnknownBus,
+    /// The payload is over [`command::MAX_PAYLOAD`] bytes.
+    TooLarge(usize),
+    /// The payload is not a survey's.
+    BadPayload(String),
+    /// The response topic or correlation data cannot be answered on.
+    BadReply(CommandError),
+}
+
+impl ScanRefusal {
+    /// The answer's `error` code.
+    pub fn code(&self) -> &'static str {
+        match self {
+            ScanRefusal::Busy => "busy",
+            ScanRefusal::UnknownBus => "unknown_bus",
+            ScanRefusal::TooLarge(_) => "too_large",
+            ScanRefusal::BadPayload(_) => "bad_payload",
+            ScanRefusal::BadReply(e) => e.code(),
+        }
+    }
+
+    /// What the answer and the log say, for bus `bus`.
+    fn message(&self, bus: &str) -> String {
+        match self {
+            ScanRefusal::Busy => "a scan of this bus is already waiting".into(),
+            ScanRefusal::UnknownBus => format!("no bus {bus:?}"),
+            ScanRefusal::TooLarge(size) => format!("the payload is {size} bytes"),
+            ScanRefusal::BadPayload(why) => why.clone(),
+            ScanRefusal::BadReply(e) => e.to_string(),
+        }
+    }
 }
 
 /// What the router wants done.
@@ -175,12 +205,8 @@ impl Router {
                 reply,
                 refusal,
             } => {
-                let (code, message) = match refusal {
-                    ScanRefusal::Busy => ("busy", "a scan of this bus is already waiting".into()),
-                    ScanRefusal::UnknownBus => ("unknown_bus", format!("no bus {bus:?}")),
-                };
                 let topic = reply.topics.first().cloned().unwrap_or_default();
-                vec![self.refuse_scan(&topic, &bus, reply, code, message, now)]
+                vec![self.refuse_scan(&topic, &bus, reply, &refusal, now)]
             }
             Event::PushNotTaken { msg, closed } => vec![self.push_busy(&msg, closed, now)],
             Event::Reconfigured(targets) => {
@@ -246,16 +272,18 @@ impl Router {
         };
         // The same checks as for commands: nothing unsendable reaches the spool.
         if let Err(e) = reply_to(&self.responses, msg, &mut reply) {
-            return self.refuse_scan(&msg.topic, bus, reply, e.code(), e.to_string(), now);
+            return self.refuse_scan(&msg.topic, bus, reply, &ScanRefusal::BadReply(e), now);
         }
         if msg.payload.len() > command::MAX_PAYLOAD {
-            let size = msg.payload.len();
-            let why = format!("the payload is {size} bytes");
-            return self.refuse_scan(&msg.topic, bus, reply, "too_large", why, now);
+            let refusal = ScanRefusal::TooLarge(msg.payload.len());
+            return self.refuse_scan(&msg.topic, bus, reply, &refusal, now);
         }
         let (mut units, id) = match scan::parse_scan_payload(&msg.payload) {
             Ok(p) => p,
-            Err(e) => return self.refuse_scan(&msg.topic, bus, reply, "bad_payload", e, now),
+            Err(e) => {
+                let refusal = ScanRefusal::BadPayload(e);
+                return self.refuse_scan(&msg.topic, bus, reply, &refusal, now);
+            }
         };
         let unscanned = |u: &u8| {
             let mut targets = self.targets.values();
@@ -276,15 +304,15 @@ impl Router {
         topic: &str,
         bus: &str,
         reply: Reply,
-        code: &'static str,
-        message: String,
+        refusal: &ScanRefusal,
         now: Instant,
     ) -> Action {
+        let message = refusal.message(bus);
         self.warn(topic, &format!("scan refused: {message}"), now);
         let refused = ScanOutcome::Refused {
             bus: bus.to_string(),
             id: None,
-            code,
+            code: refusal.code(),
             message,
         };
         publish(reply, Outcome::Scan(refused))
