@@ -226,6 +226,12 @@ impl Router {
                 );
                 return Vec::new();
             }
+            // An empty message is a retained push being cleared, never a push: it must not
+            // take the remote task's one place from the push that follows it.
+            if msg.payload.is_empty() {
+                tracing::info!("the retained message on the config topic was cleared");
+                return Vec::new();
+            }
             return vec![Action::Push(msg)];
         }
         if msg.retain {
@@ -246,7 +252,11 @@ impl Router {
         } else {
             "a pushed config is being applied or watched: push again after its result"
         };
-        let id = crate::remote::parse(&msg.payload).ok().and_then(|p| p.id);
+        // Its id, even from a push that would be refused for other reasons (too large).
+        let id = match crate::remote::parse(&msg.payload) {
+            Ok(push) => push.id,
+            Err((id, _)) => id,
+        };
         self.warn(&msg.topic, "a pushed config refused: busy", now);
         let outcome = ConfigOutcome {
             id,

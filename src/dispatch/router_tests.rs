@@ -236,3 +236,24 @@ fn a_retained_command_or_a_push_without_remote_does_nothing() {
     let push = message("pg/e1/config/set", r#"{"id":"p1","toml":""}"#, None);
     assert!(r.handle(push, Instant::now()).is_empty());
 }
+
+#[test]
+fn a_cleared_retained_push_is_no_push_and_a_busy_answer_keeps_a_large_pushs_id() {
+    let mut r = router().with_remote();
+    let now = Instant::now();
+    assert!(
+        r.handle(message("pg/e1/config/set", "", None), now)
+            .is_empty(),
+        "an empty message clears a retained push: it takes no place from the next"
+    );
+    let big = format!(r#"{{"id":"big","toml":"{}"}}"#, "x".repeat(300 * 1024));
+    let [Action::Push(msg)] = &r.handle(message("pg/e1/config/set", &big, None), now)[..] else {
+        panic!("a push goes to the remote task, which judges it");
+    };
+    let event = Event::PushNotTaken {
+        msg: msg.clone(),
+        closed: false,
+    };
+    let (_, answer) = result(&r.handle(event, now));
+    assert_eq!(answer["id"], "big", "{answer}");
+}
