@@ -133,6 +133,9 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
     let mut keep = Vec::new();
     let health = pulsegate::health::Health::default();
     for bus in &config.buses {
+        let pulsegate::config::Link::Modbus(line) = &bus.link else {
+            unreachable!("the bench's buses are Modbus buses");
+        };
         let (ctx, crx) = tokio::sync::mpsc::unbounded_channel();
         keep.push(ctx);
         handles.push(tokio::spawn(
@@ -143,7 +146,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
                 crx,
                 health.heart(&bus.name),
             )
-            .run(Modbus::for_bus(bus), shutdown.clone()),
+            .run(Modbus::for_bus(bus, line), shutdown.clone()),
         ));
     }
     drop(tx);

@@ -3,7 +3,7 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::{Config, Device, Link, MeterAddress};
+use crate::config::{Config, Device, Link};
 use crate::plan::{PollPlan, Wire, line_time};
 use crate::profile::Register;
 
@@ -99,11 +99,7 @@ fn outputs(config: &Config) -> String {
 fn meters(bus: &str, link: &Link, devices: &[Device]) -> String {
     let mut out = format!("bus {bus} ({link}):");
     for d in devices {
-        let address = match &d.meter {
-            Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
-            Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
-            None => format!("unit {}", d.unit),
-        };
+        let address = d.address.to_string();
         let picked = d.channels.values().filter(|c| c.record.is_some()).count();
         let records = match picked {
             0 => "every record a channel".to_string(),

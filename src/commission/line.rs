@@ -6,7 +6,8 @@ use std::time::Duration;
 
 use super::error::CommissionError;
 use super::holder::holders;
-use crate::config::{Link as LinkConfig, Parity};
+use crate::config::Parity;
+use crate::config::protocols::modbus::Line as LinkConfig;
 use crate::driver::modbus::link::{Link, LinkError};
 
 /// Where the modules are.

@@ -11,7 +11,8 @@ use serde_json::{Value, json};
 
 use super::error::CommissionError;
 use super::line::Target;
-use crate::config::{MbusLine, Parity};
+use crate::config::Parity;
+use crate::config::protocols::mbus::Line as MbusLine;
 use crate::driver::mbus::address::{SecondaryMask, medium_name};
 use crate::driver::mbus::channel::{self, Kind};
 use crate::driver::mbus::header::Header;
@@ -74,7 +75,7 @@ pub fn parse_addresses(text: &str) -> Result<Vec<u8>, CommissionError> {
             s.trim()
                 .parse::<u8>()
                 .ok()
-                .filter(|a| *a <= crate::config::MAX_PRIMARY)
+                .filter(|a| *a <= crate::config::protocols::mbus::MAX_PRIMARY)
                 .ok_or_else(|| bad(format!("{s:?} is not a primary address (0-250)")))
         };
         let (lo, hi) = (parse(lo)?, parse(hi)?);

@@ -90,7 +90,7 @@ pub(super) fn poller(
 ) -> DeviceRt<ModbusDevice> {
     let bus = Bus {
         name: "commission".into(),
-        link: target.link_config(baud),
+        link: crate::config::Link::Modbus(target.link_config(baud)),
         timeout: None,
         guard: Duration::ZERO,
         offline_after: 1,
@@ -125,7 +125,7 @@ pub(super) fn poller(
         payload: None,
         intervals: None,
         enabled: true,
-        meter: None,
+        address: crate::config::Address::Modbus(crate::config::protocols::modbus::Unit(unit)),
         server_unit: None,
     };
     let wire = Wire::for_line(link.timing().as_ref());

@@ -526,12 +526,7 @@ fn outputs(config: &Config) -> BTreeMap<String, (Option<String>, String, u64)> {
 
 /// Where `device` is on its bus, as a person says it.
 fn address(device: &crate::config::Device) -> String {
-    use crate::config::MeterAddress;
-    match &device.meter {
-        Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
-        Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
-        None => format!("unit {}", device.unit),
-    }
+    device.address.to_string()
 }
 
 /// `v` to three decimals: a chart needs no more, and the answer stays short.

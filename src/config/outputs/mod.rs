@@ -24,6 +24,22 @@ use super::walk::{Errors, Table, join};
 use homeassistant::HomeAssistant;
 use sparkplug::Sparkplug;
 
+/// A device's own keys for the outputs (`server_unit = N`: the unit id it answers as on a
+/// server output), read beside its bus's keys whatever protocol the bus speaks.
+pub(crate) fn device_keys(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
+    modbus::server_unit(t, path, errs)
+}
+
+/// A server output's register map: a contract, so unit ids and blocks that collide are errors.
+pub(crate) use modbus::map::RegisterMap;
+
+impl Outputs {
+    /// Whether an output serves the devices' registers (and so needs a [`RegisterMap`]).
+    pub fn serve_registers(&self) -> bool {
+        !self.modbus.is_empty()
+    }
+}
+
 /// What an output publishes: the one list of formats the config checks against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum OutputKind {
