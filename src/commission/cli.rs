@@ -7,11 +7,11 @@ use std::time::Duration;
 
 use tokio_util::sync::CancellationToken;
 
-use super::error::CommissionError;
-use super::line::Target;
-use super::scan::ScanEvent;
-use super::setup::Wanted;
+use super::modbus::scan::ScanEvent;
+use super::modbus::setup::Wanted;
 use crate::command::Op;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::outcome::Found;
 use crate::profile::Profiles;
 
@@ -184,16 +184,16 @@ pub enum Commission {
 pub enum RawOp {
     /// Read COUNT registers from START (FC03).
     Read {
-        #[arg(value_parser = super::raw::parse_u16)]
+        #[arg(value_parser = super::modbus::raw::parse_u16)]
         start: u16,
-        #[arg(value_parser = super::raw::parse_u16, default_value = "1")]
+        #[arg(value_parser = super::modbus::raw::parse_u16, default_value = "1")]
         count: u16,
     },
     /// Write VALUES from ADDRESS (one: FC06, more: FC16).
     Write {
-        #[arg(value_parser = super::raw::parse_u16)]
+        #[arg(value_parser = super::modbus::raw::parse_u16)]
         address: u16,
-        #[arg(value_parser = super::raw::parse_u16, required = true)]
+        #[arg(value_parser = super::modbus::raw::parse_u16, required = true)]
         values: Vec<u16>,
         /// Write without asking.
         #[arg(long)]
@@ -218,9 +218,9 @@ fn target(line: &LineArgs) -> Result<Target, CommissionError> {
 }
 
 /// The M-Bus segment of `line` at `baud` (default 2400, even parity).
-fn segment(line: &LineArgs, baud: Option<u32>) -> Result<super::meters::Segment, CommissionError> {
+fn segment(line: &LineArgs, baud: Option<u32>) -> Result<super::mbus::Segment, CommissionError> {
     let parity = line.parity.as_deref().unwrap_or("even");
-    Ok(super::meters::Segment {
+    Ok(super::mbus::Segment {
         target: Target::parse(line.port.clone(), line.host.clone(), parity)?,
         baud: baud.unwrap_or(2400),
         timeout: line.timeout.map(Into::into),
@@ -321,7 +321,6 @@ async fn scan_meters(
     secondary: bool,
     how: ScanHow,
 ) -> Result<(), CommissionError> {
-    use super::meters;
     let baud = match baud.as_deref() {
         None => None,
         Some(b) => Some(b.parse::<u32>().map_err(|_| {
@@ -329,9 +328,9 @@ async fn scan_meters(
         })?),
     };
     let segment = segment(line, baud)?;
-    let scan = meters::MeterScan {
+    let scan = super::mbus::MeterScan {
         secondary,
-        addresses: meters::parse_addresses(units.as_deref().unwrap_or("0-250"))?,
+        addresses: super::mbus::parse_addresses(units.as_deref().unwrap_or("0-250"))?,
     };
     let cancel = ctrl_c();
     let tty = std::io::stderr().is_terminal();
@@ -343,7 +342,7 @@ async fn scan_meters(
         }
     };
     let (found, collisions, problems) =
-        meters::scan(&segment, line.host.as_deref(), &scan, &cancel, progress).await?;
+        super::mbus::scan(&segment, line.host.as_deref(), &scan, &cancel, progress).await?;
     if tty {
         eprint!("\r\x1b[K");
     }
@@ -353,12 +352,12 @@ async fn scan_meters(
     if secondary {
         eprintln!("{collisions} collision(s) resolved digit by digit");
     }
-    let table = meters::found_table(&found);
+    let table = super::mbus::found_table(&found);
     if how.toml {
         eprint!("{table}");
-        print!("{}", meters::config_snippet(&segment, &found));
+        print!("{}", super::mbus::config_snippet(&segment, &found));
     } else if how.json {
-        let list: Vec<_> = found.iter().map(meters::found_json).collect();
+        let list: Vec<_> = found.iter().map(super::mbus::found_json).collect();
         let out = serde_json::json!({ "found": list, "collisions": collisions,
             "problems": problems, "interrupted": cancel.is_cancelled() });
         println!("{out}");
@@ -375,15 +374,14 @@ async fn read_meter(
     id: Option<&str>,
     json: bool,
 ) -> Result<(), CommissionError> {
-    use super::meters;
     let segment = segment(&at.line, at.baud)?;
-    let meter = meters::meter_at(address, id)?;
-    let (header, records) = meters::read(&segment, at.line.host.as_deref(), meter).await?;
-    let answer = meters::answer_json(&header, &records);
+    let meter = super::mbus::meter_at(address, id)?;
+    let (header, records) = super::mbus::read(&segment, at.line.host.as_deref(), meter).await?;
+    let answer = super::mbus::answer_json(&header, &records);
     if json {
         println!("{answer}");
     } else {
-        print!("{}", meters::answer_table(&answer, &records));
+        print!("{}", super::mbus::answer_table(&answer, &records));
     }
     Ok(())
 }
@@ -410,18 +408,19 @@ async fn scan(
     let target = target(line)?;
     let units =
         crate::driver::modbus::probe::parse_units(units).map_err(CommissionError::BadInput)?;
-    let bauds = super::scan::scan_bauds(baud, profiles)?;
+    let bauds = super::modbus::scan::scan_bauds(baud, profiles)?;
     target.check_free()?;
     let cancel = ctrl_c();
     let tty = std::io::stderr().is_terminal();
     let mut progress = |e: ScanEvent<'_>| progress(e, tty);
-    let plan = super::scan::ScanPlan {
+    let plan = super::modbus::scan::ScanPlan {
         bauds,
         units,
         answer: answer_time(line, profiles),
         every_probe,
     };
-    let outcome = super::scan::scan_line(&target, &plan, profiles, &cancel, &mut progress).await?;
+    let outcome =
+        super::modbus::scan::scan_line(&target, &plan, profiles, &cancel, &mut progress).await?;
     if tty {
         eprint!("\r\x1b[K");
     }
@@ -433,7 +432,7 @@ async fn scan(
         eprint!("{table}");
         print!(
             "{}",
-            super::snippet::config_snippet(&target, &outcome.found)
+            super::modbus::snippet::config_snippet(&target, &outcome.found)
         );
     } else if json {
         println!(
@@ -519,14 +518,16 @@ async fn read(
     let (unit, baud) = (m.at.unit()?, m.at.baud());
     let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
-    let mut rt = super::read::poller(&target, baud, unit, &profile, &link);
+        super::modbus::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud)
+            .await?;
+    let mut rt = super::modbus::read::poller(&target, baud, unit, &profile, &link);
     let Some(every) = watch.map(Duration::from) else {
-        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
+        let value =
+            super::modbus::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
         if json {
             println!("{value}");
         } else {
-            print!("{}", super::read::table(&value, None));
+            print!("{}", super::modbus::read::table(&value, None));
         }
         return Ok(());
     };
@@ -534,14 +535,15 @@ async fn read(
     let tty = std::io::stdout().is_terminal();
     let mut previous = None;
     while !cancel.is_cancelled() {
-        let value = super::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
+        let value =
+            super::modbus::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
         if json {
             println!("{value}");
         } else {
             if tty {
                 print!("\x1b[H\x1b[J");
             }
-            print!("{}", super::read::table(&value, previous.as_ref()));
+            print!("{}", super::modbus::read::table(&value, previous.as_ref()));
         }
         let _ = std::io::stdout().flush();
         previous = Some(value);
@@ -563,15 +565,16 @@ async fn write_count(
     let (unit, baud) = (m.at.unit()?, m.at.baud());
     let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+        super::modbus::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud)
+            .await?;
     if !profile.all_channels().iter().any(|c| c.name == channel) {
         return Err(CommissionError::BadInput(format!(
             "model {} has no channel {channel}",
             profile.model
         )));
     }
-    let mut rt = super::read::poller(&target, baud, unit, &profile, &link);
-    let got = super::read::write_count(&mut rt, &mut link, &target, channel, op).await?;
+    let mut rt = super::modbus::read::poller(&target, baud, unit, &profile, &link);
+    let got = super::modbus::read::write_count(&mut rt, &mut link, &target, channel, op).await?;
     let what = if matches!(op, Op::Clear) {
         "cleared"
     } else {
@@ -652,12 +655,13 @@ async fn setup(
     yes: bool,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
-    use super::setup::*;
+    use super::modbus::setup::*;
     let target = target(&m.at.line)?;
     let (unit, baud) = (m.at.unit()?, m.at.baud());
     let mut link = target.open(baud)?;
     let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+        super::modbus::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud)
+            .await?;
     let answer =
         m.at.line
             .timeout
@@ -696,7 +700,7 @@ async fn setup(
 /// A new unit id that another module already answers at is refused before anything is written.
 async fn refuse_taken_unit(
     link: &mut crate::driver::modbus::link::Link,
-    changes: &[super::setup::Change],
+    changes: &[super::modbus::setup::Change],
     unit: u8,
     profiles: &Profiles,
     answer: std::time::Duration,
@@ -720,7 +724,12 @@ async fn refuse_taken_unit(
 }
 
 /// What `setup` will write, a line a setting (sixteen counters changed alike are one line).
-fn describe_plan(unit: u8, model: &str, changes: &[super::setup::Change], words: &[u16]) -> String {
+fn describe_plan(
+    unit: u8,
+    model: &str,
+    changes: &[super::modbus::setup::Change],
+    words: &[u16],
+) -> String {
     let mut plan = format!("unit {unit} ({model}):\n");
     let mut lines: Vec<(String, usize)> = Vec::new();
     for (c, w) in changes.iter().zip(words) {
@@ -763,14 +772,15 @@ async fn raw(
 ) -> Result<(), CommissionError> {
     let target = target(line)?;
     if target.is_serial() {
-        super::scan::scan_bauds(&baud.to_string(), profiles)?;
+        super::modbus::scan::scan_bauds(&baud.to_string(), profiles)?;
     }
     let answer = answer_time(line, profiles);
     let mut link = target.open(baud)?;
     match op {
         RawOp::Read { start, count } => {
-            let words = super::raw::read(&mut link, &target, unit, start, count, answer).await?;
-            print!("{}", super::raw::words_table(start, &words));
+            let words =
+                super::modbus::raw::read(&mut link, &target, unit, start, count, answer).await?;
+            print!("{}", super::modbus::raw::words_table(start, &words));
         }
         RawOp::Write {
             address,
@@ -787,7 +797,7 @@ async fn raw(
                     "not confirmed; nothing written".into(),
                 ));
             }
-            super::raw::write(&mut link, &target, unit, address, &values, answer).await?;
+            super::modbus::raw::write(&mut link, &target, unit, address, &values, answer).await?;
             println!("unit {unit}: wrote {values:?} at {address}");
         }
     }

@@ -1,8 +1,8 @@
-//! Commissioning: survey a line before a config exists. Find the units that answer and their
-//! models (`scan`), read one module as the gateway would (`read`), clear or preset a channel,
-//! change the settings its datasheet documents (`setup`), and read or write raw registers.
-//! M-Bus segments (`meters.rs`): find the meters (primary addresses, or the wildcard search)
-//! and read one meter's answer.
+//! Commissioning: survey a line before a config exists, one folder or file per protocol.
+//! Modbus (`modbus/`): find the units that answer and their models (`scan`), read one module as
+//! the gateway would (`read`), clear or preset a channel, change the settings its datasheet
+//! documents (`setup`), and read or write raw registers. M-Bus segments (`mbus.rs`): find the
+//! meters (primary addresses, or the wildcard search) and read one meter's answer.
 //!
 //! Everything here reuses the gateway's parts: the profiles (identification, settings,
 //! channels), the link layer (timeouts, late answers, exclusive port) and the device poller
@@ -12,17 +12,13 @@
 mod cli;
 mod error;
 mod holder;
-pub(crate) mod line;
-pub mod meters;
-mod raw;
-mod read;
-pub(crate) mod scan;
-mod setup;
-mod snippet;
+pub mod mbus;
+pub(crate) mod modbus;
+pub(crate) mod target;
 
 pub use cli::{Commission, run};
 pub use error::CommissionError;
 pub use holder::{Holder, holders};
 
-pub use scan::scan_bauds;
-pub use snippet::config_snippet;
+pub use modbus::scan::scan_bauds;
+pub use modbus::snippet::config_snippet;

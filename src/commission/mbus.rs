@@ -9,8 +9,8 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use super::error::CommissionError;
-use super::line::Target;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::config::Parity;
 use crate::config::protocols::mbus::Line as MbusLine;
 use crate::driver::mbus::address::{SecondaryMask, medium_name};

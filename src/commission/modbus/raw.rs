@@ -1,8 +1,8 @@
 //! `pulsegate raw`: read or write holding registers of any unit, model unknown, for what the
 //! profiles do not cover.
 
-use super::error::CommissionError;
-use super::line::Target;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::driver::modbus::link::Link;
 
 /// A register address or value: decimal or 0x-prefixed hex, 0..=65535.
@@ -18,7 +18,7 @@ pub fn parse_u16(text: &str) -> Result<u16, String> {
 }
 
 /// Reads `count` registers from `start` at `unit`.
-pub(super) async fn read(
+pub(crate) async fn read(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -37,14 +37,14 @@ pub(super) async fn read(
         Ok(Err(exception)) => Err(CommissionError::Refused {
             unit,
             what: format!("a read of {count} registers at {start}"),
-            exception,
+            exception: format!("{exception:?}"),
         }),
         Err(e) => Err(target.error(unit, e)),
     }
 }
 
 /// Writes `values` from `address` (one value: FC06, more: FC16) at `unit`.
-pub(super) async fn write(
+pub(crate) async fn write(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -71,7 +71,7 @@ pub(super) async fn write(
         Ok(Err(exception)) => Err(CommissionError::Refused {
             unit,
             what: format!("a write at {address}"),
-            exception,
+            exception: format!("{exception:?}"),
         }),
         Err(e) => Err(target.error(unit, e)),
     }
