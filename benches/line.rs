@@ -627,7 +627,7 @@ async fn mbus_cpu(figures: &mut Vec<Figure>) {
         serial: "",
         tcp: "",
     };
-    let meters = pulsegate::sim::gateway::every_meter(&sim, "1ms");
+    let meters = pulsegate::sim::every_meter(&sim, "1ms");
     let text = t.render(&plant, &[]) + &t.meters(&plant, &meters, "timeout = \"100ms\"\n");
     let path = dir.join("g.toml");
     std::fs::write(&path, text).unwrap();

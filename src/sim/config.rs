@@ -107,7 +107,7 @@ pub struct SimBusConfig {
     /// Address to serve Modbus TCP on, e.g. "127.0.0.1:20108".
     pub listen: Option<SocketAddr>,
     /// Put a line emulator (baud-rate timing, turnaround, byte faults) in front of the bus.
-    pub line: Option<super::line::LineSpec>,
+    pub line: Option<super::modbus::line::LineSpec>,
     pub devices: BTreeMap<String, SimDeviceConfig>,
 }
 

@@ -4,17 +4,12 @@
 //! Tests and the demo hold a [`Plant`] and steer it (rates, counts, power cycles, silence) while
 //! the gateway talks to it over the wire like to real modules.
 
-mod comm;
 mod config;
-mod datasheet;
 mod endpoint;
 mod error;
 pub mod gateway;
-pub mod line;
 pub mod mbus;
-pub mod model;
-pub mod segments;
-mod server;
+pub mod modbus;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -27,10 +22,12 @@ pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSe
 pub use endpoint::Endpoint;
 use endpoint::relink;
 pub use error::SimError;
-pub use model::SimModule;
-pub use segments::PlantSegment;
+pub use mbus::gateway::{MeterLine, every_meter};
+pub use mbus::plant::PlantSegment;
+pub use modbus::model::SimModule;
 
-pub use server::Modules;
+pub use modbus::server::Modules;
+use modbus::{comm, line, server};
 
 /// A simulated bus.
 pub struct PlantBus {
@@ -197,7 +194,7 @@ impl Plant {
         }
         let mut segments = Vec::new();
         for (name, c) in &config.mbus {
-            let segment = segments::serve(name, c, start, &cancel)
+            let segment = mbus::plant::serve(name, c, start, &cancel)
                 .await
                 .map_err(|message| SimError::Bus {
                     bus: name.clone(),
