@@ -90,14 +90,6 @@ pub struct Bus {
     pub devices: Vec<Device>,
 }
 
-impl Bus {
-    /// Character timing of the bus's line where the gateway times it (Modbus RTU); `None`
-    /// where the driver or a socket does.
-    pub fn line_timing(&self) -> Option<crate::plan::LineTiming> {
-        self.link.line_timing(self.guard)
-    }
-}
-
 /// What a protocol's checks make of its keys of `[buses.NAME]`.
 pub(crate) struct BusParts {
     pub link: Option<Link>,

@@ -12,11 +12,11 @@ use crate::bus::device::DeviceRt;
 use crate::command::{Op, Reply, Request};
 use crate::commission::error::CommissionError;
 use crate::commission::target::Target;
+use crate::config::protocols::modbus::plan::Wire;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::driver::modbus::link::Link;
 use crate::driver::modbus::probe::{Identified, identify};
 use crate::driver::modbus::{ModbusDevice, ModbusError};
-use crate::plan::Wire;
 use crate::profile::{Profile, Profiles};
 
 /// The profile for `model` ("auto": identified on the line). An unknown name or a baud rate

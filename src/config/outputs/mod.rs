@@ -38,6 +38,11 @@ impl Outputs {
     pub fn serve_registers(&self) -> bool {
         !self.modbus.is_empty()
     }
+
+    /// Whether a server output takes commands (its map then has their registers).
+    pub fn serve_commands(&self) -> bool {
+        self.modbus.iter().any(|s| s.commands)
+    }
 }
 
 /// What an output publishes: the one list of formats the config checks against.

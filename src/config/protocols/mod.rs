@@ -8,8 +8,6 @@
 pub mod mbus;
 pub mod modbus;
 
-use std::time::Duration;
-
 /// The protocol a bus speaks; one list, parsed with `FromStr`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Protocol {
@@ -91,16 +89,6 @@ impl Link {
         match self {
             Link::Modbus(_) => Protocol::Modbus,
             Link::Mbus(_) => Protocol::Mbus,
-        }
-    }
-
-    /// Character timing of the line with `guard` after the silent interval, where the
-    /// gateway times the line itself (a serial Modbus line); `None` where the driver times its
-    /// own line or a socket carries it.
-    pub fn line_timing(&self, guard: Duration) -> Option<crate::plan::LineTiming> {
-        match self {
-            Link::Modbus(line) => line.timing(guard),
-            Link::Mbus(_) => None,
         }
     }
 }

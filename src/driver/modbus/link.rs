@@ -26,7 +26,7 @@ use super::serial::{RtuPort, expected_len};
 
 use crate::config::Parity;
 use crate::config::protocols::modbus::Line as LinkConfig;
-use crate::plan::{LineTiming, REQUEST_BYTES, read_answer_bytes};
+use crate::config::protocols::modbus::plan::{LineTiming, REQUEST_BYTES, read_answer_bytes};
 
 /// Why a transaction got no usable answer. The device answering with an exception is not one of
 /// these: that is `Ok(Err(ExceptionCode))`, as in tokio-modbus.
@@ -124,9 +124,9 @@ impl Link {
     }
 
     /// How long to wait for the answer to a read of `len` registers from a device that takes
-    /// `answer` to answer, at the line's own rate ([`crate::plan::read_timeout`]).
+    /// `answer` to answer, at the line's own rate ([`crate::config::protocols::modbus::plan::read_timeout`]).
     pub fn timeout_for(&self, answer: Duration, len: u16) -> Duration {
-        crate::plan::read_timeout(answer, self.timing().as_ref(), len)
+        crate::config::protocols::modbus::plan::read_timeout(answer, self.timing().as_ref(), len)
     }
 
     /// Character timing of the line while talking to `unit` (its own rate where it has one).

@@ -28,7 +28,7 @@ use crate::bus::driver::{Driver, Executed, Idle, Preempt};
 use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
-use crate::plan::Wire;
+use crate::config::protocols::modbus::plan::Wire;
 use crate::sample::Sample;
 use crate::scan::ScanRequest;
 use crate::scan::Survey;

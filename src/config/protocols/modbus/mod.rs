@@ -2,6 +2,7 @@
 //! baud rates the modules support, and the checks of `[buses.NAME]` (`check.rs`).
 
 pub(crate) mod check;
+pub mod plan;
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -40,16 +41,16 @@ pub enum Line {
 impl Line {
     /// Character timing of an RTU line with `guard` after the silent interval: start bit,
     /// 8 data bits, parity if any, stop bits. `None` for Modbus TCP.
-    pub fn timing(&self, guard: Duration) -> Option<crate::plan::LineTiming> {
+    pub fn timing(&self, guard: Duration) -> Option<plan::LineTiming> {
         match self {
             Line::Rtu {
                 baud,
                 parity,
                 stop_bits,
                 ..
-            } => Some(crate::plan::LineTiming {
+            } => Some(plan::LineTiming {
                 baud: *baud,
-                bits_per_char: crate::plan::bits_per_char(*parity != Parity::None, *stop_bits),
+                bits_per_char: plan::bits_per_char(*parity != Parity::None, *stop_bits),
                 guard,
             }),
             Line::Tcp { .. } => None,
