@@ -517,9 +517,8 @@ fn outputs(config: &Config) -> BTreeMap<String, (Option<String>, String, u64)> {
         let m = &config.mqtt;
         out.insert(VOICE_NAME.to_string(), (None, m.broker(), m.spool_bytes));
     }
-    for s in &config.outputs.modbus {
-        let kind = crate::config::outputs::modbus::KIND.to_string();
-        out.insert(s.name.clone(), (Some(kind), s.listen.to_string(), 0));
+    for (name, kind, listen) in config.outputs.servers() {
+        out.insert(name.to_string(), (Some(kind.to_string()), listen, 0));
     }
     out
 }

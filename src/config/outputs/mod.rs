@@ -33,10 +33,20 @@ pub(crate) fn device_keys(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> O
 /// A server output's register map: a contract, so unit ids and blocks that collide are errors.
 pub(crate) use modbus::map::RegisterMap;
 
+/// What of the server outputs an unsigned pushed config may not change, in words.
+pub use modbus::guard::changes as server_changes;
+
 impl Outputs {
     /// Whether an output serves the devices' registers (and so needs a [`RegisterMap`]).
     pub fn serve_registers(&self) -> bool {
         !self.modbus.is_empty()
+    }
+
+    /// Each server output: its name, kind and where it listens.
+    pub fn servers(&self) -> impl Iterator<Item = (&str, &'static str, String)> {
+        self.modbus
+            .iter()
+            .map(|s| (s.name.as_str(), modbus::KIND, s.listen.to_string()))
     }
 
     /// Whether a server output takes commands (its map then has their registers).

@@ -16,7 +16,7 @@ use crate::config::model::{BusParts, Device};
 use crate::config::parity::Parity;
 use crate::config::protocols::{Address, Link, Protocol};
 use crate::config::walk::{Errors, Table, join};
-use crate::profile::{MAX_TIMEOUT, Profile};
+use crate::profile::MAX_TIMEOUT;
 
 /// An M-Bus bus's link and meters.
 pub(crate) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BusParts {
@@ -145,7 +145,7 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
         name: name.to_string(),
         unit: address.wire(),
         model: METER_MODEL.to_string(),
-        profile: Arc::new(Profile::meter()),
+        profile: Arc::new(super::meter_profile()),
         poll,
         timeout,
         commands,

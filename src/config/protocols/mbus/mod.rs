@@ -30,6 +30,19 @@ pub const MAX_PRIMARY: u8 = 250;
 /// segment of many meters needs the time.
 pub const DEFAULT_METER_POLL: Duration = Duration::from_secs(60);
 
+/// What a meter has in the place of a profile: no registers and no channels (its channels are
+/// its answer's records, found when it answers), the M-Bus baud rates, and the answer timeout
+/// of an M-Bus-to-Ethernet converter (a serial line's comes from its baud rate, by the
+/// standard).
+pub fn meter_profile() -> crate::profile::Profile {
+    crate::profile::Profile::answered(
+        METER_MODEL,
+        "M-Bus meter",
+        &BAUDS,
+        Duration::from_millis(500),
+    )
+}
+
 /// How an M-Bus bus reaches its meters.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Line {
