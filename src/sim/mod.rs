@@ -4,7 +4,6 @@
 //! Tests and the demo hold a [`Plant`] and steer it (rates, counts, power cycles, silence) while
 //! the gateway talks to it over the wire like to real modules.
 
-mod config;
 mod endpoint;
 mod error;
 pub mod gateway;
@@ -16,18 +15,38 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+use serde::Deserialize;
 use tokio_util::sync::CancellationToken;
 
-pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
 pub use endpoint::Endpoint;
 use endpoint::relink;
 pub use error::SimError;
+pub use mbus::config::{SimMeterConfig, SimSegmentConfig};
 pub use mbus::gateway::{MeterLine, every_meter};
 pub use mbus::plant::PlantSegment;
+pub use modbus::config::{BusConfig as SimBusConfig, SimDeviceConfig};
 pub use modbus::model::SimModule;
 
 pub use modbus::server::Modules;
 use modbus::{comm, line, server};
+
+/// The whole plant.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimConfig {
+    #[serde(default)]
+    pub buses: BTreeMap<String, modbus::config::BusConfig>,
+    /// M-Bus segments (`[mbus.NAME]`).
+    #[serde(default)]
+    pub mbus: BTreeMap<String, mbus::config::SimSegmentConfig>,
+}
+
+impl SimConfig {
+    /// Parses a simulator config.
+    pub fn from_toml(text: &str) -> Result<SimConfig, error::SimError> {
+        toml::from_str(text).map_err(|e| error::SimError::Config(e.to_string()))
+    }
+}
 
 /// A simulated bus.
 pub struct PlantBus {

@@ -7,9 +7,9 @@ use std::time::Instant;
 
 use tokio_util::sync::CancellationToken;
 
+use super::config::{SimMeterConfig, SimSegmentConfig};
 use super::shell::{self, SharedSegment};
 use super::{Behaviour, Gauge, Quantity, Register, Segment, SimMeter, Width};
-use crate::sim::config::{SimMeterConfig, SimSegmentConfig};
 use crate::sim::endpoint::{Endpoint, relink};
 
 /// A simulated M-Bus segment.

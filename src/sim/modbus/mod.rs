@@ -4,6 +4,7 @@
 //! pseudo-terminals and TCP ports, and a line emulator with seeded noise (`line.rs`).
 
 pub(crate) mod comm;
+pub mod config;
 pub(crate) mod datasheet;
 pub mod line;
 pub mod model;
