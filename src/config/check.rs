@@ -8,7 +8,7 @@ use config::Value;
 
 use super::model::BusParts;
 use super::model::{Bus, Config, ConfigErrors, Gateway};
-use super::protocols::{Protocol, mbus, modbus};
+use super::protocols::Protocol;
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
@@ -227,10 +227,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         guard,
         slow_poll,
         devices,
-    } = match protocol {
-        Protocol::Modbus => modbus::check::bus(&mut t, &path, profiles, errs),
-        Protocol::Mbus => mbus::check::bus(&mut t, &path, errs),
-    };
+    } = super::buses::parts(protocol, &mut t, &path, profiles, errs);
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {

@@ -4,6 +4,7 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
+pub mod buses;
 pub mod channel;
 mod check;
 mod connection;

@@ -2,6 +2,7 @@
 //! socket), a meter's address, and the checks of `[buses.NAME] protocol = "mbus"` (`check.rs`).
 
 pub(crate) mod check;
+pub(crate) mod report;
 
 use std::path::PathBuf;
 use std::time::Duration;

@@ -3,6 +3,7 @@
 
 pub(crate) mod check;
 pub mod plan;
+pub(crate) mod report;
 
 use std::path::PathBuf;
 use std::time::Duration;

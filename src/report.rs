@@ -1,23 +1,15 @@
 //! The compiled poll plan in words, for `pulsegate check` and `pulsegate plan`: each bus in its
-//! protocol's words (`modbus.rs`, `mbus.rs`), then the outputs. Pure.
-
-mod mbus;
-mod modbus;
+//! protocol's words (`config::buses::in_words`), then the outputs. Pure.
 
 use std::fmt::Write;
 
-use crate::config::{Config, Link};
+use crate::config::Config;
 
 /// Each bus in its protocol's words, then where readings go.
 pub fn poll_plan(config: &Config) -> String {
     let mut out = String::new();
     for bus in &config.buses {
-        match &bus.link {
-            Link::Modbus(line) => modbus::bus(&mut out, bus, line),
-            Link::Mbus(_) => {
-                let _ = writeln!(out, "{}", mbus::meters(&bus.name, &bus.link, &bus.devices));
-            }
-        }
+        out += &crate::config::buses::in_words(bus);
     }
     out + &outputs(config)
 }

@@ -1,10 +1,10 @@
 //! An M-Bus bus in words.
 
-use crate::config::{Device, Link};
+use crate::config::model::{Device, Link};
 
 /// An M-Bus bus in words: its line and each meter's address and poll interval (a meter's
 /// channels are its answer's records, known when it answers).
-pub(super) fn meters(bus: &str, link: &Link, devices: &[Device]) -> String {
+pub fn meters(bus: &str, link: &Link, devices: &[Device]) -> String {
     let mut out = format!("bus {bus} ({link}):");
     for d in devices {
         let address = d.address.to_string();

@@ -4,9 +4,9 @@
 use std::fmt::Write;
 use std::time::Duration;
 
-use crate::config::Bus;
-use crate::config::protocols::modbus::Line;
-use crate::config::protocols::modbus::plan::{DEFAULT_TURNAROUND, PollPlan, Wire, line_time};
+use super::Line;
+use super::plan::{DEFAULT_TURNAROUND, PollPlan, Wire, line_time};
+use crate::config::model::Bus;
 use crate::profile::Register;
 
 /// Assumed device turnaround when estimating line time (the bus measures it at run time).
@@ -15,7 +15,8 @@ const TURNAROUND: Duration = DEFAULT_TURNAROUND;
 /// One line per device with its reads, registers and line time per poll, and per bus the share
 /// of the line its intervals need (a warning when above 100%). Work modes are not known before
 /// the modules answer, so each group is taken in its first mode.
-pub(super) fn bus(out: &mut String, bus: &Bus, line: &Line) {
+pub fn bus(bus: &Bus, line: &Line) -> String {
+    let mut out = String::new();
     let timing = line.timing(bus.guard);
     let link = &bus.link;
     let _ = writeln!(out, "bus {} ({link}):", bus.name);
@@ -54,4 +55,5 @@ pub(super) fn bus(out: &mut String, bus: &Bus, line: &Line) {
             );
         }
     }
+    out
 }
