@@ -4,6 +4,7 @@
 //! (`setup.rs`), and read or write raw registers (`raw.rs`), over the driver's link
 //! (`line.rs`: the line a command names).
 
+pub(crate) mod commands;
 mod line;
 pub(crate) mod raw;
 pub(crate) mod read;

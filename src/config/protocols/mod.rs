@@ -59,6 +59,13 @@ impl Protocol {
     }
 }
 
+impl std::fmt::Display for Protocol {
+    /// The name a config (and `--protocol`) writes.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl std::str::FromStr for Protocol {
     type Err = String;
 

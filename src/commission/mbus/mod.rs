@@ -3,6 +3,8 @@
 //! and `pulsegate read --protocol mbus` (one meter's answer, every record with its value in its
 //! unit), over the gateway's own M-Bus master.
 
+pub(crate) mod commands;
+
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
