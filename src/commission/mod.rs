@@ -64,9 +64,11 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
                 Protocol::Mbus => {
                     mbus::commands::scan_meters(&line, baud, units, secondary, how).await
                 }
-                Protocol::Modbus if secondary => Err(CommissionError::BadInput(
-                    "--secondary is M-Bus's search: give --protocol mbus".into(),
-                )),
+                Protocol::Modbus if secondary => Err(CommissionError::BadInput(format!(
+                    "--secondary is {}'s search: give --protocol {}",
+                    Protocol::Mbus.title(),
+                    Protocol::Mbus
+                ))),
                 Protocol::Modbus => {
                     let baud = baud.unwrap_or_else(|| "9600".into());
                     let units = units.unwrap_or_else(|| "1-247".into());

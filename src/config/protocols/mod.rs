@@ -1,9 +1,9 @@
 //! The one list of protocols a bus may speak (`[buses.NAME] protocol`), and the types every
 //! part of the gateway sees of them: a bus's [`Link`] and a device's [`Address`]. Everything a
 //! protocol knows of its configuration (its tables, checks, line and address) is in its own
-//! folder beside this file; this file only picks among them (and `config/check.rs` picks a
-//! bus's checks by its [`Protocol`]). A new protocol is a folder here, a variant in each enum
-//! below, and the arms the compiler then asks for.
+//! folder beside this file; this file only picks among them (and `config/buses.rs` picks a
+//! bus's checks and its words by its protocol). A new protocol is a folder here, a variant in
+//! each enum below, and the arms the compiler then asks for.
 
 pub mod mbus;
 pub mod modbus;
