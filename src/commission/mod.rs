@@ -60,21 +60,7 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
                 json,
                 every_probe,
             };
-            match protocol {
-                Protocol::Mbus => {
-                    mbus::commands::scan_meters(&line, baud, units, secondary, how).await
-                }
-                Protocol::Modbus if secondary => Err(CommissionError::BadInput(format!(
-                    "--secondary is {}'s search: give --protocol {}",
-                    Protocol::Mbus.title(),
-                    Protocol::Mbus
-                ))),
-                Protocol::Modbus => {
-                    let baud = baud.unwrap_or_else(|| "9600".into());
-                    let units = units.unwrap_or_else(|| "1-247".into());
-                    modbus::commands::scan(&line, &baud, &units, how, &profiles).await
-                }
-            }
+            scan(protocol, &line, secondary, (baud, units), how, &profiles).await
         }
         Commission::Read {
             module,
@@ -111,6 +97,30 @@ async fn run_inner(command: Commission) -> Result<(), CommissionError> {
         }
         Commission::Raw { at, op } => {
             modbus::commands::raw(&at.line, at.baud(), at.unit()?, op, &profiles).await
+        }
+    }
+}
+
+/// `scan` by its protocol: a Modbus line's units, or an M-Bus segment's meters.
+async fn scan(
+    protocol: Protocol,
+    line: &cli::LineArgs,
+    secondary: bool,
+    (baud, units): (Option<String>, Option<String>),
+    how: ScanHow,
+    profiles: &Profiles,
+) -> Result<(), CommissionError> {
+    match protocol {
+        Protocol::Mbus => mbus::commands::scan_meters(line, baud, units, secondary, how).await,
+        Protocol::Modbus if secondary => Err(CommissionError::BadInput(format!(
+            "--secondary is {}'s search: give --protocol {}",
+            Protocol::Mbus.title(),
+            Protocol::Mbus
+        ))),
+        Protocol::Modbus => {
+            let baud = baud.unwrap_or_else(|| "9600".into());
+            let units = units.unwrap_or_else(|| "1-247".into());
+            modbus::commands::scan(line, &baud, &units, how, profiles).await
         }
     }
 }
