@@ -133,6 +133,9 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
     let mut keep = Vec::new();
     let health = pulsegate::health::Health::default();
     for bus in &config.buses {
+        let pulsegate::config::Link::Modbus(line) = &bus.link else {
+            unreachable!("the bench's buses are Modbus buses");
+        };
         let (ctx, crx) = tokio::sync::mpsc::unbounded_channel();
         keep.push(ctx);
         handles.push(tokio::spawn(
@@ -143,7 +146,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
                 crx,
                 health.heart(pulsegate::health::Loop::Bus(bus.name.clone())),
             )
-            .run(Modbus::for_bus(bus), shutdown.clone()),
+            .run(Modbus::for_bus(bus, line), shutdown.clone()),
         ));
     }
     drop(tx);
@@ -624,7 +627,7 @@ async fn mbus_cpu(figures: &mut Vec<Figure>) {
         serial: "",
         tcp: "",
     };
-    let meters = pulsegate::sim::gateway::every_meter(&sim, "1ms");
+    let meters = pulsegate::sim::every_meter(&sim, "1ms");
     let text = t.render(&plant, &[]) + &t.meters(&plant, &meters, "timeout = \"100ms\"\n");
     let path = dir.join("g.toml");
     std::fs::write(&path, text).unwrap();

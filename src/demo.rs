@@ -31,53 +31,8 @@ pub enum DemoError {
 /// models (IBF67 shares the YL67 profile), and an M-Bus heat meter on a TCP converter (its
 /// energy register rolls over at 10^8 within the first minutes).
 fn plant_config() -> SimConfig {
-    let mut c = SimConfig::from_toml(
-        r#"
-[buses.line1.devices.press1]
-unit = 1
-model = "yl67"
-modes = [0, 0, 1, 1]
-channels.enc0 = { count = -13680, rate = 250.0 }
-channels.enc1 = { rate = -120.0 }
-channels.a2 = { count = 4294966000, rate = 400.0 }
-channels.b2 = { rate = 35.0 }
-[buses.line1.devices.spindle]
-unit = 2
-model = "wj157"
-modes = [0]
-channels.enc0 = { rate = 1000.0, ppr = 1000 }
-[buses.line2.devices.conveyor]
-unit = 1
-model = "ibf67"
-channels.enc0 = { rate = 500.0 }
-channels.enc3 = { count = 2147483000, rate = 300.0 }
-[buses.line2.devices.bottles]
-unit = 2
-model = "wj157"
-modes = [1]
-channels.a0 = { rate = 12.0 }
-channels.b0 = { rate = 3.0 }
-[buses.hall]
-listen = "127.0.0.1:0"
-[buses.hall.devices.doors]
-unit = 1
-model = "zh-yx1600"
-modes = [2, 0, 0, 0, 0, 0, 0, 0]
-channels.di1 = { rate = 50.0 }
-channels.di3 = { count = 100000, rate = 7.0 }
-channels.di4 = { rate = 1.0 }
-[mbus.cellar]
-listen = "127.0.0.1:0"
-[mbus.cellar.meters.heat1]
-id = 12345678
-manufacturer = "KAM"
-medium = 4
-address = 1
-registers = [{ quantity = "energy_wh", width = "bcd8", start = 99990000, rate = 120.0 }]
-gauges = { power_w = 432000, flow_temperature_centi = 6025 }
-"#,
-    )
-    .expect("demo plant config is valid");
+    let mut c = SimConfig::from_toml(include_str!("../config/demo-plant.toml"))
+        .expect("demo plant config is valid");
     c.buses.retain(|_, b| !b.devices.is_empty());
     c
 }
@@ -100,7 +55,7 @@ fn gateway_config(
         serial: "baud = 9600\n",
         tcp: "",
     };
-    let meters = crate::sim::gateway::every_meter(&sim, "2s");
+    let meters = crate::sim::every_meter(&sim, "2s");
     let text = t.render(plant, &crate::sim::gateway::every_device(&sim, "500ms"))
         + &t.meters(plant, &meters, "")
         + &format!("[metrics]\nlisten = \"{page}\"\n");

@@ -3,7 +3,8 @@
 //! The pipeline, top to bottom:
 //! 1. [`config`] reads one TOML file (plus environment) into a checked [`config::Config`];
 //! 2. [`profile`] says, per module model, where each channel's registers are;
-//! 3. [`plan`] turns the registers a poll needs into as few Modbus reads as the wire favours;
+//! 3. [`config::protocols::modbus::plan`] turns the registers a poll needs into as few Modbus
+//!    reads as the wire favours;
 //! 4. [`bus`] runs one task per bus, one transaction at a time, earliest deadline first;
 //! 5. [`decode`] turns the words into counts and frequencies;
 //! 6. [`counter`] turns counts into deltas and totals that survive wrap, resets and restarts;
@@ -35,7 +36,6 @@ pub mod metering;
 pub mod metrics;
 pub mod outbox;
 pub mod outcome;
-pub mod plan;
 pub mod profile;
 pub mod publish;
 pub mod reading;

@@ -1,6 +1,4 @@
-//! Why a commissioning command stopped, and the exit status it gives.
-
-use crate::driver::modbus::link::LinkError;
+//! Why a commissioning command stopped, and the exit status it gives, whatever the protocol.
 
 /// Why a commissioning command stopped.
 #[derive(Debug, thiserror::Error)]
@@ -15,13 +13,18 @@ pub enum CommissionError {
         holders: String,
         advice: String,
     },
+    /// The line failed while talking to `unit`.
     #[error("unit {unit}: {source}")]
-    Link { unit: u8, source: LinkError },
-    #[error("unit {unit} refused {what}: {exception:?}")]
+    Link {
+        unit: u8,
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// The device answered with an exception: `exception` is its name.
+    #[error("unit {unit} refused {what}: {exception}")]
     Refused {
         unit: u8,
         what: String,
-        exception: tokio_modbus::ExceptionCode,
+        exception: String,
     },
     #[error("{0}")]
     Failed(String),

@@ -1,19 +1,18 @@
 //! The merged configuration tree → typed [`Config`], collecting every error on the way.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use config::Value;
 
-use super::model::{Bus, Config, ConfigErrors, Device, Gateway, Link, Parity, Protocol};
+use super::model::BusParts;
+use super::model::{Bus, Config, ConfigErrors, Gateway};
+use super::protocols::Protocol;
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
 use crate::profile::MAX_TIMEOUT;
-
-/// Baud rates the seed modules can be set to (their baud-code tables).
-pub const BAUDS: [u32; 7] = [2400, 4800, 9600, 19200, 38400, 57600, 115200];
 
 /// Checks a merged configuration tree that was read from `path`.
 pub fn from_tree(tree: &Value, path: &Path) -> Result<Config, ConfigErrors> {
@@ -63,9 +62,8 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     unique_device_names(&buses, errs);
     super::tariffs::check_grid(&gateway, &buses, errs);
 
-    // A Modbus server output's map is a contract: unit ids and blocks that collide are errors.
-    if !outputs.modbus.is_empty() {
-        super::outputs::modbus::map::RegisterMap::build(&buses, errs);
+    if outputs.serve_registers() {
+        super::outputs::RegisterMap::build(&buses, errs);
     }
 
     Some(Config {
@@ -215,7 +213,7 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         );
     }
     let protocol = match t.opt::<String>("protocol", errs) {
-        None => Protocol::Modbus,
+        None => Protocol::DEFAULT,
         Some(p) => match p.parse::<Protocol>() {
             Ok(p) => p,
             Err(why) => {
@@ -224,13 +222,12 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             }
         },
     };
-    let (link, guard, slow_poll, devices) = match protocol {
-        Protocol::Modbus => modbus_bus(&mut t, &path, profiles, errs),
-        Protocol::Mbus => {
-            let (link, devices) = super::meter::bus(&mut t, &path, errs);
-            (link, Duration::ZERO, Duration::from_secs(60), devices)
-        }
-    };
+    let BusParts {
+        link,
+        guard,
+        slow_poll,
+        devices,
+    } = super::buses::parts(protocol, &mut t, &path, profiles, errs);
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {
@@ -267,267 +264,4 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
         enabled,
         devices,
     })
-}
-
-/// What only a Modbus bus has: its link (with the TCP port its devices' datasheets give when
-/// none is written), the guard time, the slow poll and its devices of known models.
-fn modbus_bus(
-    t: &mut Table<'_>,
-    path: &str,
-    profiles: &Profiles,
-    errs: &mut Errors,
-) -> (Option<Link>, Duration, Duration, Vec<Device>) {
-    let link = bus_link(t, path, errs);
-    let t_origin = t.origin().map(str::to_string);
-    let guard = t
-        .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
-        .unwrap_or(Duration::ZERO);
-    let slow_poll = t
-        .duration("slow_poll", errs)
-        .unwrap_or(Duration::from_secs(60));
-    let devices = bus_devices(t, path, profiles, errs);
-    if matches!(link, Some(Link::Tcp { .. })) {
-        for d in devices.iter().filter(|d| d.baud.is_some()) {
-            errs.push(
-                &format!("{path}.devices.{}.baud", d.name),
-                t.origin(),
-                "serial setting on a TCP bus",
-            );
-        }
-    }
-    let mut link = link;
-    if let Some(Link::Tcp { port, .. }) = &mut link
-        && *port == 0
-    {
-        *port = default_tcp_port(path, &devices, t_origin.as_deref(), errs);
-    }
-    (link, guard, slow_poll, devices)
-}
-
-/// The bus's link: `host` (Modbus TCP) or `port` (a serial device, Modbus RTU) and its settings.
-fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Link> {
-    let has_port = t.has("port");
-    let has_host = t.has("host");
-    if has_host {
-        let host = t.req::<String>("host", errs);
-        let port = t.int::<u16>("port", errs).unwrap_or(0);
-        if port == 0 && has_port {
-            errs.push(&join(path, "port"), t.origin(), "TCP port must be 1..65535");
-        }
-        for key in ["baud", "parity", "stop_bits"] {
-            if t.has(key) {
-                let _ = t.opt::<toml::Value>(key, errs);
-                errs.push(&join(path, key), t.origin(), "serial setting on a TCP bus");
-            }
-        }
-        host.map(|host| Link::Tcp { host, port })
-    } else if has_port {
-        let baud = t.int::<u32>("baud", errs).unwrap_or(9600);
-        if !BAUDS.contains(&baud) {
-            errs.push(
-                &join(path, "baud"),
-                t.origin(),
-                format!("{baud} is not a rate the modules support ({BAUDS:?})"),
-            );
-        }
-        let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::None);
-        let stop_bits = t.int::<u8>("stop_bits", errs).unwrap_or(1);
-        if !(1..=2).contains(&stop_bits) {
-            errs.push(&join(path, "stop_bits"), t.origin(), "must be 1 or 2");
-        }
-        let port = t.opt::<PathBuf>("port", errs).filter(|p| {
-            let ok = p.is_absolute();
-            if !ok {
-                errs.push(
-                    &join(path, "port"),
-                    t.origin(),
-                    "must be an absolute path such as /dev/ttyUSB0",
-                );
-            }
-            ok
-        });
-        port.map(|port| Link::Rtu {
-            port,
-            baud,
-            parity,
-            stop_bits,
-        })
-    } else {
-        errs.push(
-            path,
-            t.origin(),
-            "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP), or `protocol = \"mbus\"` for M-Bus meters",
-        );
-        None
-    }
-}
-
-/// The devices of a bus; a unit used twice is an error.
-fn bus_devices(
-    t: &mut Table<'_>,
-    path: &str,
-    profiles: &Profiles,
-    errs: &mut Errors,
-) -> Vec<super::model::Device> {
-    let mut devices = Vec::new();
-    let mut units: BTreeMap<u8, String> = BTreeMap::new();
-    let entries = t.entries("devices", errs);
-    if entries.is_empty() {
-        errs.push(&join(path, "devices"), t.origin(), "no device on this bus");
-    }
-    for (dname, dvalue) in entries {
-        if let Some(d) = device(path, &dname, dvalue, profiles, errs) {
-            if let Some(other) = units.insert(d.unit, d.name.clone()) {
-                errs.push(
-                    &format!("{path}.devices.{dname}.unit"),
-                    dvalue.origin(),
-                    format!(
-                        "unit {} is already used by device {other} on this bus",
-                        d.unit
-                    ),
-                );
-            }
-            devices.push(d);
-        }
-    }
-    devices
-}
-
-fn device(
-    bus_path: &str,
-    name: &str,
-    value: &Value,
-    profiles: &Profiles,
-    errs: &mut Errors,
-) -> Option<Device> {
-    let path = format!("{bus_path}.devices.{name}");
-    let mut t = Table::of(value, &path, errs)?;
-    super::names::device_name(&t, &path, name, errs);
-    let unit = unit(&mut t, &path, errs);
-    let model = t.req::<String>("model", errs);
-    let profile = model
-        .as_ref()
-        .and_then(|m| device_profile(&t, &path, m, profiles, errs));
-    let poll = t.duration("poll", errs).unwrap_or(Duration::from_secs(1));
-    let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
-    let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
-    let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
-    let baud = t.int::<u32>("baud", errs);
-    if let (Some(b), Some(p)) = (baud, &profile)
-        && !p.bauds.contains(&b)
-    {
-        errs.push(
-            &join(&path, "baud"),
-            t.origin(),
-            format!(
-                "model {} does not support {b} baud ({:?})",
-                p.model, p.bauds
-            ),
-        );
-    }
-    let publish = super::publish::policy(&mut t, errs);
-    let payload = super::publish::payload(&mut t, errs);
-    let intervals = super::metering::intervals(&mut t, errs);
-    let server_unit = super::outputs::modbus::server_unit(&mut t, &path, errs);
-    let channels = channels(&mut t, &path, profile.as_deref(), errs);
-    t.finish(errs);
-    Some(Device {
-        name: name.to_string(),
-        unit: unit?,
-        model: model?,
-        profile: profile?,
-        poll,
-        timeout,
-        commands,
-        baud,
-        channels,
-        enabled,
-        publish,
-        payload,
-        intervals,
-        meter: None,
-        server_unit,
-    })
-}
-
-/// A device's `unit`: required, 1..247.
-fn unit(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
-    if !t.has("unit") {
-        errs.push(&join(path, "unit"), t.origin(), "missing");
-    }
-    let u = t.int::<i64>("unit", errs)?;
-    if (1..=247).contains(&u) {
-        Some(u as u8)
-    } else {
-        let why = format!("unit {u} is outside 1..247");
-        errs.push(&join(path, "unit"), t.origin(), why);
-        None
-    }
-}
-
-/// A device's `[….channels.NAME]` tables.
-fn channels(
-    t: &mut Table<'_>,
-    path: &str,
-    profile: Option<&crate::profile::Profile>,
-    errs: &mut Errors,
-) -> BTreeMap<String, super::channel::ChannelConfig> {
-    let mut channels = BTreeMap::new();
-    for (cname, cvalue) in t.entries("channels", errs) {
-        let cpath = format!("{path}.channels.{cname}");
-        let Some(ct) = Table::of(cvalue, &cpath, errs) else {
-            continue;
-        };
-        let c = super::channel::channel(ct, &cname, profile, errs);
-        channels.insert(cname, c);
-    }
-    channels
-}
-
-/// The profile of `model`; an unknown model is an error naming the known ones.
-fn device_profile(
-    t: &Table<'_>,
-    path: &str,
-    model: &str,
-    profiles: &Profiles,
-    errs: &mut Errors,
-) -> Option<std::sync::Arc<crate::profile::Profile>> {
-    let p = profiles.get(model);
-    if p.is_none() {
-        let known = profiles.names().join(", ");
-        let why = format!("unknown model {model:?}; known: {known}");
-        errs.push(&join(path, "model"), t.origin(), why);
-    }
-    p
-}
-
-/// The port of a TCP bus written without one: the one the devices' datasheets give (ZH-YX1600:
-/// 20108), or Modbus's 502 when none gives one. Devices whose datasheets disagree need `port`.
-fn default_tcp_port(
-    path: &str,
-    devices: &[Device],
-    origin: Option<&str>,
-    errs: &mut Errors,
-) -> u16 {
-    let given: std::collections::BTreeSet<(u16, &str)> = devices
-        .iter()
-        .map(|d| (d.profile.tcp_port.unwrap_or(502), d.profile.model.as_str()))
-        .collect();
-    let ports: std::collections::BTreeSet<u16> = given.iter().map(|(p, _)| *p).collect();
-    match ports.len() {
-        0 => 502,
-        1 => *ports.first().expect("one"),
-        _ => {
-            let list: Vec<String> = given
-                .iter()
-                .map(|(p, m)| format!("{m} listens on {p}"))
-                .collect();
-            errs.push(
-                &join(path, "port"),
-                origin,
-                format!("missing, and the datasheets disagree: {}", list.join(", ")),
-            );
-            502
-        }
-    }
 }

@@ -4,19 +4,21 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
+pub mod buses;
 pub mod channel;
 mod check;
 mod connection;
 mod error;
 pub mod hash;
-mod meter;
 mod metering;
 pub mod metrics;
 mod model;
 mod mqtt;
 mod names;
 pub mod outputs;
+mod parity;
 pub mod policy;
+pub mod protocols;
 pub mod publish;
 pub mod remote;
 mod socket;
@@ -31,7 +33,6 @@ use std::path::Path;
 pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
 pub use hash::ConfigHash;
-pub use meter::{DEFAULT_METER_POLL, MAX_PRIMARY, MBUS_BAUDS};
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{OutputConfig, OutputKind, Outputs};
 

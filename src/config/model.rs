@@ -16,6 +16,8 @@ use super::metrics::Metrics as MetricsEndpoint;
 use super::outputs::Outputs;
 
 pub use super::connection::{Mqtt, MqttProtocol, Secret, Tls};
+pub use super::parity::Parity;
+pub use super::protocols::{Address, Link, Protocol};
 
 use super::policy::{PayloadMode, PolicyOverride};
 
@@ -88,133 +90,14 @@ pub struct Bus {
     pub devices: Vec<Device>,
 }
 
-/// How a bus reaches its devices.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Link {
-    /// Modbus RTU on a serial port.
-    Rtu {
-        port: PathBuf,
-        baud: u32,
-        parity: Parity,
-        stop_bits: u8,
-    },
-    /// Modbus TCP.
-    Tcp { host: String, port: u16 },
-    /// Wired M-Bus: a serial level converter, or raw frames on a TCP socket.
-    Mbus(MbusLine),
-}
-
-/// How an M-Bus bus reaches its meters.
-#[derive(Debug, Clone, PartialEq)]
-pub enum MbusLine {
-    /// A serial M-Bus level converter (the master): 8 data bits, `parity`, 1 stop bit.
-    Serial {
-        port: PathBuf,
-        baud: u32,
-        parity: Parity,
-    },
-    /// An M-Bus-to-Ethernet converter passing raw frames on a TCP socket.
-    Tcp { host: String, port: u16 },
-}
-
-/// The protocol a bus speaks (`[buses.NAME] protocol`); one list, parsed with `FromStr`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Protocol {
-    Modbus,
-    Mbus,
-}
-
-impl Protocol {
-    /// Every protocol, in the order an error lists them.
-    pub const ALL: [Protocol; 2] = [Protocol::Modbus, Protocol::Mbus];
-
-    /// The name a config writes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Protocol::Modbus => "modbus",
-            Protocol::Mbus => "mbus",
-        }
-    }
-}
-
-impl std::str::FromStr for Protocol {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Protocol, String> {
-        Protocol::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<String> = Protocol::ALL
-                    .iter()
-                    .map(|p| format!("{:?}", p.name()))
-                    .collect();
-                format!("unknown protocol {s:?}: use {}", names.join(" or "))
-            })
-    }
-}
-
-impl Link {
-    /// The protocol of the link.
-    pub fn protocol(&self) -> Protocol {
-        match self {
-            Link::Rtu { .. } | Link::Tcp { .. } => Protocol::Modbus,
-            Link::Mbus(_) => Protocol::Mbus,
-        }
-    }
-}
-
-impl std::fmt::Display for Link {
-    /// How logs, `check` and the status page name the link.
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Link::Rtu { port, baud, .. } => write!(f, "RTU {} at {baud} baud", port.display()),
-            Link::Tcp { host, port } => write!(f, "TCP {host}:{port}"),
-            Link::Mbus(MbusLine::Serial { port, baud, parity }) => {
-                write!(
-                    f,
-                    "M-Bus {} at {baud} baud, parity {parity:?}",
-                    port.display()
-                )
-            }
-            Link::Mbus(MbusLine::Tcp { host, port }) => write!(f, "M-Bus over TCP {host}:{port}"),
-        }
-    }
-}
-
-impl Bus {
-    /// Character timing of the bus's Modbus RTU line; `None` for Modbus TCP and M-Bus.
-    pub fn line_timing(&self) -> Option<crate::plan::LineTiming> {
-        line_timing(&self.link, self.guard)
-    }
-}
-
-/// Character timing of a serial link with `guard` after the silent interval: start bit, 8 data
-/// bits, parity if any, stop bits. `None` for Modbus TCP and for M-Bus (its driver times its
-/// own line: the standard's answer time).
-pub fn line_timing(link: &Link, guard: Duration) -> Option<crate::plan::LineTiming> {
-    match link {
-        Link::Rtu {
-            baud,
-            parity,
-            stop_bits,
-            ..
-        } => Some(crate::plan::LineTiming {
-            baud: *baud,
-            bits_per_char: crate::plan::bits_per_char(*parity != Parity::None, *stop_bits),
-            guard,
-        }),
-        Link::Tcp { .. } | Link::Mbus(_) => None,
-    }
-}
-
-/// Serial parity.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Parity {
-    None,
-    Even,
-    Odd,
+/// What a protocol's checks make of its keys of `[buses.NAME]`.
+pub(crate) struct BusParts {
+    pub link: Option<Link>,
+    /// Extra quiet time after a frame (Modbus RTU's silent interval).
+    pub guard: Duration,
+    /// How often slow registers are re-read.
+    pub slow_poll: Duration,
+    pub devices: Vec<Device>,
 }
 
 /// `[buses.<bus>.devices.<name>]`
@@ -241,42 +124,12 @@ pub struct Device {
     pub payload: Option<PayloadMode>,
     /// `intervals` of this device, when it overrides the gateway's.
     pub intervals: Option<Vec<crate::metering::Period>>,
-    /// An M-Bus meter's address (`None` on a Modbus bus, where `unit` and `model` say it).
-    pub meter: Option<MeterAddress>,
+    /// Where it answers on its bus, in its protocol's terms.
+    pub address: Address,
     /// `server_unit = N`: the unit id this device answers as on a Modbus server output (by
     /// default its own address; see `publish::modbus::map`). Not part of its polling.
     pub server_unit: Option<u8>,
 }
-
-/// Where an M-Bus meter answers: a primary address, or its secondary address (selected by its
-/// 8-digit id, with manufacturer, version and medium where the config narrows it).
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum MeterAddress {
-    /// 0 (the factory default of many meters) to 250.
-    Primary(u8),
-    Secondary {
-        /// 8 decimal digits.
-        id: String,
-        /// Three letters A-Z.
-        manufacturer: Option<String>,
-        version: Option<u8>,
-        medium: Option<u8>,
-    },
-}
-
-impl MeterAddress {
-    /// The address as a key part: `5` for primary address 5, the 8-digit id for a secondary
-    /// address.
-    pub fn place(&self) -> String {
-        match self {
-            MeterAddress::Primary(a) => a.to_string(),
-            MeterAddress::Secondary { id, .. } => id.clone(),
-        }
-    }
-}
-
-/// The `model` of every M-Bus meter in the state file's keys.
-pub const METER_MODEL: &str = "mbus";
 
 impl PartialEq for Device {
     fn eq(&self, other: &Self) -> bool {
@@ -294,7 +147,7 @@ impl PartialEq for Device {
             && self.publish == other.publish
             && self.payload == other.payload
             && self.intervals == other.intervals
-            && self.meter == other.meter
+            && self.address == other.address
     }
 }
 
@@ -302,32 +155,23 @@ impl Device {
     /// Where the device answers on its bus, as the state file keys it: the Modbus unit, an
     /// M-Bus meter's primary address, or its 8-digit id.
     pub fn place(&self) -> String {
-        match &self.meter {
-            Some(m) => m.place(),
-            None => self.unit.to_string(),
-        }
+        self.address.key()
     }
 
     /// The same as a name part, stable across renames: `u3` (Modbus unit 3), `a5` (M-Bus
     /// primary address 5), `id12345678` (an M-Bus meter by its id).
     pub fn place_tag(&self) -> String {
-        match &self.meter {
-            Some(MeterAddress::Primary(a)) => format!("a{a}"),
-            Some(MeterAddress::Secondary { id, .. }) => format!("id{id}"),
-            None => format!("u{}", self.unit),
-        }
+        self.address.tag()
     }
 
-    /// Whether the device's channels are what it answers (an M-Bus meter's records, found
-    /// when it answers) rather than its profile's list.
+    /// Whether the device's channels are what it answers rather than its profile's list.
     pub fn channels_from_device(&self) -> bool {
-        self.meter.is_some()
+        self.address.channels_from_device()
     }
 
-    /// Whether the device's counts can be cleared or preset (a Modbus module's can; an M-Bus
-    /// meter's registers cannot, only its reading can be set).
+    /// Whether the device's counts can be cleared or preset.
     pub fn writable_counts(&self) -> bool {
-        self.meter.is_none()
+        self.address.writable_counts()
     }
 
     /// The interval periods of `channel`: its own `intervals`, else the device's, else the

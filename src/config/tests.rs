@@ -3,6 +3,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use super::*;
+use protocols::modbus::Line;
 
 const GOOD: &str = r#"
 [gateway]
@@ -56,20 +57,20 @@ fn a_good_config_is_checked_into_typed_values() {
     let hall = &c.buses[0];
     assert_eq!(
         hall.link,
-        Link::Tcp {
+        Link::Modbus(Line::Tcp {
             host: "10.0.0.7".into(),
             port: 20108
-        }
+        })
     );
     let line1 = &c.buses[1];
     assert!(matches!(
         line1.link,
-        Link::Rtu {
+        Link::Modbus(Line::Rtu {
             baud: 19200,
             parity: Parity::Even,
             stop_bits: 1,
             ..
-        }
+        })
     ));
     let press = &line1.devices[0];
     assert_eq!(press.poll, Duration::from_millis(500));
@@ -211,16 +212,19 @@ fn a_tcp_bus_of_zh_yx1600_modules_needs_no_port_the_datasheet_gives_20108() {
     .unwrap();
     assert_eq!(
         c.buses[0].link,
-        Link::Tcp {
+        Link::Modbus(Line::Tcp {
             host: "10.0.0.7".into(),
             port: 20108
-        }
+        })
     );
     let c = check(
         "[buses.gw]\nhost = \"10.0.0.8\"\n[buses.gw.devices.press]\nunit = 1\nmodel = \"yl67\"\n",
     )
     .unwrap();
-    assert!(matches!(c.buses[0].link, Link::Tcp { port: 502, .. }));
+    assert!(matches!(
+        c.buses[0].link,
+        Link::Modbus(Line::Tcp { port: 502, .. })
+    ));
     let e = errors(
         "[buses.gw]\nhost = \"10.0.0.8\"\n[buses.gw.devices.press]\nunit = 1\nmodel = \"yl67\"\n\
          [buses.gw.devices.doors]\nunit = 2\nmodel = \"zh-yx1600\"\n",

@@ -14,21 +14,23 @@ use crate::config::{Bus, Link};
 use crate::scan::ScanRequest;
 
 /// Runs `task` over the driver of `bus`'s link until `shutdown`. A new protocol is a folder
-/// beside `modbus/`, a `config::Link` variant and one arm here.
+/// beside `modbus/`, its folder under `config/protocols/` (with its `config::Link`
+/// variant) and one arm here.
 pub fn spawn(
     task: BusTask,
     bus: &Bus,
     scans: Receiver<ScanRequest>,
     shutdown: CancellationToken,
 ) -> JoinHandle<()> {
-    match bus.link {
-        Link::Rtu { .. } | Link::Tcp { .. } => {
-            let driver = modbus::Modbus::for_bus(bus).with_scans(Some(scans));
+    match &bus.link {
+        Link::Modbus(line) => {
+            let driver = modbus::Modbus::for_bus(bus, line).with_scans(Some(scans));
             tokio::spawn(task.run(driver, shutdown))
         }
-        Link::Mbus(_) => match crate::driver::mbus::master::Mbus::for_bus(bus) {
-            Some(driver) => tokio::spawn(task.run(driver.with_scans(Some(scans)), shutdown)),
-            None => tokio::spawn(async {}),
-        },
+        Link::Mbus(line) => {
+            let driver =
+                crate::driver::mbus::master::Mbus::for_bus(bus, line).with_scans(Some(scans));
+            tokio::spawn(task.run(driver, shutdown))
+        }
     }
 }

@@ -219,19 +219,19 @@ pub struct Profile {
 }
 
 impl Profile {
-    /// What an M-Bus meter has in the place of a profile: no registers and no channels (a
-    /// meter's channels are its answer's records, found when it answers), the M-Bus baud
-    /// rates, and the answer timeout of an M-Bus-to-Ethernet converter (a serial line's comes
-    /// from its baud rate, by the standard).
-    pub fn meter() -> Profile {
+    /// What a device whose channels are found when it answers has in the place of a profile
+    /// (an M-Bus meter: its channels are its answer's records): no registers and no channels,
+    /// its protocol's name for it as the model, the baud rates and answer timeout its protocol
+    /// gives.
+    pub fn answered(model: &str, title: &str, bauds: &[u32], answer_timeout: Duration) -> Profile {
         Profile {
-            model: "mbus".into(),
+            model: model.into(),
             aliases: Vec::new(),
-            title: "M-Bus meter".into(),
+            title: title.into(),
             manufacturer: None,
             word_order: WordOrder::LowFirst,
-            answer_timeout: Duration::from_millis(500),
-            bauds: vec![300, 600, 1200, 2400, 4800, 9600, 19200, 38400],
+            answer_timeout,
+            bauds: bauds.to_vec(),
             tcp_port: None,
             identify: None,
             autosave: None,

@@ -39,12 +39,7 @@ pub fn forbidden_changes(old: &Config, new: &Config, signed: Signed) -> Vec<Stri
     if old.remote != new.remote {
         out.push("[remote]".to_string());
     }
-    if !old.outputs.modbus.is_empty() {
-        out.extend(moved_registers(old, new));
-    }
-    if old.outputs.modbus != new.outputs.modbus {
-        out.push("outputs of kind modbus (what the gateway listens on, who may connect, whether writes are taken)".to_string());
-    }
+    out.extend(crate::config::outputs::server_changes(old, new));
     out.extend(connection_changes("mqtt", &old.mqtt, &new.mqtt));
     for o in &new.outputs.list {
         let path = format!("outputs.{}", o.name);
@@ -54,27 +49,6 @@ pub fn forbidden_changes(old: &Config, new: &Config, signed: Signed) -> Vec<Stri
         }
     }
     out
-}
-
-/// The register map is a contract with the PLC programs that read it: an unsigned push may add
-/// to it (a device, a channel) but not move or drop what a PLC reads.
-fn moved_registers(old: &Config, new: &Config) -> Option<String> {
-    use crate::config::outputs::modbus::map::RegisterMap;
-    let after = RegisterMap::of(new).entries(true);
-    let moved: Vec<String> = RegisterMap::of(old)
-        .entries(true)
-        .into_iter()
-        .filter(|e| !after.contains(e))
-        .map(|e| format!("{}/{}", e.device, e.channel.as_deref().unwrap_or("-")))
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    (!moved.is_empty()).then(|| {
-        format!(
-            "the Modbus server's register map (moves or drops {}: a PLC would read something else)",
-            moved.join(", ")
-        )
-    })
 }
 
 /// Where a connection sends what it has: its brokers, in order, and its local socket.

@@ -4,33 +4,49 @@
 //! Tests and the demo hold a [`Plant`] and steer it (rates, counts, power cycles, silence) while
 //! the gateway talks to it over the wire like to real modules.
 
-mod comm;
-mod config;
-mod datasheet;
 mod endpoint;
 mod error;
 pub mod gateway;
-pub mod line;
 pub mod mbus;
-pub mod model;
-pub mod segments;
-mod server;
+pub mod modbus;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
+use serde::Deserialize;
 use tokio_util::sync::CancellationToken;
 
-pub use config::{SimBusConfig, SimConfig, SimDeviceConfig, SimMeterConfig, SimSegmentConfig};
 pub use endpoint::Endpoint;
 use endpoint::relink;
 pub use error::SimError;
-pub use model::SimModule;
-pub use segments::PlantSegment;
+pub use mbus::config::{SimMeterConfig, SimSegmentConfig};
+pub use mbus::gateway::{MeterLine, every_meter};
+pub use mbus::plant::PlantSegment;
+pub use modbus::config::{BusConfig as SimBusConfig, SimDeviceConfig};
+pub use modbus::model::SimModule;
 
-pub use server::Modules;
+pub use modbus::server::Modules;
+use modbus::{comm, line, server};
+
+/// The whole plant.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimConfig {
+    #[serde(default)]
+    pub buses: BTreeMap<String, modbus::config::BusConfig>,
+    /// M-Bus segments (`[mbus.NAME]`).
+    #[serde(default)]
+    pub mbus: BTreeMap<String, mbus::config::SimSegmentConfig>,
+}
+
+impl SimConfig {
+    /// Parses a simulator config.
+    pub fn from_toml(text: &str) -> Result<SimConfig, error::SimError> {
+        toml::from_str(text).map_err(|e| error::SimError::Config(e.to_string()))
+    }
+}
 
 /// A simulated bus.
 pub struct PlantBus {
@@ -197,7 +213,7 @@ impl Plant {
         }
         let mut segments = Vec::new();
         for (name, c) in &config.mbus {
-            let segment = segments::serve(name, c, start, &cancel)
+            let segment = mbus::plant::serve(name, c, start, &cancel)
                 .await
                 .map_err(|message| SimError::Bus {
                     bus: name.clone(),

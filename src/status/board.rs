@@ -519,21 +519,15 @@ fn outputs(config: &Config) -> BTreeMap<String, (Option<String>, String, u64)> {
         let m = &config.mqtt;
         out.insert(VOICE_NAME.to_string(), (None, m.broker(), m.spool_bytes));
     }
-    for s in &config.outputs.modbus {
-        let kind = crate::config::outputs::modbus::KIND.to_string();
-        out.insert(s.name.clone(), (Some(kind), s.listen.to_string(), 0));
+    for (name, kind, listen) in config.outputs.servers() {
+        out.insert(name.to_string(), (Some(kind.to_string()), listen, 0));
     }
     out
 }
 
 /// Where `device` is on its bus, as a person says it.
 fn address(device: &crate::config::Device) -> String {
-    use crate::config::MeterAddress;
-    match &device.meter {
-        Some(MeterAddress::Primary(a)) => format!("primary address {a}"),
-        Some(MeterAddress::Secondary { id, .. }) => format!("id {id}"),
-        None => format!("unit {}", device.unit),
-    }
+    device.address.to_string()
 }
 
 /// `v` to three decimals: a chart needs no more, and the answer stays short.

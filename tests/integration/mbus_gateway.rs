@@ -8,8 +8,9 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use pulsegate::sim::MeterLine;
 use pulsegate::sim::Plant;
-use pulsegate::sim::gateway::{GatewayToml, MeterLine};
+use pulsegate::sim::gateway::GatewayToml;
 
 use crate::support::*;
 

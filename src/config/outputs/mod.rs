@@ -24,6 +24,37 @@ use super::walk::{Errors, Table, join};
 use homeassistant::HomeAssistant;
 use sparkplug::Sparkplug;
 
+/// A device's own keys for the outputs (`server_unit = N`: the unit id it answers as on a
+/// server output), read beside its bus's keys whatever protocol the bus speaks.
+pub(crate) fn device_keys(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
+    modbus::server_unit(t, path, errs)
+}
+
+/// A server output's register map: a contract, so unit ids and blocks that collide are errors.
+pub(crate) use modbus::map::RegisterMap;
+
+/// What of the server outputs an unsigned pushed config may not change, in words.
+pub use modbus::guard::changes as server_changes;
+
+impl Outputs {
+    /// Whether an output serves the devices' registers (and so needs a [`RegisterMap`]).
+    pub fn serve_registers(&self) -> bool {
+        !self.modbus.is_empty()
+    }
+
+    /// Each server output: its name, kind and where it listens.
+    pub fn servers(&self) -> impl Iterator<Item = (&str, &'static str, String)> {
+        self.modbus
+            .iter()
+            .map(|s| (s.name.as_str(), modbus::KIND, s.listen.to_string()))
+    }
+
+    /// Whether a server output takes commands (its map then has their registers).
+    pub fn serve_commands(&self) -> bool {
+        self.modbus.iter().any(|s| s.commands)
+    }
+}
+
 /// What an output publishes: the one list of formats the config checks against.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum OutputKind {

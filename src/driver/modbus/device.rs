@@ -17,9 +17,9 @@ use super::sizing::{Change, Prices, Sizing};
 use crate::bus::device::{DeviceRt, ProtocolError};
 use crate::bus::driver::DeviceState;
 use crate::bus_health::RequestSize;
+use crate::config::protocols::modbus::plan::{Block, PollPlan, Wire, plan_reads_within};
 use crate::config::{Bus, Device, Run};
 use crate::decode::decode;
-use crate::plan::{Block, PollPlan, Wire, plan_reads_within};
 use crate::profile::{ChannelSpec, Register, WordOrder};
 use crate::sample::{At, Sample, Wrap};
 use crate::state::device_key;
@@ -539,7 +539,11 @@ impl DeviceRt<ModbusDevice> {
     /// The answer timeout plus the time the request and answer take on the line.
     pub(super) fn timeout_for(&self, link: &Link, len: u16) -> Duration {
         let timing = link.timing_for(self.proto.unit);
-        crate::plan::read_timeout(self.proto.answer_timeout, timing.as_ref(), len)
+        crate::config::protocols::modbus::plan::read_timeout(
+            self.proto.answer_timeout,
+            timing.as_ref(),
+            len,
+        )
     }
 
     /// Records a transaction's latency, and on RTU the device's turnaround: the latency less

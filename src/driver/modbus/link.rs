@@ -24,8 +24,9 @@ use tokio_modbus::{ExceptionCode, Request, Response, Slave};
 
 use super::serial::{RtuPort, expected_len};
 
-use crate::config::{Link as LinkConfig, Parity};
-use crate::plan::{LineTiming, REQUEST_BYTES, read_answer_bytes};
+use crate::config::Parity;
+use crate::config::protocols::modbus::Line as LinkConfig;
+use crate::config::protocols::modbus::plan::{LineTiming, REQUEST_BYTES, read_answer_bytes};
 
 /// Why a transaction got no usable answer. The device answering with an exception is not one of
 /// these: that is `Ok(Err(ExceptionCode))`, as in tokio-modbus.
@@ -103,7 +104,7 @@ pub struct Link {
 impl Link {
     /// A link for `config`; nothing is opened until the first transaction.
     pub fn new(config: LinkConfig, guard: Duration) -> Link {
-        let timing = crate::config::line_timing(&config, guard);
+        let timing = config.timing(guard);
         Link {
             config,
             timing,
@@ -123,9 +124,9 @@ impl Link {
     }
 
     /// How long to wait for the answer to a read of `len` registers from a device that takes
-    /// `answer` to answer, at the line's own rate ([`crate::plan::read_timeout`]).
+    /// `answer` to answer, at the line's own rate ([`crate::config::protocols::modbus::plan::read_timeout`]).
     pub fn timeout_for(&self, answer: Duration, len: u16) -> Duration {
-        crate::plan::read_timeout(answer, self.timing().as_ref(), len)
+        crate::config::protocols::modbus::plan::read_timeout(answer, self.timing().as_ref(), len)
     }
 
     /// Character timing of the line while talking to `unit` (its own rate where it has one).
@@ -135,7 +136,7 @@ impl Link {
         {
             *baud = *own;
         }
-        crate::config::line_timing(&config, self.guard)
+        config.timing(self.guard)
     }
 
     /// Talks to `unit` at `baud` instead of the bus's rate (RTU).
@@ -403,9 +404,9 @@ impl Link {
                         self.port = Some(p.clone());
                         self.speed = match &self.config {
                             LinkConfig::Rtu { baud, .. } => Some(*baud),
-                            LinkConfig::Tcp { .. } | LinkConfig::Mbus(_) => None,
+                            LinkConfig::Tcp { .. } => None,
                         };
-                        self.timing = crate::config::line_timing(&self.config, self.guard);
+                        self.timing = self.config.timing(self.guard);
                         p
                     }
                 };
@@ -429,12 +430,6 @@ impl Link {
                     .map_err(|e| open_err(e.to_string()))?;
                 let _ = stream.set_nodelay(true);
                 self.ctx = Some(tokio_modbus::client::tcp::attach(stream));
-            }
-            LinkConfig::Mbus(_) => {
-                return Err(LinkError::Open {
-                    what: "an M-Bus line".into(),
-                    message: "not a Modbus line".into(),
-                });
             }
         }
         Ok(())

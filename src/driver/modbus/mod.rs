@@ -28,7 +28,7 @@ use crate::bus::driver::{Driver, Executed, Idle, Preempt};
 use crate::bus_health::WireCounters;
 use crate::command::Request;
 use crate::config::Bus;
-use crate::plan::Wire;
+use crate::config::protocols::modbus::plan::Wire;
 use crate::sample::Sample;
 use crate::scan::ScanRequest;
 use crate::scan::Survey;
@@ -49,9 +49,9 @@ pub struct Modbus {
 }
 
 impl Modbus {
-    /// The link of a configured bus (devices with a baud rate of their own get it).
-    pub fn for_bus(bus: &Bus) -> Modbus {
-        let mut link = Link::new(bus.link.clone(), bus.guard);
+    /// The link of a configured bus on `line` (devices with a baud rate of their own get it).
+    pub fn for_bus(bus: &Bus, line: &crate::config::protocols::modbus::Line) -> Modbus {
+        let mut link = Link::new(line.clone(), bus.guard);
         for d in &bus.devices {
             if let Some(baud) = d.baud {
                 link.set_unit_baud(d.unit, baud);

@@ -31,7 +31,7 @@ use tokio::io::{AsyncRead, AsyncWrite, Interest, ReadBuf};
 use tokio::time::Instant;
 
 use super::timer::FineTimer;
-use crate::plan::{
+use crate::config::protocols::modbus::plan::{
     ANSWER_OVERHEAD_BYTES, EXCEPTION_BYTES, LineTiming, REQUEST_BYTES, bits_per_char,
 };
 

@@ -10,7 +10,7 @@
 //! read beyond that (the planner never splits a value). Lengths are powers of two up to
 //! [`MAX_READ`], so a plan changes only when the line does.
 
-use crate::plan::{MAX_READ, read_chars};
+use crate::config::protocols::modbus::plan::{MAX_READ, read_chars};
 
 /// Reads the estimate remembers (their weight halves about every 11 reads).
 const MEMORY: f64 = 16.0;

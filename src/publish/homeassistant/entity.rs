@@ -128,11 +128,7 @@ pub(super) fn availability(site: &Site, device: &str) -> Value {
 /// Where the module is, for its device's `serial_number`: `line1 unit 3`, `mbus1 address 5`,
 /// `mbus1 id 12345678`.
 fn serial(m: Module<'_>) -> String {
-    match &m.device.meter {
-        Some(crate::config::MeterAddress::Primary(a)) => format!("{} address {a}", m.bus),
-        Some(crate::config::MeterAddress::Secondary { id, .. }) => format!("{} id {id}", m.bus),
-        None => format!("{} unit {}", m.bus, m.device.unit),
-    }
+    format!("{} {}", m.bus, m.device.address.short())
 }
 
 pub(super) fn module_device(site: &Site, m: Module<'_>) -> Value {

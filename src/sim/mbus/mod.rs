@@ -4,7 +4,10 @@
 //! hears out, collisions included). [`shell`] serves a segment on TCP (as M-Bus-to-Ethernet
 //! converters pass raw frames) and on a pseudo-terminal at 2400 8E1.
 
+pub mod config;
+pub mod gateway;
 pub mod meter;
+pub(crate) mod plant;
 pub mod segment;
 pub mod shell;
 pub mod wire;

@@ -24,7 +24,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::config::model::{Bus, Config, Device, MeterAddress};
+use crate::config::model::{Bus, Config, Device};
 
 use super::super::super::walk::Errors;
 
@@ -245,10 +245,9 @@ fn unit_of(d: &Device, path: &str, errs: &mut Errors) -> Option<u8> {
     if let Some(u) = d.server_unit {
         return Some(u);
     }
-    match &d.meter {
-        None => Some(d.unit),
-        Some(MeterAddress::Primary(a)) if (1..=247).contains(a) => Some(*a),
-        Some(_) => {
+    match d.address.unit_id() {
+        Some(u) => Some(u),
+        None => {
             let why = "a meter at primary address 0, above 247 or by secondary address has no unit id of its own on the Modbus server output: set server_unit = N (1..247)";
             errs.push(&format!("{path}.server_unit"), None, why);
             None
@@ -281,7 +280,7 @@ fn blocks(d: &Device, path: &str, errs: &mut Errors) -> BTreeMap<String, u16> {
 
 /// The channels of a device with the index of their block before any pin.
 fn placed(d: &Device) -> Vec<(String, usize)> {
-    if d.meter.is_none() {
+    if !d.channels_from_device() {
         let mut names: Vec<String> = Vec::new();
         for c in d.profile.all_channels() {
             if !names.contains(&c.name) {

@@ -7,6 +7,7 @@ use std::net::{IpAddr, SocketAddr};
 
 use crate::config::walk::{Errors, Table, join};
 
+pub mod guard;
 pub mod map;
 
 /// The kind's name in `[outputs.NAME] kind = …`.

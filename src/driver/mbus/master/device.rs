@@ -10,7 +10,8 @@ use super::link::{Heard, Link, LinkError};
 use super::records::{self, Picked};
 use crate::bus::device::{DeviceRt, PollError, ProtocolError};
 use crate::bus::driver::DeviceState;
-use crate::config::{Device, MeterAddress};
+use crate::config::Device;
+use crate::config::protocols::mbus::MeterAddress;
 use crate::driver::mbus::address::{SecondaryAddress, SecondaryMask, manufacturer_from_letters};
 use crate::driver::mbus::frame::{self, Fcb, Frame, SELECTED};
 use crate::driver::mbus::header::Header;
@@ -130,8 +131,8 @@ impl MeterDevice {
     /// The meter of a device's config.
     pub fn new(config: &Device) -> MeterDevice {
         let address = config
-            .meter
-            .as_ref()
+            .address
+            .as_mbus()
             .map_or(Address::Primary(config.unit), Address::of);
         MeterDevice {
             timeout: config.timeout,

@@ -11,7 +11,8 @@ use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::time::Instant;
 
 use crate::bus_health::WireCounters;
-use crate::config::{MbusLine, Parity};
+use crate::config::Parity;
+use crate::config::protocols::mbus::Line as MbusLine;
 use crate::driver::mbus::frame::{self, Frame, MAX_FRAME, Scan};
 
 /// Bits of one character on the M-Bus line: start, 8 data, parity, stop.

@@ -18,7 +18,7 @@ use crate::bus::device::{DeviceRt, PollError};
 use crate::bus::driver::{Driver, Executed, Idle, Preempt};
 use crate::bus_health::WireCounters;
 use crate::command::{CommandError, Request};
-use crate::config::{Bus, Link as LinkConfig};
+use crate::config::Bus;
 use crate::sample::Sample;
 use crate::scan::ScanRequest;
 use crate::state::BusState;
@@ -35,13 +35,9 @@ pub struct Mbus {
 }
 
 impl Mbus {
-    /// The line of a configured M-Bus bus (its `timeout` where it gives one); `None` for a bus
-    /// of another protocol.
-    pub fn for_bus(bus: &Bus) -> Option<Mbus> {
-        let LinkConfig::Mbus(line) = &bus.link else {
-            return None;
-        };
-        Some(Mbus {
+    /// The line of a configured M-Bus bus (its `timeout` where it gives one).
+    pub fn for_bus(bus: &Bus, line: &crate::config::protocols::mbus::Line) -> Mbus {
+        Mbus {
             link: Link::new(line.clone(), bus.timeout),
             configured: bus
                 .devices
@@ -50,7 +46,7 @@ impl Mbus {
                 .collect(),
             requests: None,
             survey: None,
-        })
+        }
     }
 
     /// Takes scan requests from `requests` (see `survey.rs`).

@@ -13,7 +13,7 @@ use super::link::{Link, char_time};
 use super::search::{FoundMeter, Probe, probe_primary};
 use crate::bus::driver::Idle;
 use crate::command::Reply;
-use crate::config::MbusLine;
+use crate::config::protocols::mbus::Line as MbusLine;
 use crate::driver::mbus::address::medium_name;
 use crate::driver::mbus::channel;
 use crate::driver::mbus::frame::MAX_FRAME;
@@ -35,7 +35,7 @@ pub fn found(m: &FoundMeter, baud: Option<u32>) -> Found {
     Found {
         baud,
         unit: m.primary,
-        model: Some(crate::config::METER_MODEL.to_string()),
+        model: Some(crate::config::protocols::mbus::METER_MODEL.to_string()),
         modes: Vec::new(),
         channels: channel::names(&m.telegram.records),
         note: None,

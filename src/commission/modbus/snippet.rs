@@ -3,7 +3,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use super::line::Target;
+use crate::commission::target::Target;
 use crate::config::Parity;
 use crate::outcome::Found;
 

@@ -3,15 +3,18 @@
 //! and `pulsegate read --protocol mbus` (one meter's answer, every record with its value in its
 //! unit), over the gateway's own M-Bus master.
 
+pub(crate) mod commands;
+
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use super::error::CommissionError;
-use super::line::Target;
-use crate::config::{MbusLine, Parity};
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
+use crate::config::Parity;
+use crate::config::protocols::mbus::Line as MbusLine;
 use crate::driver::mbus::address::{SecondaryMask, medium_name};
 use crate::driver::mbus::channel::{self, Kind};
 use crate::driver::mbus::header::Header;
@@ -74,7 +77,7 @@ pub fn parse_addresses(text: &str) -> Result<Vec<u8>, CommissionError> {
             s.trim()
                 .parse::<u8>()
                 .ok()
-                .filter(|a| *a <= crate::config::MAX_PRIMARY)
+                .filter(|a| *a <= crate::config::protocols::mbus::MAX_PRIMARY)
                 .ok_or_else(|| bad(format!("{s:?} is not a primary address (0-250)")))
         };
         let (lo, hi) = (parse(lo)?, parse(hi)?);

@@ -4,8 +4,8 @@ use std::time::Duration;
 
 use tokio_util::sync::CancellationToken;
 
-use super::error::CommissionError;
-use super::line::Target;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::driver::modbus::link::LinkError;
 use crate::driver::modbus::probe::{describe, identify};
 use crate::outcome::Found;

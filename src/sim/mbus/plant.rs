@@ -8,9 +8,9 @@ use std::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::{SimMeterConfig, SimSegmentConfig};
-use super::endpoint::{Endpoint, relink};
-use super::mbus::shell::{self, SharedSegment};
-use super::mbus::{Behaviour, Gauge, Quantity, Register, Segment, SimMeter, Width};
+use super::shell::{self, SharedSegment};
+use super::{Behaviour, Gauge, Quantity, Register, Segment, SimMeter, Width};
+use crate::sim::endpoint::{Endpoint, relink};
 
 /// A simulated M-Bus segment.
 pub struct PlantSegment {

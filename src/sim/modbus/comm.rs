@@ -98,7 +98,7 @@ impl CommRegisters {
         self.codes.iter().find(|(_, b)| *b == baud).map(|(c, _)| *c)
     }
 
-    pub(super) fn baud_of(&self, code: u16) -> Option<u32> {
+    pub(crate) fn baud_of(&self, code: u16) -> Option<u32> {
         self.codes.iter().find(|(c, _)| *c == code).map(|(_, b)| *b)
     }
 }
@@ -133,7 +133,7 @@ pub fn after_write(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8
 }
 
 /// Moves the module at `unit` to the address in its register, when that is a free unit id.
-pub(super) fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8> {
+pub(crate) fn move_to_stored_unit(modules: &mut BTreeMap<u8, SimModule>, unit: u8) -> Option<u8> {
     let m = modules.get(&unit)?;
     let regs = registers(&m.profile.model)?;
     let stored = u8::try_from(m.stored(regs.unit)?).ok()?;

@@ -1,13 +1,11 @@
-//! The line a commissioning command talks on: a serial port at a baud rate, or a Modbus TCP
-//! host. Opening it first checks that no running gateway holds the port.
+//! The line a commissioning command talks on: a serial port, or a TCP host. Opening it (each
+//! protocol's folder does) first checks that no running gateway holds the port.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use super::error::CommissionError;
 use super::holder::holders;
-use crate::config::{Link as LinkConfig, Parity};
-use crate::driver::modbus::link::{Link, LinkError};
+use crate::config::{Parity, Protocol};
 
 /// Where the modules are.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -47,25 +45,10 @@ impl Target {
                 };
                 Ok(Target::Tcp { host, port })
             }
-            _ => Err(CommissionError::BadInput(
-                "give --port (a serial device) or --host (Modbus TCP)".into(),
-            )),
-        }
-    }
-
-    /// The link configuration at `baud` (ignored for TCP).
-    pub fn link_config(&self, baud: u32) -> LinkConfig {
-        match self {
-            Target::Serial { port, parity } => LinkConfig::Rtu {
-                port: port.clone(),
-                baud,
-                parity: *parity,
-                stop_bits: 1,
-            },
-            Target::Tcp { host, port } => LinkConfig::Tcp {
-                host: host.clone(),
-                port: *port,
-            },
+            _ => Err(CommissionError::BadInput(format!(
+                "give --port (a serial device) or --host ({} TCP)",
+                Protocol::DEFAULT.title()
+            ))),
         }
     }
 
@@ -87,26 +70,9 @@ impl Target {
         }
         Err(port_held(port, &gateways))
     }
-
-    /// A link at `baud`, after checking the port is free.
-    pub fn open(&self, baud: u32) -> Result<Link, CommissionError> {
-        self.check_free()?;
-        Ok(Link::new(self.link_config(baud), Duration::ZERO))
-    }
-
-    /// A link error for people: a port that cannot be opened names who has it.
-    pub fn error(&self, unit: u8, e: LinkError) -> CommissionError {
-        if let (LinkError::Open { .. }, Target::Serial { port, .. }) = (&e, self) {
-            let others = holders(port);
-            if !others.is_empty() {
-                return port_held(port, &others);
-            }
-        }
-        CommissionError::Link { unit, source: e }
-    }
 }
 
-fn port_held(port: &std::path::Path, by: &[super::holder::Holder]) -> CommissionError {
+pub(super) fn port_held(port: &std::path::Path, by: &[super::holder::Holder]) -> CommissionError {
     let gateway = by.iter().any(|h| h.is_gateway());
     CommissionError::PortHeld {
         port: port.display().to_string(),

@@ -1,7 +1,7 @@
 //! `[buses.NAME] protocol = "mbus"`: an M-Bus bus (a serial level converter at `port`, or an
 //! M-Bus-to-Ethernet converter at `host = "HOST:PORT"`) and its meters (`address = N` or
 //! `id = "12345678"` with `manufacturer`, `version` and `medium` optional), checked into the
-//! same typed [`Bus`](super::model::Bus) and [`Device`] as a Modbus bus's.
+//! same typed [`Bus`](crate::config::model::Bus) and [`Device`] as a Modbus bus's.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -10,23 +10,16 @@ use std::time::Duration;
 
 use config::Value;
 
-use super::channel::ChannelConfig;
-use super::model::{Device, Link, METER_MODEL, MbusLine, MeterAddress, Parity};
-use super::walk::{Errors, Table, join};
-use crate::profile::{MAX_TIMEOUT, Profile};
-
-/// The baud rates of wired M-Bus (EN 13757-2): 300 to 38400.
-pub const MBUS_BAUDS: [u32; 8] = [300, 600, 1200, 2400, 4800, 9600, 19200, 38400];
-
-/// A meter's primary addresses: 0 (unconfigured, as many ship) to 250.
-pub const MAX_PRIMARY: u8 = 250;
-
-/// How often a meter is read unless its config says: meters move slowly, and a 2400-baud
-/// segment of many meters needs the time.
-pub const DEFAULT_METER_POLL: Duration = Duration::from_secs(60);
+use super::{BAUDS, DEFAULT_METER_POLL, Line, MAX_PRIMARY, METER_MODEL, MeterAddress};
+use crate::config::channel::ChannelConfig;
+use crate::config::model::{BusParts, Device};
+use crate::config::parity::Parity;
+use crate::config::protocols::{Address, Link, Protocol};
+use crate::config::walk::{Errors, Table, join};
+use crate::profile::MAX_TIMEOUT;
 
 /// An M-Bus bus's link and meters.
-pub(super) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> (Option<Link>, Vec<Device>) {
+pub(crate) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BusParts {
     let link = link(t, path, errs).map(Link::Mbus);
     let mut devices = Vec::new();
     let mut places: BTreeMap<String, String> = BTreeMap::new();
@@ -38,7 +31,9 @@ pub(super) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> (Option<L
         let Some(d) = meter(path, &name, value, errs) else {
             continue;
         };
-        let Some(address) = &d.meter else { continue };
+        let Address::Mbus(address) = &d.address else {
+            continue;
+        };
         let (key, what) = match address {
             MeterAddress::Primary(a) => ("address", format!("primary address {a}")),
             MeterAddress::Secondary { id, .. } => ("id", format!("id {id}")),
@@ -52,12 +47,17 @@ pub(super) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> (Option<L
         }
         devices.push(d);
     }
-    (link, devices)
+    BusParts {
+        link,
+        guard: Duration::ZERO,
+        slow_poll: Duration::from_secs(60),
+        devices,
+    }
 }
 
 /// `port` (a serial level converter: `baud`, default 2400, and `parity`, default even) or
 /// `host = "HOST:PORT"` (raw frames on a socket).
-fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<MbusLine> {
+fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Line> {
     if t.has("host") {
         let host = t.req::<String>("host", errs)?;
         for key in ["baud", "parity", "port"] {
@@ -78,7 +78,7 @@ fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<MbusLine> {
             errs.push(&join(path, "host"), t.origin(), why);
             return None;
         };
-        return Some(MbusLine::Tcp {
+        return Some(Line::Tcp {
             host: h.trim_matches(['[', ']']).to_string(),
             port,
         });
@@ -93,11 +93,11 @@ fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<MbusLine> {
         return None;
     }
     let baud = t.int::<u32>("baud", errs).unwrap_or(2400);
-    if !MBUS_BAUDS.contains(&baud) {
+    if !BAUDS.contains(&baud) {
         errs.push(
             &join(path, "baud"),
             t.origin(),
-            format!("{baud} is not an M-Bus baud rate ({MBUS_BAUDS:?})"),
+            format!("{baud} is not an M-Bus baud rate ({BAUDS:?})"),
         );
     }
     let parity = t.opt::<Parity>("parity", errs).unwrap_or(Parity::Even);
@@ -110,19 +110,22 @@ fn link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<MbusLine> {
         );
         return None;
     }
-    Some(MbusLine::Serial { port, baud, parity })
+    Some(Line::Serial { port, baud, parity })
 }
 
 /// One meter.
 fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option<Device> {
     let path = format!("{bus_path}.devices.{name}");
     let mut t = Table::of(value, &path, errs)?;
-    super::names::device_name(&t, &path, name, errs);
+    crate::config::names::device_name(&t, &path, name, errs);
     for key in ["unit", "model", "baud"] {
         if t.has(key) {
             let _ = t.raw(key);
-            let why = "an M-Bus meter is found by `address` (primary, 0-250) or `id` (its \
-                       8-digit secondary address), not by a Modbus unit, model or baud rate";
+            let why = format!(
+                "an M-Bus meter is found by `address` (primary, 0-250) or `id` (its 8-digit \
+                 secondary address), not by a {} unit, model or baud rate",
+                Protocol::DEFAULT.title()
+            );
             errs.push(&join(&path, key), t.origin(), why);
         }
     }
@@ -131,21 +134,18 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let commands = t.opt::<bool>("commands", errs).unwrap_or(true);
     let enabled = t.opt::<bool>("enabled", errs).unwrap_or(true);
-    let publish = super::publish::policy(&mut t, errs);
-    let payload = super::publish::payload(&mut t, errs);
-    let intervals = super::metering::intervals(&mut t, errs);
-    let server_unit = super::outputs::modbus::server_unit(&mut t, &path, errs);
+    let publish = crate::config::publish::policy(&mut t, errs);
+    let payload = crate::config::publish::payload(&mut t, errs);
+    let intervals = crate::config::metering::intervals(&mut t, errs);
+    let server_unit = crate::config::outputs::device_keys(&mut t, &path, errs);
     let channels = channels(&mut t, &path, errs);
     t.finish(errs);
     let address = address?;
     Some(Device {
         name: name.to_string(),
-        unit: match address {
-            MeterAddress::Primary(a) => a,
-            MeterAddress::Secondary { .. } => 0xFD,
-        },
+        unit: address.wire(),
         model: METER_MODEL.to_string(),
-        profile: Arc::new(Profile::meter()),
+        profile: Arc::new(super::meter_profile()),
         poll,
         timeout,
         commands,
@@ -155,7 +155,7 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
         publish,
         payload,
         intervals,
-        meter: Some(address),
+        address: Address::Mbus(address),
         server_unit,
     })
 }
@@ -291,8 +291,8 @@ fn channels(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BTreeMap<String
             register: ct.int::<u16>("register", errs),
             max_rate_hz,
             enabled: ct.opt::<bool>("enabled", errs).unwrap_or(true),
-            publish: super::publish::policy(&mut ct, errs),
-            intervals: super::metering::intervals(&mut ct, errs),
+            publish: crate::config::publish::policy(&mut ct, errs),
+            intervals: crate::config::metering::intervals(&mut ct, errs),
             ..ChannelConfig::default()
         };
         ct.finish(errs);

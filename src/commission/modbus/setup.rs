@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use super::error::CommissionError;
-use super::line::Target;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::driver::modbus::link::Link;
 use crate::profile::{Applies, ChannelSpec, Place, Profile, Setting};
 
@@ -171,7 +171,7 @@ pub fn answers_at(changes: &[Change], unit: u8, baud: u32) -> Vec<(u8, u32)> {
 }
 
 /// Reads the current word of each change's register.
-pub(super) async fn current_words(
+pub(crate) async fn current_words(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -187,7 +187,7 @@ pub(super) async fn current_words(
                 return Err(CommissionError::Refused {
                     unit,
                     what: format!("a read of {} (register {})", c.label, c.register),
-                    exception,
+                    exception: format!("{exception:?}"),
                 });
             }
             Err(e) => return Err(target.error(unit, e)),
@@ -197,7 +197,7 @@ pub(super) async fn current_words(
 }
 
 /// Writes the changes (each setting's bits only) at `unit`.
-pub(super) async fn write_changes(
+pub(crate) async fn write_changes(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -214,7 +214,7 @@ pub(super) async fn write_changes(
                 return Err(CommissionError::Refused {
                     unit,
                     what: format!("the write of {} (register {})", c.label, c.register),
-                    exception,
+                    exception: format!("{exception:?}"),
                 });
             }
             Err(e) => return Err(target.error(unit, e)),
@@ -224,7 +224,7 @@ pub(super) async fn write_changes(
 }
 
 /// Reads the changes back where the module answers now; `Ok` with the (unit, baud) it answered at.
-pub(super) async fn read_back(
+pub(crate) async fn read_back(
     target: &Target,
     changes: &[Change],
     unit: u8,

@@ -1,24 +1,12 @@
 //! `pulsegate raw`: read or write holding registers of any unit, model unknown, for what the
 //! profiles do not cover.
 
-use super::error::CommissionError;
-use super::line::Target;
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
 use crate::driver::modbus::link::Link;
 
-/// A register address or value: decimal or 0x-prefixed hex, 0..=65535.
-pub fn parse_u16(text: &str) -> Result<u16, String> {
-    let t = text.trim();
-    let parsed = match t.strip_prefix("0x").or_else(|| t.strip_prefix("0X")) {
-        Some(hex) => u16::from_str_radix(hex, 16),
-        None => t.parse::<u16>(),
-    };
-    parsed.map_err(|_| {
-        format!("{text:?} is not a register number or value (0..=65535 or 0x0000..=0xFFFF)")
-    })
-}
-
 /// Reads `count` registers from `start` at `unit`.
-pub(super) async fn read(
+pub(crate) async fn read(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -37,14 +25,14 @@ pub(super) async fn read(
         Ok(Err(exception)) => Err(CommissionError::Refused {
             unit,
             what: format!("a read of {count} registers at {start}"),
-            exception,
+            exception: format!("{exception:?}"),
         }),
         Err(e) => Err(target.error(unit, e)),
     }
 }
 
 /// Writes `values` from `address` (one value: FC06, more: FC16) at `unit`.
-pub(super) async fn write(
+pub(crate) async fn write(
     link: &mut Link,
     target: &Target,
     unit: u8,
@@ -71,7 +59,7 @@ pub(super) async fn write(
         Ok(Err(exception)) => Err(CommissionError::Refused {
             unit,
             what: format!("a write at {address}"),
-            exception,
+            exception: format!("{exception:?}"),
         }),
         Err(e) => Err(target.error(unit, e)),
     }
@@ -84,18 +72,4 @@ pub fn words_table(start: u16, words: &[u16]) -> String {
         .enumerate()
         .map(|(i, w)| format!("{:>5}  {:>5}  0x{w:04X}\n", usize::from(start) + i, w))
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn registers_are_decimal_or_hex() {
-        assert_eq!(parse_u16("67"), Ok(67));
-        assert_eq!(parse_u16("0x1160"), Ok(0x1160));
-        assert!(
-            parse_u16("65536").is_err() && parse_u16("-1").is_err() && parse_u16("0xG").is_err()
-        );
-    }
 }

@@ -8,20 +8,20 @@ use std::time::Duration;
 
 use serde_json::{Value, json};
 
-use super::error::CommissionError;
-use super::line::Target;
 use crate::bus::device::DeviceRt;
 use crate::command::{Op, Reply, Request};
+use crate::commission::error::CommissionError;
+use crate::commission::target::Target;
+use crate::config::protocols::modbus::plan::Wire;
 use crate::config::{Bus, ChannelConfig, Device, Run};
 use crate::driver::modbus::link::Link;
 use crate::driver::modbus::probe::{Identified, identify};
 use crate::driver::modbus::{ModbusDevice, ModbusError};
-use crate::plan::Wire;
 use crate::profile::{Profile, Profiles};
 
 /// The profile for `model` ("auto": identified on the line). An unknown name or a baud rate
 /// the model does not support is refused before anything is sent.
-pub(super) async fn resolve_model(
+pub(crate) async fn resolve_model(
     link: &mut Link,
     target: &Target,
     profiles: &Profiles,
@@ -81,7 +81,7 @@ fn check_baud_known(
 }
 
 /// The gateway's poller for one module.
-pub(super) fn poller(
+pub(crate) fn poller(
     target: &Target,
     baud: u32,
     unit: u8,
@@ -90,7 +90,7 @@ pub(super) fn poller(
 ) -> DeviceRt<ModbusDevice> {
     let bus = Bus {
         name: "commission".into(),
-        link: target.link_config(baud),
+        link: crate::config::Link::Modbus(target.link_config(baud)),
         timeout: None,
         guard: Duration::ZERO,
         offline_after: 1,
@@ -125,7 +125,7 @@ pub(super) fn poller(
         payload: None,
         intervals: None,
         enabled: true,
-        meter: None,
+        address: crate::config::Address::Modbus(crate::config::protocols::modbus::Unit(unit)),
         server_unit: None,
     };
     let wire = Wire::for_line(link.timing().as_ref());
@@ -135,7 +135,7 @@ pub(super) fn poller(
 
 /// One read of every channel, as JSON: the gateway's payload fields (count, freq_hz, rpm) plus
 /// kind and pulses per revolution, and the work modes.
-pub(super) async fn read_once(
+pub(crate) async fn read_once(
     rt: &mut DeviceRt<ModbusDevice>,
     link: &mut Link,
     profile: &Profile,
@@ -189,7 +189,7 @@ pub(super) async fn read_once(
 }
 
 /// A read as a table; `previous` gives the deltas under `--watch`.
-pub(super) fn table(read: &Value, previous: Option<&Value>) -> String {
+pub(crate) fn table(read: &Value, previous: Option<&Value>) -> String {
     let mut t = format!(
         "unit {}  {}  work modes {}\n{:<8} {:<8} {:>12} {:>8} {:>12} {:>10} {:>6}\n",
         read["unit"],
@@ -231,7 +231,7 @@ pub(super) fn table(read: &Value, previous: Option<&Value>) -> String {
 }
 
 /// Clears or presets one channel the way an MQTT command does; returns the count read back.
-pub(super) async fn write_count(
+pub(crate) async fn write_count(
     rt: &mut DeviceRt<ModbusDevice>,
     link: &mut Link,
     target: &Target,

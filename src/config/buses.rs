@@ -1,0 +1,31 @@
+//! A bus by its protocol: the one place that picks a protocol's checks of `[buses.NAME]` and
+//! its words for `check` and `plan` (each protocol's own are in its folder under
+//! `protocols/`). A new protocol is an arm in each match below.
+
+use super::model::{Bus, BusParts};
+use super::protocols::{Link, Protocol, mbus, modbus};
+use super::walk::{Errors, Table};
+use crate::profile::Profiles;
+
+/// The protocol's own keys of `[buses.NAME]`, checked: its link, devices and timing.
+pub(super) fn parts(
+    protocol: Protocol,
+    t: &mut Table<'_>,
+    path: &str,
+    profiles: &Profiles,
+    errs: &mut Errors,
+) -> BusParts {
+    match protocol {
+        Protocol::Modbus => modbus::check::bus(t, path, profiles, errs),
+        Protocol::Mbus => mbus::check::bus(t, path, errs),
+    }
+}
+
+/// The bus in its protocol's words, one line each: a Modbus bus's reads, registers and line
+/// time per device and poll; an M-Bus bus's meters.
+pub fn in_words(bus: &Bus) -> String {
+    match &bus.link {
+        Link::Modbus(line) => modbus::report::bus(bus, line),
+        Link::Mbus(_) => mbus::report::meters(&bus.name, &bus.link, &bus.devices) + "\n",
+    }
+}
