@@ -1,4 +1,5 @@
-//! pulsegate: Modbus pulse counters and encoders → MQTT.
+//! pulsegate: pulse counters, encoders and meters (Modbus, M-Bus) → MQTT, Sparkplug B,
+//! Prometheus and PLCs.
 //!
 //! The pipeline, top to bottom:
 //! 1. [`config`] reads one TOML file (plus environment) into a checked [`config::Config`];

@@ -10,7 +10,10 @@ use tokio_util::sync::CancellationToken;
 use pulsegate::config::{Config, DEFAULT_PATH};
 
 #[derive(Parser)]
-#[command(version, about = "Modbus pulse counters and encoders → MQTT")]
+#[command(
+    version,
+    about = "Pulse counters, encoders and meters → MQTT, Sparkplug B, Prometheus and PLCs"
+)]
 struct Cli {
     /// Log format.
     #[arg(long, global = true, value_enum, default_value_t = LogFormat::Human)]
@@ -165,7 +168,7 @@ enum ConfigAction {
 /// Logs to journald when systemd started us with the journal on stderr (JOURNAL_STREAM), as
 /// readable text on stderr otherwise (colours only on a terminal), or as JSON lines with
 /// `--log-format json`.
-fn init_logging(format: LogFormat, default_filter: &'static str) {
+fn init_logging(format: LogFormat, default_filter: &str) {
     use std::io::IsTerminal;
     use tracing_subscriber::prelude::*;
     let filter = || {
@@ -274,11 +277,12 @@ fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Commissioning commands talk to a person: the poller's info logs would only be noise.
+    let quiet = pulsegate::driver::QUIET_LIBRARIES;
     let default_filter = match cli.command {
-        Command::Commission(_) => "warn,tokio_modbus=error",
-        _ => "info,tokio_modbus=error,rumqttc=warn,rumqttd=off",
+        Command::Commission(_) => format!("warn,{quiet}"),
+        _ => format!("info,{quiet},rumqttc=warn,rumqttd=off"),
     };
-    init_logging(cli.log_format, default_filter);
+    init_logging(cli.log_format, &default_filter);
     let runtime = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -400,10 +404,8 @@ fn check(path: &std::path::Path, register_map: bool, json: bool) -> anyhow::Resu
         Err(code) => return Ok(code),
     };
     if register_map {
-        if config.outputs.modbus.is_empty() {
-            say_err(format_args!(
-                "warning: no output of kind \"modbus\": the map is what one would serve\n"
-            ));
+        if let Some(note) = config.outputs.register_map_note() {
+            say_err(format_args!("{note}\n"));
         }
         print!("{}", pulsegate::report::register_map(&config, json));
         return Ok(ExitCode::SUCCESS);

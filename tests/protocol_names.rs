@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 /// (`config/protocols/mod.rs`, `config/buses.rs`, `driver/mod.rs`, `commission/mod.rs`,
 /// `sim/mod.rs`, see docs/architecture.md), and seven more files name the Modbus server output
 /// (kind `"modbus"`), which waits for an output registry.
-const PROTOCOLS: &[(&str, usize)] = &[("modbus", 12), ("mbus", 5)];
+const PROTOCOLS: &[(&str, usize)] = &[("modbus", 8), ("mbus", 5)];
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).expect("readable src") {

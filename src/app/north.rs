@@ -39,10 +39,10 @@ pub(super) struct Northbound {
     wiring: Wiring,
 }
 
-/// What an output runs: an MQTT connection with its formats, or a Modbus server.
+/// What an output runs: an MQTT connection with its formats, or a server of its own.
 enum Job {
     Mqtt(Box<crate::publish::mqtt::Task>),
-    Modbus(Box<crate::publish::modbus::Task>),
+    Server(Box<dyn crate::publish::Server>),
 }
 
 /// An output ready to run: its task's settings and channels.
@@ -64,12 +64,9 @@ impl Prepared {
                 self.reloads_rx,
                 w.shutdown.clone(),
             )),
-            Job::Modbus(task) => tokio::spawn(crate::publish::modbus::run(
-                *task,
-                self.events_rx,
-                w.incoming.clone(),
-                self.reloads_rx,
-            )),
+            Job::Server(server) => {
+                server.start(self.events_rx, w.incoming.clone(), self.reloads_rx)
+            }
         };
         (task, self.reloads)
     }
@@ -183,8 +180,12 @@ fn prepare(config: &Config, w: &Wiring) -> Vec<Prepared> {
             w,
         ));
     }
-    for server in &config.outputs.modbus {
-        out.push(prepare_server(config, server, w));
+    let parts = |name: &str| {
+        let heart = w.health.heart(Loop::Output(name.to_string()));
+        (heart, w.metrics.output(name))
+    };
+    for server in crate::publish::servers(config, parts) {
+        out.push(prepare_server(server));
     }
     if config.outputs.voice == VoiceHome::Own {
         let voice = crate::publish::voice::Voice::new(&config.mqtt.topic_root, VOICE_NAME);
@@ -229,23 +230,12 @@ fn prepare_one(
     }
 }
 
-/// A Modbus server output: its map and where its writes go.
-fn prepare_server(
-    config: &Config,
-    server: &crate::config::outputs::modbus::ModbusServer,
-    w: &Wiring,
-) -> Prepared {
+/// A serving output: its channels.
+fn prepare_server(server: Box<dyn crate::publish::Server>) -> Prepared {
     let (events, events_rx) = unbounded_channel();
     let (reloads, reloads_rx) = unbounded_channel();
-    let task = crate::publish::modbus::Task {
-        server: server.clone(),
-        map: crate::config::outputs::modbus::map::RegisterMap::of(config),
-        root: config.mqtt.topic_root.clone(),
-        heart: w.health.heart(Loop::Output(server.name.clone())),
-        metrics: w.metrics.output(&server.name),
-    };
     Prepared {
-        task: Job::Modbus(Box::new(task)),
+        task: Job::Server(server),
         events,
         events_rx,
         reloads,

@@ -5,6 +5,10 @@
 pub mod mbus;
 pub mod modbus;
 
+/// The log filter that keeps the protocol libraries' own logs to their errors (a late or
+/// garbled answer is the driver's to count and say, not the library's to log at each frame).
+pub const QUIET_LIBRARIES: &str = "tokio_modbus=error";
+
 use tokio::sync::mpsc::Receiver;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;

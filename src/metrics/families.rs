@@ -13,7 +13,7 @@ const DEVICE: &[&str] = &["bus", "device"];
 const CHANNEL: &[&str] = &["bus", "device", "channel"];
 const OUTPUT: &[&str] = &["output"];
 
-/// Modbus transaction latency buckets (seconds): a 9600-baud read takes 30–60 ms, a timeout
+/// Transaction latency buckets (seconds): a 9600-baud read takes 30–60 ms, a timeout
 /// hundreds; TCP answers in a millisecond or two.
 const LATENCY_BUCKETS: &[f64] = &[
     0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5,
@@ -52,9 +52,9 @@ pub(super) struct Families {
     pub chatter_messages: IntGaugeVec,
     pub chatter_dropped: IntCounterVec,
     pub messages_dropped: IntCounterVec,
-    pub modbus_requests: IntCounterVec,
-    pub modbus_connections: IntGaugeVec,
-    pub modbus_closed: IntCounterVec,
+    pub server_requests: IntCounterVec,
+    pub server_connections: IntGaugeVec,
+    pub server_closed: IntCounterVec,
     pub commands_received: IntCounter,
     pub commands_refused: IntCounterVec,
     pub http_login_failures: IntCounterVec,
@@ -115,7 +115,7 @@ const DEVICE_WRONG_MODEL: Family = (
 );
 const DEVICE_TRANSACTIONS: Family = (
     "pulsegate_device_transactions_total",
-    "Modbus transactions with the device (polls and commands).",
+    "Transactions with the device (polls and commands).",
 );
 const DEVICE_TIMEOUTS: Family = (
     "pulsegate_device_timeouts_total",
@@ -127,7 +127,7 @@ const DEVICE_GARBLED: Family = (
 );
 const DEVICE_EXCEPTIONS: Family = (
     "pulsegate_device_exception_answers_total",
-    "Modbus exception answers.",
+    "Answers in which the device refused the request (an exception answer).",
 );
 const DEVICE_REQUEST_LIMIT: Family = (
     "pulsegate_device_request_limit_registers",
@@ -139,7 +139,7 @@ const DEVICE_REQUESTS_PER_POLL: Family = (
 );
 const BUS_TRANSACTIONS: Family = (
     "pulsegate_bus_transactions_total",
-    "Modbus transactions on the bus.",
+    "Transactions on the bus.",
 );
 const BUS_RECONNECTS: Family = (
     "pulsegate_bus_reconnects_total",
@@ -216,18 +216,6 @@ const CHATTER_DROPPED: Family = (
 const MESSAGES_DROPPED: Family = (
     "pulsegate_mqtt_messages_dropped_total",
     "Incoming MQTT messages dropped unread, by reason (too_large: larger than the largest packet the gateway takes); the connection stays up.",
-);
-const MODBUS_REQUESTS: Family = (
-    "pulsegate_modbus_server_requests_total",
-    "Requests a Modbus server output answered, by function code and result (ok, or the exception's name).",
-);
-const MODBUS_CONNECTIONS: Family = (
-    "pulsegate_modbus_server_connections",
-    "Client connections a Modbus server output holds open.",
-);
-const MODBUS_CLOSED: Family = (
-    "pulsegate_modbus_server_connections_closed_total",
-    "Client connections a Modbus server output closed itself, by reason (not_allowed: at accept; evicted: oldest idle for a new one; idle: silent too long or a half frame; bad_frame: not Modbus TCP).",
 );
 const COMMANDS_RECEIVED: Family = (
     "pulsegate_commands_received_total",
@@ -320,7 +308,9 @@ impl Families {
         }
     }
 
-    pub fn register(r: &Registry) -> Families {
+    /// Every family, registered in `r`; `server` names the serving output's three (requests,
+    /// connections, connections closed), which its protocol's file defines.
+    pub fn register(r: &Registry, server: [Family; 3]) -> Families {
         Families {
             channel_pulses: family!(r, IntCounterVec, CHANNEL_PULSES, CHANNEL),
             channel_position: family!(r, IntGaugeVec, CHANNEL_POSITION, CHANNEL),
@@ -365,14 +355,14 @@ impl Families {
             chatter_messages: family!(r, IntGaugeVec, CHATTER_MESSAGES, OUTPUT),
             chatter_dropped: family!(r, IntCounterVec, CHATTER_DROPPED, OUTPUT),
             messages_dropped: family!(r, IntCounterVec, MESSAGES_DROPPED, &["output", "reason"]),
-            modbus_requests: family!(
+            server_requests: family!(
                 r,
                 IntCounterVec,
-                MODBUS_REQUESTS,
+                server[0],
                 &["output", "function", "result"]
             ),
-            modbus_connections: family!(r, IntGaugeVec, MODBUS_CONNECTIONS, OUTPUT),
-            modbus_closed: family!(r, IntCounterVec, MODBUS_CLOSED, &["output", "reason"]),
+            server_connections: family!(r, IntGaugeVec, server[1], OUTPUT),
+            server_closed: family!(r, IntCounterVec, server[2], &["output", "reason"]),
             commands_received: family!(r, IntCounter, COMMANDS_RECEIVED),
             commands_refused: family!(r, IntCounterVec, COMMANDS_REFUSED, &["code"]),
             http_login_failures: login_failures(r),

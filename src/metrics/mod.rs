@@ -12,6 +12,7 @@
 
 mod families;
 mod look;
+mod modbus;
 
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
@@ -46,7 +47,7 @@ impl Metrics {
     /// A fresh registry with every family registered, the start time and the build info set.
     pub fn new() -> Metrics {
         let registry = Registry::new();
-        let families = Arc::new(Families::register(&registry));
+        let families = Arc::new(Families::register(&registry, modbus::SERVER));
         let start = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs_f64())
@@ -551,7 +552,7 @@ impl OutputMetrics {
     pub fn modbus_request(&self, function: u8, result: &str) {
         if let Some((f, name)) = &self.inner {
             let function = function.to_string();
-            f.modbus_requests
+            f.server_requests
                 .with_label_values(&[name.as_str(), function.as_str(), result])
                 .inc();
         }
@@ -560,7 +561,7 @@ impl OutputMetrics {
     /// The client connections a Modbus server output holds open.
     pub fn modbus_connections(&self, open: usize) {
         if let Some((f, name)) = &self.inner {
-            f.modbus_connections
+            f.server_connections
                 .with_label_values(&[name.as_str()])
                 .set(open as i64);
         }
@@ -569,7 +570,7 @@ impl OutputMetrics {
     /// A Modbus server output closed a client connection itself, for `reason`.
     pub fn modbus_closed(&self, reason: &'static str) {
         if let Some((f, name)) = &self.inner {
-            f.modbus_closed
+            f.server_closed
                 .with_label_values(&[name.as_str(), reason])
                 .inc();
         }

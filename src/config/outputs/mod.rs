@@ -49,6 +49,16 @@ impl Outputs {
             .map(|s| (s.name.as_str(), modbus::KIND, s.listen.to_string()))
     }
 
+    /// What `check --register-map` says when no output would serve the map it prints.
+    pub fn register_map_note(&self) -> Option<String> {
+        self.modbus.is_empty().then(|| {
+            format!(
+                "warning: no output of kind {:?}: the map is what one would serve",
+                modbus::KIND
+            )
+        })
+    }
+
     /// Whether a server output takes commands (its map then has their registers).
     pub fn serve_commands(&self) -> bool {
         self.modbus.iter().any(|s| s.commands)

@@ -28,7 +28,7 @@ pub fn gateway_entities(site: &Site) -> Vec<Entity> {
             "identifiers": [site.gateway_identifier()],
             "name": format!("pulsegate {}", site.gateway),
             "manufacturer": "pulsegate",
-            "model": "Modbus pulse gateway",
+            "model": "Pulse counter and meter gateway",
             "sw_version": env!("CARGO_PKG_VERSION"),
         },
         "origin": origin(),

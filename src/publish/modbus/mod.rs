@@ -71,6 +71,41 @@ fn pending(s: &Shared) -> std::sync::MutexGuard<'_, HashMap<String, oneshot::Sen
 
 /// Serves until the fan-out closes `events` (the gateway stops, or a new config rebuilt the
 /// outputs): the listener and every connection end with it.
+/// The Modbus server outputs of `config`.
+pub fn servers(
+    config: &Config,
+    parts: impl Fn(&str) -> (Heart, OutputMetrics),
+) -> Vec<Box<dyn crate::publish::server::Server>> {
+    let map = RegisterMap::of(config);
+    let each = config.outputs.modbus.iter().map(|server| {
+        let (heart, metrics) = parts(&server.name);
+        let task = Task {
+            server: server.clone(),
+            map: map.clone(),
+            root: config.mqtt.topic_root.clone(),
+            heart,
+            metrics,
+        };
+        Box::new(task) as Box<dyn crate::publish::server::Server>
+    });
+    each.collect()
+}
+
+impl crate::publish::server::Server for Task {
+    fn name(&self) -> &str {
+        &self.server.name
+    }
+
+    fn start(
+        self: Box<Self>,
+        events: UnboundedReceiver<Output>,
+        incoming: Sender<Incoming>,
+        reloads: UnboundedReceiver<Config>,
+    ) -> tokio::task::JoinHandle<()> {
+        tokio::spawn(run(*self, events, incoming, reloads))
+    }
+}
+
 pub async fn run(
     task: Task,
     mut events: UnboundedReceiver<Output>,
