@@ -12,7 +12,7 @@ use pulsegate::config::{Config, DEFAULT_PATH};
 #[derive(Parser)]
 #[command(
     version,
-    about = "Pulse counters, encoders and meters → MQTT, Sparkplug B, Prometheus and PLCs"
+    about = "Pulse counters, encoders and meters → MQTT, SCADA, Prometheus and PLCs"
 )]
 struct Cli {
     /// Log format.
