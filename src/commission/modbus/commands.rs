@@ -11,6 +11,31 @@ use crate::commission::error::CommissionError;
 use crate::outcome::Found;
 use crate::profile::Profiles;
 
+/// A module a command names: its line opened at its baud rate and its model resolved
+/// (`auto` asks the module).
+struct Module {
+    target: crate::commission::target::Target,
+    link: crate::driver::modbus::link::Link,
+    unit: u8,
+    baud: u32,
+    profile: std::sync::Arc<crate::profile::Profile>,
+}
+
+async fn module(m: &ModuleArgs, profiles: &Profiles) -> Result<Module, CommissionError> {
+    let target = target(&m.at.line)?;
+    let (unit, baud) = (m.at.unit()?, m.at.baud());
+    let mut link = target.open(baud)?;
+    let profile =
+        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+    Ok(Module {
+        target,
+        link,
+        unit,
+        baud,
+        profile,
+    })
+}
+
 fn answer_time(line: &LineArgs, profiles: &Profiles) -> Duration {
     line.timeout
         .map(Into::into)
@@ -137,11 +162,13 @@ pub(crate) async fn read(
     watch: Option<humantime::Duration>,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
-    let target = target(&m.at.line)?;
-    let (unit, baud) = (m.at.unit()?, m.at.baud());
-    let mut link = target.open(baud)?;
-    let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+    let Module {
+        target,
+        mut link,
+        unit,
+        baud,
+        profile,
+    } = module(m, profiles).await?;
     let mut rt = super::read::poller(&target, baud, unit, &profile, &link);
     let Some(every) = watch.map(Duration::from) else {
         let value = super::read::read_once(&mut rt, &mut link, &profile, &target, baud).await?;
@@ -181,11 +208,13 @@ pub(crate) async fn write_count(
     op: Op,
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
-    let target = target(&m.at.line)?;
-    let (unit, baud) = (m.at.unit()?, m.at.baud());
-    let mut link = target.open(baud)?;
-    let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+    let Module {
+        target,
+        mut link,
+        unit,
+        baud,
+        profile,
+    } = module(m, profiles).await?;
     if !profile.all_channels().iter().any(|c| c.name == channel) {
         return Err(CommissionError::BadInput(format!(
             "model {} has no channel {channel}",
@@ -275,11 +304,13 @@ pub(crate) async fn setup(
     profiles: &Profiles,
 ) -> Result<(), CommissionError> {
     use super::setup::*;
-    let target = target(&m.at.line)?;
-    let (unit, baud) = (m.at.unit()?, m.at.baud());
-    let mut link = target.open(baud)?;
-    let profile =
-        super::read::resolve_model(&mut link, &target, profiles, unit, &m.model, baud).await?;
+    let Module {
+        target,
+        mut link,
+        unit,
+        baud,
+        profile,
+    } = module(m, profiles).await?;
     let answer =
         m.at.line
             .timeout
