@@ -30,6 +30,8 @@ pub(super) struct Families {
     pub device_garbled: IntCounterVec,
     pub device_exceptions: IntCounterVec,
     pub device_latency: HistogramVec,
+    pub device_last_answer: GaugeVec,
+    pub device_last_latency: GaugeVec,
     pub device_request_limit: IntGaugeVec,
     pub device_requests_per_poll: IntGaugeVec,
     pub bus_transactions: IntCounterVec,
@@ -60,8 +62,6 @@ pub(super) struct Families {
     pub http_login_failures: IntCounterVec,
     pub start_time: Gauge,
     pub build_info: IntGaugeVec,
-    /// Each device's last good answer (no series: the status page's).
-    pub live: super::look::LiveTable,
 }
 
 /// Registers `m` with `r`; our names are fixed and unique, so registering cannot fail.
@@ -112,6 +112,14 @@ const DEVICE_UP: Family = (
 const DEVICE_WRONG_MODEL: Family = (
     "pulsegate_device_wrong_model",
     "1 when the module identifies as another model than configured.",
+);
+const DEVICE_LAST_ANSWER: Family = (
+    "pulsegate_device_last_answer_timestamp_seconds",
+    "Unix time of the device's last good answer (0 before the first): alert on time() minus it.",
+);
+const DEVICE_LAST_LATENCY: Family = (
+    "pulsegate_device_last_latency_seconds",
+    "Time from request to answer of the device's last good answer.",
 );
 const DEVICE_TRANSACTIONS: Family = (
     "pulsegate_device_transactions_total",
@@ -294,9 +302,10 @@ impl Families {
             let _ = self.device_garbled.remove_label_values(&l);
             let _ = self.device_exceptions.remove_label_values(&l);
             let _ = self.device_latency.remove_label_values(&l);
+            let _ = self.device_last_answer.remove_label_values(&l);
+            let _ = self.device_last_latency.remove_label_values(&l);
             let _ = self.device_request_limit.remove_label_values(&l);
             let _ = self.device_requests_per_poll.remove_label_values(&l);
-            self.live.forget(b, d);
         }
         for b in &gone.buses {
             let l = [b.as_str()];
@@ -333,6 +342,8 @@ impl Families {
                 )
                 .expect("valid histogram"),
             ),
+            device_last_answer: family!(r, GaugeVec, DEVICE_LAST_ANSWER, DEVICE),
+            device_last_latency: family!(r, GaugeVec, DEVICE_LAST_LATENCY, DEVICE),
             device_request_limit: family!(r, IntGaugeVec, DEVICE_REQUEST_LIMIT, DEVICE),
             device_requests_per_poll: family!(r, IntGaugeVec, DEVICE_REQUESTS_PER_POLL, DEVICE),
             bus_transactions: family!(r, IntCounterVec, BUS_TRANSACTIONS, BUS),
@@ -368,7 +379,6 @@ impl Families {
             http_login_failures: login_failures(r),
             start_time: family!(r, Gauge, START_TIME),
             build_info: family!(r, IntGaugeVec, BUILD_INFO, &["version"]),
-            live: Default::default(),
         }
     }
 }

@@ -1,51 +1,74 @@
-//! What the status page reads of the metrics: a device's and a bus's counters as they stand,
-//! and the time and latency of a device's last good answer (kept here because the page needs
-//! them and Prometheus does not: they are no series).
+//! What the status page reads of the metrics: a device's and a bus's series as they stand,
+//! the last good answer included (a series too, `pulsegate_device_last_answer_timestamp_seconds`,
+//! which an alert on a silent device wants as much as the page). The page keeps no state in
+//! the metrics: it reads what Prometheus reads.
 
 use std::collections::HashMap;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
 
-/// A device's last good answer: when (Unix ms; 0 before the first) and how long it took (µs).
-#[derive(Debug, Default)]
-pub(super) struct Live {
-    pub(super) answered_ms: AtomicU64,
-    pub(super) latency_us: AtomicU64,
+use prometheus::core::Collector;
+use prometheus::proto::Metric;
+
+use super::families::Families;
+
+/// A series' `bus` and `device` labels.
+fn device_of(m: &Metric) -> Option<(String, String)> {
+    let label = |name: &str| {
+        m.get_label()
+            .iter()
+            .find(|l| l.name() == name)
+            .map(|l| l.value().to_string())
+    };
+    Some((label("bus")?, label("device")?))
 }
 
-impl Live {
-    pub(super) fn answered(&self, latency: Duration) {
-        let now = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_millis() as u64);
-        self.answered_ms.store(now, Ordering::Relaxed);
-        self.latency_us
-            .store(latency.as_micros() as u64, Ordering::Relaxed);
+/// Every device series of `family`, by bus and device, as `value` reads it.
+fn per_device(
+    family: &dyn Collector,
+    value: impl Fn(&Metric) -> f64,
+) -> HashMap<(String, String), f64> {
+    let mut out = HashMap::new();
+    for f in family.collect() {
+        for m in f.get_metric() {
+            if let Some(key) = device_of(m) {
+                out.insert(key, value(m));
+            }
+        }
     }
+    out
 }
 
-/// Every device's [`Live`], by bus and device.
-#[derive(Debug, Default)]
-pub(super) struct LiveTable(std::sync::Mutex<HashMap<(String, String), Arc<Live>>>);
-
-impl LiveTable {
-    pub(super) fn of(&self, bus: &str, device: &str) -> Arc<Live> {
-        let mut t = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        t.entry((bus.to_string(), device.to_string()))
-            .or_default()
-            .clone()
+/// Every device whose bus made its series, with its look: one read of each family.
+pub(super) fn devices(f: &Families) -> HashMap<(String, String), DeviceLook> {
+    let counter = |m: &Metric| m.get_counter().get_value();
+    let gauge = |m: &Metric| m.get_gauge().get_value();
+    let transactions = per_device(&f.device_transactions, counter);
+    let timeouts = per_device(&f.device_timeouts, counter);
+    let garbled = per_device(&f.device_garbled, counter);
+    let exceptions = per_device(&f.device_exceptions, counter);
+    let answered = per_device(&f.device_last_answer, gauge);
+    let last_latency = per_device(&f.device_last_latency, gauge);
+    let sums = per_device(&f.device_latency, |m| m.get_histogram().get_sample_sum());
+    let counts = per_device(&f.device_latency, |m| {
+        m.get_histogram().get_sample_count() as f64
+    });
+    let at =
+        |t: &HashMap<(String, String), f64>, k: &(String, String)| t.get(k).copied().unwrap_or(0.0);
+    let mut out = HashMap::new();
+    for key in transactions.keys() {
+        let answered_ms = (at(&answered, key) * 1000.0) as u64;
+        let count = at(&counts, key);
+        let look = DeviceLook {
+            transactions: at(&transactions, key) as u64,
+            timeouts: at(&timeouts, key) as u64,
+            garbled: at(&garbled, key) as u64,
+            exceptions: at(&exceptions, key) as u64,
+            last_answer_ms: (answered_ms > 0).then_some(answered_ms),
+            last_latency_ms: (answered_ms > 0).then(|| at(&last_latency, key) * 1000.0),
+            mean_latency_ms: (count > 0.0).then(|| at(&sums, key) / count * 1000.0),
+        };
+        out.insert(key.clone(), look);
     }
-
-    pub(super) fn get(&self, bus: &str, device: &str) -> Option<Arc<Live>> {
-        let t = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        t.get(&(bus.to_string(), device.to_string())).cloned()
-    }
-
-    pub(super) fn forget(&self, bus: &str, device: &str) {
-        let mut t = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        t.remove(&(bus.to_string(), device.to_string()));
-    }
+    out
 }
 
 /// A device's counters since the gateway started, and its last good answer.

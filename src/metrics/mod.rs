@@ -158,26 +158,13 @@ impl Metrics {
 }
 
 impl Metrics {
-    /// A device's counters and last answer; `None` without metrics or before its bus made
-    /// its handles.
-    pub fn device_look(&self, bus: &str, device: &str) -> Option<DeviceLook> {
-        let f = &self.inner.as_ref()?.families;
-        let live = f.live.get(bus, device)?;
-        let l = [bus, device];
-        let latency = f.device_latency.with_label_values(&l);
-        let answered = live.answered_ms.load(std::sync::atomic::Ordering::Relaxed);
-        let count = latency.get_sample_count();
-        Some(DeviceLook {
-            transactions: f.device_transactions.with_label_values(&l).get(),
-            timeouts: f.device_timeouts.with_label_values(&l).get(),
-            garbled: f.device_garbled.with_label_values(&l).get(),
-            exceptions: f.device_exceptions.with_label_values(&l).get(),
-            last_answer_ms: (answered > 0).then_some(answered),
-            last_latency_ms: (answered > 0).then(|| {
-                live.latency_us.load(std::sync::atomic::Ordering::Relaxed) as f64 / 1000.0
-            }),
-            mean_latency_ms: (count > 0).then(|| latency.get_sample_sum() / count as f64 * 1000.0),
-        })
+    /// Every device's counters and last answer, by bus and device: the devices whose bus
+    /// made their series (none without metrics).
+    pub fn device_looks(&self) -> std::collections::HashMap<(String, String), DeviceLook> {
+        self.inner
+            .as_ref()
+            .map(|e| look::devices(&e.families))
+            .unwrap_or_default()
     }
 
     /// A bus's counters; `None` without metrics.
@@ -318,7 +305,8 @@ impl BusMetrics {
                 garbled: f.device_garbled.with_label_values(&l),
                 exceptions: f.device_exceptions.with_label_values(&l),
                 latency: f.device_latency.with_label_values(&l),
-                live: f.live.of(&b.name, device),
+                last_answer: f.device_last_answer.with_label_values(&l),
+                last_latency: f.device_last_latency.with_label_values(&l),
                 request_limit: f.device_request_limit.with_label_values(&l),
                 requests_per_poll: f.device_requests_per_poll.with_label_values(&l),
                 channels: HashMap::new(),
@@ -391,8 +379,8 @@ struct DeviceHandles {
     garbled: IntCounter,
     exceptions: IntCounter,
     latency: Histogram,
-    /// The last good answer, for the status page.
-    live: Arc<look::Live>,
+    last_answer: Gauge,
+    last_latency: Gauge,
     request_limit: IntGauge,
     requests_per_poll: IntGauge,
     channels: HashMap<Arc<str>, ChannelMetrics>,
@@ -418,7 +406,11 @@ impl DeviceMetrics {
     pub fn latency(&self, d: Duration) {
         if let Some(h) = &self.inner {
             h.latency.observe(d.as_secs_f64());
-            h.live.answered(d);
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap_or_default();
+            h.last_answer.set(now.as_secs_f64());
+            h.last_latency.set(d.as_secs_f64());
         }
     }
 

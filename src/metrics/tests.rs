@@ -325,3 +325,50 @@ fn refused_tokens_are_counted_by_result_and_both_results_show_0_from_the_start()
     assert!(text.contains("pulsegate_http_login_failures_total{result=\"wrong_token\"} 1"));
     assert!(text.contains("pulsegate_http_login_failures_total{result=\"limited\"} 2"));
 }
+
+#[test]
+fn a_devices_last_answer_is_a_series_the_page_reads_as_prometheus_does() {
+    let m = Metrics::new();
+    let d = m.bus("line1").device("press1");
+    let _quiet = m.bus("line1").device("press2");
+    let looks = m.device_looks();
+    let quiet = looks[&("line1".to_string(), "press2".to_string())];
+    assert_eq!(quiet.last_answer_ms, None, "never answered");
+    assert_eq!(quiet.mean_latency_ms, None);
+    let before = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_millis() as u64;
+    d.latency(Duration::from_millis(40));
+    d.latency(Duration::from_millis(20));
+    let text = m.encode();
+    assert!(
+        text.contains(
+            "pulsegate_device_last_latency_seconds{bus=\"line1\",device=\"press1\"} 0.02"
+        ),
+        "{text}"
+    );
+    let stamp: f64 = line(
+        &text,
+        "pulsegate_device_last_answer_timestamp_seconds{bus=\"line1\",device=\"press1\"}",
+    )
+    .rsplit(' ')
+    .next()
+    .unwrap()
+    .parse()
+    .unwrap();
+    assert!(
+        stamp * 1000.0 >= before as f64 - 1.0,
+        "{stamp} after {before}"
+    );
+    let look = m.device_looks()[&("line1".to_string(), "press1".to_string())];
+    assert_eq!(look.last_answer_ms, Some((stamp * 1000.0) as u64));
+    assert!((look.last_latency_ms.unwrap() - 20.0).abs() < 1e-9);
+    assert!((look.mean_latency_ms.unwrap() - 30.0).abs() < 1e-9);
+    assert!(
+        !m.device_looks()
+            .contains_key(&("line1".to_string(), "press9".to_string())),
+        "a device whose bus made no series has no look (and asking makes none)"
+    );
+    assert!(!m.encode().contains("press9"));
+}

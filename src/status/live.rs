@@ -136,8 +136,9 @@ impl Keeper {
             loops: self.health.loops(),
             ..Measured::default()
         };
+        let mut looks = self.metrics.device_looks();
         for (bus, device) in devices {
-            if let Some(look) = self.metrics.device_look(&bus, &device) {
+            if let Some(look) = looks.remove(&(bus.clone(), device.clone())) {
                 measured.devices.insert(device, look);
             }
             if let std::collections::btree_map::Entry::Vacant(e) = measured.buses.entry(bus) {
