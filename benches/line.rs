@@ -35,7 +35,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use pulsegate::bus::BusTask;
 use pulsegate::config::Config;
-use pulsegate::driver::modbus::Modbus;
+use pulsegate::modbus::driver::Modbus;
 use pulsegate::reading::Output;
 use pulsegate::sim::{Plant, SimConfig};
 

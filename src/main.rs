@@ -277,7 +277,7 @@ fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Commissioning commands talk to a person: the poller's info logs would only be noise.
-    let quiet = pulsegate::driver::QUIET_LIBRARIES;
+    let quiet = pulsegate::protocols::QUIET_LIBRARIES;
     let default_filter = match cli.command {
         Command::Commission(_) => format!("warn,{quiet}"),
         _ => format!("info,{quiet},rumqttc=warn,rumqttd=off"),
@@ -304,7 +304,7 @@ fn main() -> ExitCode {
 
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
-        Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
+        Command::Commission(c) => Ok(pulsegate::protocols::commission(*c).await),
         Command::Check {
             config,
             register_map,

@@ -3,12 +3,14 @@
 //! `protocols/`). A new protocol is an arm in each match below.
 
 use super::model::{Bus, BusParts};
-use super::protocols::{Link, Protocol, mbus, modbus};
+use super::protocols::{Link, Protocol};
 use super::walk::{Errors, Table};
+use crate::mbus::config as mbus;
+use crate::modbus::config as modbus;
 use crate::profile::Profiles;
 
 /// The protocol's own keys of `[buses.NAME]`, checked: its link, devices and timing.
-pub(super) fn parts(
+pub(crate) fn parts(
     protocol: Protocol,
     t: &mut Table<'_>,
     path: &str,

@@ -4,11 +4,9 @@
 //! Tests and the demo hold a [`Plant`] and steer it (rates, counts, power cycles, silence) while
 //! the gateway talks to it over the wire like to real modules.
 
-mod endpoint;
+pub(crate) mod endpoint;
 mod error;
 pub mod gateway;
-pub mod mbus;
-pub mod modbus;
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -17,6 +15,9 @@ use std::time::Instant;
 
 use serde::Deserialize;
 use tokio_util::sync::CancellationToken;
+
+use crate::mbus::sim as mbus;
+use crate::modbus::sim as modbus;
 
 pub use endpoint::Endpoint;
 use endpoint::relink;

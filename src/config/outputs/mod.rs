@@ -14,13 +14,13 @@ use std::fmt;
 use std::str::FromStr;
 
 pub mod homeassistant;
-pub mod modbus;
 pub mod sparkplug;
 
 use config::ValueKind;
 
 use super::connection::Mqtt;
 use super::walk::{Errors, Table, join};
+use crate::modbus::config::server as modbus;
 use homeassistant::HomeAssistant;
 use sparkplug::Sparkplug;
 

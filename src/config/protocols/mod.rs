@@ -5,8 +5,8 @@
 //! bus's checks and its words by its protocol). A new protocol is a folder here, a variant in
 //! each enum below, and the arms the compiler then asks for.
 
-pub mod mbus;
-pub mod modbus;
+use crate::mbus::config as mbus;
+use crate::modbus::config as modbus;
 
 /// The protocol a bus speaks; one list, parsed with `FromStr`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
