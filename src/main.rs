@@ -384,11 +384,8 @@ async fn simulate(config: &std::path::Path) -> anyhow::Result<ExitCode> {
         std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
     let sim = pulsegate::sim::SimConfig::from_toml(&text)?;
     let plant = pulsegate::sim::Plant::start(&sim).await?;
-    for bus in &plant.buses {
-        println!("bus {}: {:?}", bus.name, bus.endpoint);
-    }
-    for seg in &plant.segments {
-        println!("M-Bus segment {}: {:?}", seg.name, seg.endpoint);
+    for endpoint in plant.endpoints() {
+        println!("{endpoint}");
     }
     let shutdown = CancellationToken::new();
     on_signals(shutdown.clone())?;

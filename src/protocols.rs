@@ -7,7 +7,11 @@
 //! its tables (`sim/mod.rs`). A new protocol is its folder, a line in `lib.rs` and the arms
 //! the compiler asks for here and there.
 
+use std::collections::BTreeMap;
 use std::process::ExitCode;
+use std::time::Instant;
+
+use serde::Deserialize;
 
 use tokio::sync::mpsc::Receiver;
 use tokio::task::JoinHandle;
@@ -21,13 +25,18 @@ use crate::config::{Bus, Config, Link, Protocol};
 use crate::health::Heart;
 use crate::mbus::commission::commands as on_mbus;
 use crate::mbus::driver::master::Mbus;
+use crate::mbus::sim::config::SimSegmentConfig;
+use crate::mbus::sim::plant as mbus_sim;
 use crate::metrics::OutputMetrics;
 use crate::modbus::commission::commands as on_modbus;
 use crate::modbus::driver::{Modbus, QUIET_LIBRARY};
 use crate::modbus::server::metrics::SERVER;
+use crate::modbus::sim::config::BusConfig;
+use crate::modbus::sim::plant as modbus_sim;
 use crate::profile::Profiles;
 use crate::publish::Server;
 use crate::scan::ScanRequest;
+use crate::sim::{Part, Plant, SimConfig, SimError};
 
 /// The log filter that keeps the protocol libraries' own logs to their errors (a late or
 /// garbled answer is the driver's to count and say, not the library's to log at each frame).
@@ -153,5 +162,40 @@ async fn scan(
             let units = units.unwrap_or_else(|| "1-247".into());
             on_modbus::scan(line, &baud, &units, how, profiles).await
         }
+    }
+}
+
+/// sim.toml: each protocol's tables (`[buses.NAME]` Modbus buses, the default; `[mbus.NAME]`
+/// M-Bus segments).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SimTables {
+    #[serde(default)]
+    buses: BTreeMap<String, BusConfig>,
+    #[serde(default)]
+    mbus: BTreeMap<String, SimSegmentConfig>,
+}
+
+impl SimConfig {
+    /// Parses a simulator config: each protocol's tables, for its folder to start.
+    pub fn from_toml(text: &str) -> Result<SimConfig, SimError> {
+        let t: SimTables = toml::from_str(text).map_err(|e| SimError::Config(e.to_string()))?;
+        Ok(SimConfig::of(vec![Box::new(t.buses), Box::new(t.mbus)]))
+    }
+}
+
+impl Plant {
+    /// Builds each protocol's part of `config` and starts serving them.
+    pub async fn start(config: &SimConfig) -> Result<Plant, SimError> {
+        let start = Instant::now();
+        let cancel = CancellationToken::new();
+        let mut parts: Vec<Box<dyn Part>> = Vec::new();
+        if let Some(tables) = config.part() {
+            parts.push(Box::new(modbus_sim::start(tables, start, &cancel).await?));
+        }
+        if let Some(tables) = config.part() {
+            parts.push(Box::new(mbus_sim::start(tables, start, &cancel).await?));
+        }
+        Ok(Plant::of(parts, start, cancel))
     }
 }

@@ -211,6 +211,7 @@ const FLOORS: &[(&str, &[&str])] = &[
             "publish",
         ],
     ),
+    ("sim", &["decode", "modbus::driver", "profile"]),
     // The protocols' registry: a bus's driver, a commissioning command and the serving
     // outputs, by protocol.
     (
@@ -227,9 +228,9 @@ const FLOORS: &[(&str, &[&str])] = &[
             "profile",
             "publish",
             "scan",
+            "sim",
         ],
     ),
-    ("sim", &["decode", "modbus::driver", "profile"]),
     ("setreading", &["config", "decimal", "publish", "topics"]),
     ("verify", &["config", "publish", "signing", "topics"]),
     (

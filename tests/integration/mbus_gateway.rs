@@ -8,7 +8,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use pulsegate::sim::MeterLine;
+use pulsegate::mbus::sim::gateway::MeterLine;
 use pulsegate::sim::Plant;
 use pulsegate::sim::gateway::GatewayToml;
 

@@ -1,6 +1,7 @@
 //! The M-Bus buses of the gateway's config for a running plant (beside
 //! [`GatewayToml::render`]'s Modbus buses): each segment its converter, each meter its address.
 
+use super::plant::SegmentTables;
 use crate::sim::gateway::GatewayToml;
 use crate::sim::{Endpoint, Plant, SimConfig};
 
@@ -45,10 +46,18 @@ impl GatewayToml<'_> {
     }
 }
 
+impl SimConfig {
+    /// Every meter of a plant's config, each read every `poll`, by its own name.
+    pub fn every_meter<'a>(&'a self, poll: &'a str) -> Vec<MeterLine<'a>> {
+        every_meter(self, poll)
+    }
+}
+
 /// Every meter of a plant's config, each read every `poll`, by its own name.
 pub fn every_meter<'a>(sim: &'a SimConfig, poll: &'a str) -> Vec<MeterLine<'a>> {
-    sim.mbus
-        .iter()
+    sim.part::<SegmentTables>()
+        .into_iter()
+        .flatten()
         .flat_map(|(seg, s)| {
             s.meters
                 .keys()

@@ -7,10 +7,11 @@
 pub mod config;
 pub mod gateway;
 pub mod meter;
-pub(crate) mod plant;
+pub mod plant;
 pub mod segment;
 pub mod shell;
 pub mod wire;
 
 pub use meter::{Behaviour, Gauge, Quantity, Register, SimMeter, Width};
+pub use plant::{PlantSegment, Segments};
 pub use segment::Segment;

@@ -2,15 +2,18 @@
 //! served on TCP (an M-Bus-to-Ethernet converter) or on a pseudo-terminal at its baud rate
 //! 8E1 (a level converter).
 
+use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use tokio_util::sync::CancellationToken;
 
 use super::config::{SimMeterConfig, SimSegmentConfig};
+use super::meter::{Behaviour, Gauge, Quantity, Register, SimMeter, Width};
+use super::segment::Segment;
 use super::shell::{self, SharedSegment};
-use super::{Behaviour, Gauge, Quantity, Register, Segment, SimMeter, Width};
 use crate::sim::endpoint::{Endpoint, relink};
+use crate::sim::{Part, Plant, SimError};
 
 /// A simulated M-Bus segment.
 pub struct PlantSegment {
@@ -141,4 +144,50 @@ pub async fn serve(
         meters: names,
         _keep: keep,
     })
+}
+
+/// sim.toml's M-Bus segments (`[mbus.NAME]`), the plant's config part.
+pub type SegmentTables = BTreeMap<String, SimSegmentConfig>;
+
+/// The plant's M-Bus segments, one of its parts.
+pub struct Segments(pub Vec<PlantSegment>);
+
+impl Part for Segments {
+    fn endpoints(&self) -> Vec<String> {
+        self.0
+            .iter()
+            .map(|seg| format!("M-Bus segment {}: {:?}", seg.name, seg.endpoint))
+            .collect()
+    }
+}
+
+/// Builds and serves sim.toml's M-Bus segments, on the plant's clock (`start`) until `cancel`.
+pub async fn start(
+    tables: &SegmentTables,
+    start: Instant,
+    cancel: &CancellationToken,
+) -> Result<Segments, SimError> {
+    let mut segments = Vec::new();
+    for (name, c) in tables {
+        let segment = serve(name, c, start, cancel)
+            .await
+            .map_err(|message| SimError::Bus {
+                bus: name.clone(),
+                message,
+            })?;
+        segments.push(segment);
+    }
+    Ok(Segments(segments))
+}
+
+impl Plant {
+    /// An M-Bus segment by name.
+    pub fn segment(&self, name: &str) -> Option<&PlantSegment> {
+        self.segments().iter().find(|s| s.name == name)
+    }
+
+    /// Every M-Bus segment.
+    pub fn segments(&self) -> &[PlantSegment] {
+        self.part::<Segments>().map_or(&[], |s| &s.0)
+    }
 }

@@ -8,4 +8,9 @@ pub mod config;
 pub(crate) mod datasheet;
 pub mod line;
 pub mod model;
+pub mod plant;
 pub(crate) mod server;
+
+pub use model::SimModule;
+pub use plant::{Buses, PlantBus, every_device};
+pub use server::Modules;
