@@ -78,7 +78,7 @@ pub fn servers(
     parts: impl Fn(&str) -> (Heart, OutputMetrics),
 ) -> Vec<Box<dyn crate::publish::server::Server>> {
     let map = RegisterMap::of(config);
-    let each = config.outputs.modbus.iter().map(|server| {
+    let each = config.outputs.servers.modbus.iter().map(|server| {
         let (heart, metrics) = parts(&server.name);
         let task = Task {
             server: server.clone(),

@@ -8,10 +8,10 @@ use crate::config::model::Config;
 /// The trust-moving changes of the server outputs from `old` to `new`, in words.
 pub fn changes(old: &Config, new: &Config) -> Vec<String> {
     let mut out = Vec::new();
-    if !old.outputs.modbus.is_empty() {
+    if !old.outputs.servers.modbus.is_empty() {
         out.extend(moved_registers(old, new));
     }
-    if old.outputs.modbus != new.outputs.modbus {
+    if old.outputs.servers.modbus != new.outputs.servers.modbus {
         out.push("outputs of kind modbus (what the gateway listens on, who may connect, whether writes are taken)".to_string());
     }
     out
