@@ -1,18 +1,19 @@
-//! The protocols, registered in one place above the layers they implement: each protocol is a
-//! folder of its own (`modbus/`, `mbus/`, declared in `lib.rs`) with its config, driver,
-//! commissioning and simulator; this file is where the gateway picks a bus's driver, runs a
-//! commissioning command and starts the serving outputs by protocol. The config floor has its
-//! own two registries below this one (`config/protocols/mod.rs`: `Protocol`, a bus's `Link`, a
-//! device's `Address`; `config/buses.rs`: a bus's checks and words), and the simulated plant
-//! its tables (`sim/mod.rs`). A new protocol is its folder, a line in `lib.rs` and the arms
-//! the compiler asks for here and there.
+//! The protocols, registered in one place above the layers they implement. Each protocol is a
+//! folder of its own (`modbus/`, `mbus/`, declared in `lib.rs`) with a part per layer, each at
+//! that layer's floor (its config, driver, commissioning, simulator, and a serving output if it
+//! brings one); this file is where the gateway picks a bus's driver, runs a commissioning
+//! command, starts the serving outputs (and names their metric families), reads sim.toml's
+//! tables and starts a simulated plant's parts, by protocol. The config floor keeps two
+//! registries below this one (`config/protocols/mod.rs`: `Protocol`, a bus's `Link`, a device's
+//! `Address`, the serving outputs' `Servers`; `config/buses.rs`: a bus's checks and words, the
+//! register map), as the config cannot call up to the drivers. A new protocol is its folder, a
+//! line in `lib.rs` and the arms the compiler asks for in the three registries.
 
 use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use serde::Deserialize;
-
 use tokio::sync::mpsc::Receiver;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
