@@ -9,7 +9,7 @@
 pub mod answer;
 pub mod image;
 pub mod metrics;
-pub mod server;
+pub mod listener;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -168,10 +168,10 @@ pub async fn run(
 
 /// Accepts until aborted; dropping the server closes every connection it serves.
 async fn serve(listener: tokio::net::TcpListener, shared: Arc<Shared>) {
-    let slots = Arc::new(Mutex::new(server::Slots::default()));
+    let slots = Arc::new(Mutex::new(listener::Slots::default()));
     let server = tokio_modbus::server::tcp::Server::new(listener);
     let on_connected = |stream, peer| {
-        let leased = server::admit(&shared.server, &slots, &shared.metrics, stream, peer);
+        let leased = listener::admit(&shared.server, &slots, &shared.metrics, stream, peer);
         let service = Service(shared.clone());
         std::future::ready(Ok(leased.map(|l| (service, l))))
     };
