@@ -8,8 +8,8 @@
 
 pub mod answer;
 pub mod image;
-pub mod metrics;
 pub mod listener;
+pub mod metrics;
 
 use std::collections::HashMap;
 use std::future::Future;
