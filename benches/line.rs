@@ -35,7 +35,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use pulsegate::bus::BusTask;
 use pulsegate::config::Config;
-use pulsegate::driver::modbus::Modbus;
+use pulsegate::modbus::driver::Modbus;
 use pulsegate::reading::Output;
 use pulsegate::sim::{Plant, SimConfig};
 
@@ -102,7 +102,7 @@ fn gateway_toml(
         serial: &serial,
         tcp: "timeout = \"100ms\"\n",
     }
-    .render(plant, &pulsegate::sim::gateway::every_device(sim, poll))
+    .render(plant, &sim.every_device(poll))
 }
 
 /// A plant of `buses` RTU buses behind line emulators, `units` YL67 modules each.
@@ -627,7 +627,7 @@ async fn mbus_cpu(figures: &mut Vec<Figure>) {
         serial: "",
         tcp: "",
     };
-    let meters = pulsegate::sim::every_meter(&sim, "1ms");
+    let meters = sim.every_meter("1ms");
     let text = t.render(&plant, &[]) + &t.meters(&plant, &meters, "timeout = \"100ms\"\n");
     let path = dir.join("g.toml");
     std::fs::write(&path, text).unwrap();

@@ -143,7 +143,7 @@ impl Gateway {
             tokio::sync::mpsc::channel(crate::dispatch::INCOMING_QUEUE);
         let supervisor = tokio::spawn(crate::systemd::supervise(health.clone(), shutdown.clone()));
         let metrics = match config.metrics {
-            Some(_) => Metrics::new(),
+            Some(_) => Metrics::with_servers(crate::protocols::SERVER_FAMILIES),
             None => Metrics::disabled(),
         };
         // The status page's board: fed by the fan-out, read by the HTTP endpoint.
@@ -334,7 +334,7 @@ fn start_bus(
         .with_metrics(metrics.bus(&bus.name));
     Running {
         config: bus.clone(),
-        task: crate::driver::spawn(task, bus, scan_rx, stop.clone()),
+        task: crate::protocols::spawn(task, bus, scan_rx, stop.clone()),
         stop,
         commands: cmd_tx,
         scans: scan_tx,

@@ -33,7 +33,9 @@ pub enum DemoError {
 fn plant_config() -> SimConfig {
     let mut c = SimConfig::from_toml(include_str!("../config/demo-plant.toml"))
         .expect("demo plant config is valid");
-    c.buses.retain(|_, b| !b.devices.is_empty());
+    if let Some(buses) = c.buses_mut() {
+        buses.retain(|_, b| !b.devices.is_empty());
+    }
     c
 }
 
@@ -55,8 +57,8 @@ fn gateway_config(
         serial: "baud = 9600\n",
         tcp: "",
     };
-    let meters = crate::sim::every_meter(&sim, "2s");
-    let text = t.render(plant, &crate::sim::gateway::every_device(&sim, "500ms"))
+    let meters = sim.every_meter("2s");
+    let text = t.render(plant, &sim.every_device("500ms"))
         + &t.meters(plant, &meters, "")
         + &format!("[metrics]\nlisten = \"{page}\"\n");
     Ok(Config::from_toml(

@@ -4,7 +4,7 @@
 //! The pipeline, top to bottom:
 //! 1. [`config`] reads one TOML file (plus environment) into a checked [`config::Config`];
 //! 2. [`profile`] says, per module model, where each channel's registers are;
-//! 3. [`config::protocols::modbus::plan`] turns the registers a poll needs into as few Modbus
+//! 3. [`modbus::config::plan`] turns the registers a poll needs into as few Modbus
 //!    reads as the wire favours;
 //! 4. [`bus`] runs one task per bus, one transaction at a time, earliest deadline first;
 //! 5. [`decode`] turns the words into counts and frequencies;
@@ -28,16 +28,18 @@ pub mod decode;
 pub mod dedupe;
 pub mod demo;
 pub mod dispatch;
-pub mod driver;
 pub mod event;
 pub mod health;
 pub mod http;
 pub mod log_budget;
+pub mod mbus;
 pub mod metering;
 pub mod metrics;
+pub mod modbus;
 pub mod outbox;
 pub mod outcome;
 pub mod profile;
+pub mod protocols;
 pub mod publish;
 pub mod reading;
 pub mod remote;

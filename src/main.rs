@@ -277,7 +277,7 @@ fn load(path: &std::path::Path) -> Result<Config, ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Commissioning commands talk to a person: the poller's info logs would only be noise.
-    let quiet = pulsegate::driver::QUIET_LIBRARIES;
+    let quiet = pulsegate::protocols::QUIET_LIBRARIES;
     let default_filter = match cli.command {
         Command::Commission(_) => format!("warn,{quiet}"),
         _ => format!("info,{quiet},rumqttc=warn,rumqttd=off"),
@@ -304,7 +304,7 @@ fn main() -> ExitCode {
 
 async fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
-        Command::Commission(c) => Ok(pulsegate::commission::run(*c).await),
+        Command::Commission(c) => Ok(pulsegate::protocols::commission(*c).await),
         Command::Check {
             config,
             register_map,
@@ -384,11 +384,8 @@ async fn simulate(config: &std::path::Path) -> anyhow::Result<ExitCode> {
         std::fs::read_to_string(config).with_context(|| format!("reading {}", config.display()))?;
     let sim = pulsegate::sim::SimConfig::from_toml(&text)?;
     let plant = pulsegate::sim::Plant::start(&sim).await?;
-    for bus in &plant.buses {
-        println!("bus {}: {:?}", bus.name, bus.endpoint);
-    }
-    for seg in &plant.segments {
-        println!("M-Bus segment {}: {:?}", seg.name, seg.endpoint);
+    for endpoint in plant.endpoints() {
+        println!("{endpoint}");
     }
     let shutdown = CancellationToken::new();
     on_signals(shutdown.clone())?;

@@ -49,7 +49,7 @@ fn outputs(config: &Config) -> String {
 /// The register map of the server outputs (docs/plc.md): a table, or with `json` a JSON
 /// list of `{"device", "channel", "field", "unit_id", "table", "address", "registers", "type"}`.
 pub fn register_map(config: &Config, json: bool) -> String {
-    use crate::config::outputs::RegisterMap;
+    use crate::config::buses::RegisterMap;
     let commands = config.outputs.serve_commands();
     let entries = RegisterMap::of(config).entries(commands);
     if json {

@@ -1,7 +1,7 @@
 //! A scan of a bus requested over MQTT (`<root>/bus/<bus>/scan`), as the router checks it and
 //! hands it to the bus: protocol-neutral, so the MQTT side never stands on a driver. The bus's
-//! driver carries it out in idle line time (Modbus: `driver/modbus/survey.rs`, M-Bus:
-//! `driver/mbus/master/survey.rs`), each keeping its progress in a [`Survey`]. Pure.
+//! driver carries it out in idle line time (Modbus: `modbus/driver/survey.rs`, M-Bus:
+//! `mbus/driver/master/survey.rs`), each keeping its progress in a [`Survey`]. Pure.
 
 use std::time::Duration;
 

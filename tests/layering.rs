@@ -11,10 +11,13 @@ mod source;
 use source::{homes, rust_files, strip_comments, strip_test_items};
 
 /// What each part of `src/` may use, lowest floors first. A part is a top-level module, except
-/// that `driver::modbus` (the Modbus driver), `driver::mbus` (the M-Bus protocol layer, pure)
-/// and `driver::mbus::master` (the M-Bus driver on it) are parts of their own: only the parts
-/// listed here may know Modbus or M-Bus. A part may always
-/// use itself. A new module needs a row (and a floor).
+/// in a protocol's own folder (`src/modbus/`, `src/mbus/`: a top-level module with a driver
+/// row): each of its parts sits at the floor of the layer it implements, as a piece of that
+/// layer ([`LAYERS`]: `modbus::config` is `config`, `modbus::server` is `publish`,
+/// `mbus::sim` is `sim`), and its driver is a part of its own (`modbus::driver`; the M-Bus
+/// protocol layer `mbus::driver`, pure, and the M-Bus driver on it `mbus::driver::master`):
+/// only the parts listed here may know a protocol's driver. A part may always use itself. A
+/// new module needs a row (and a floor).
 const FLOORS: &[(&str, &[&str])] = &[
     // Vocabulary: pure values and rules used everywhere.
     ("topics", &[]),
@@ -93,7 +96,7 @@ const FLOORS: &[(&str, &[&str])] = &[
         ],
     ),
     (
-        "driver::modbus",
+        "modbus::driver",
         &[
             "bus",
             "bus_health",
@@ -110,33 +113,23 @@ const FLOORS: &[(&str, &[&str])] = &[
         ],
     ),
     // The M-Bus protocol layer: pure frames and records, standing on nothing of ours.
-    ("driver::mbus", &[]),
+    ("mbus::driver", &[]),
     // The M-Bus master on it: the driver (it reads; the core counts).
     (
-        "driver::mbus::master",
+        "mbus::driver::master",
         &[
             "bus",
             "bus_health",
             "command",
             "config",
             "decimal",
-            "driver::mbus",
+            "mbus::driver",
             "outcome",
             "profile",
             "reading",
             "sample",
             "scan",
             "state",
-        ],
-    ),
-    (
-        "driver",
-        &[
-            "bus",
-            "config",
-            "driver::mbus::master",
-            "driver::modbus",
-            "scan",
         ],
     ),
     // Commands in, messages out.
@@ -210,22 +203,56 @@ const FLOORS: &[(&str, &[&str])] = &[
             "bus",
             "command",
             "config",
-            "driver::mbus",
-            "driver::mbus::master",
-            "driver::modbus",
+            "mbus::driver",
+            "mbus::driver::master",
+            "modbus::driver",
             "outcome",
             "profile",
             "publish",
         ],
     ),
-    ("sim", &["decode", "driver::modbus", "profile"]),
+    ("sim", &["decode", "modbus::driver", "profile"]),
+    // The protocols' registry: a bus's driver, a commissioning command and the serving
+    // outputs, by protocol.
+    (
+        "protocols",
+        &[
+            "bus",
+            "command",
+            "commission",
+            "config",
+            "health",
+            "mbus::driver::master",
+            "metrics",
+            "modbus::driver",
+            "profile",
+            "publish",
+            "scan",
+            "sim",
+        ],
+    ),
     ("setreading", &["config", "decimal", "publish", "topics"]),
     ("verify", &["config", "publish", "signing", "topics"]),
     (
         "app",
         &[
-            "boot", "bus", "command", "config", "dispatch", "driver", "health", "http", "metrics",
-            "outcome", "publish", "reading", "remote", "scan", "state", "status", "systemd",
+            "boot",
+            "bus",
+            "command",
+            "config",
+            "dispatch",
+            "health",
+            "http",
+            "metrics",
+            "outcome",
+            "protocols",
+            "publish",
+            "reading",
+            "remote",
+            "scan",
+            "state",
+            "status",
+            "systemd",
             "topics",
         ],
     ),
@@ -370,15 +397,41 @@ fn resolve(
         .find(|m| modules.contains(m))
 }
 
+/// The layers a protocol's own folder implements, by the name of its child, and the part of
+/// the table each belongs to: a protocol's config is part of `config`, its server output of
+/// `publish`, its commissioning of `commission`, its simulator of `sim`. Its `driver` is a
+/// part of its own (a row named `<protocol>::driver`, which is what makes a top-level module
+/// a protocol's folder).
+const LAYERS: &[(&str, &str)] = &[
+    ("config", "config"),
+    ("server", "publish"),
+    ("commission", "commission"),
+    ("sim", "sim"),
+];
+
+/// Whether a row of the table is named `name`.
+fn has_row(name: &str) -> bool {
+    FLOORS.iter().any(|(p, _)| *p == name)
+}
+
 /// The part of the table a module belongs to.
 fn part(module: &[String]) -> String {
     match module {
-        [d, m, ..] if d == "driver" && m == "modbus" => "driver::modbus".into(),
-        [d, m, x, ..] if d == "driver" && m == "mbus" && x == "master" => {
-            "driver::mbus::master".into()
-        }
-        [d, m, ..] if d == "driver" && m == "mbus" => "driver::mbus".into(),
         [] => "lib".into(),
+        // A protocol's folder itself only declares its parts.
+        [p] if has_row(&format!("{p}::driver")) => "lib".into(),
+        [p, layer, rest @ ..] if has_row(&format!("{p}::driver")) => {
+            if layer == "driver" {
+                let inner = rest.first().map(|r| format!("{p}::driver::{r}"));
+                return inner
+                    .filter(|r| has_row(r))
+                    .unwrap_or_else(|| format!("{p}::driver"));
+            }
+            LAYERS
+                .iter()
+                .find(|(l, _)| l == layer)
+                .map_or_else(|| format!("{p}::{layer}"), |(_, at)| at.to_string())
+        }
         [top, ..] => top.clone(),
     }
 }

@@ -184,7 +184,7 @@ fn prepare(config: &Config, w: &Wiring) -> Vec<Prepared> {
         let heart = w.health.heart(Loop::Output(name.to_string()));
         (heart, w.metrics.output(name))
     };
-    for server in crate::publish::servers(config, parts) {
+    for server in crate::protocols::servers(config, parts) {
         out.push(prepare_server(server));
     }
     if config.outputs.voice == VoiceHome::Own {

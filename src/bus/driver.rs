@@ -3,9 +3,9 @@
 //! readings, plausibility, events, publish policy, metering and metrics are the core's, the same
 //! for every protocol. A driver polls a device (discovering it first when due, and declaring its
 //! channels to the core), carries out clear/preset on it, and returns what it read in raw terms
-//! ([`crate::sample`]); it never counts. Modbus RTU/TCP (`crate::driver::modbus`) is the one
-//! driver today; a new protocol is a folder under `src/driver/` with an implementation of
-//! [`Driver`].
+//! ([`crate::sample`]); it never counts. Modbus RTU/TCP (`crate::modbus::driver`) and M-Bus
+//! (`crate::mbus::driver::master`) are the drivers today; a new protocol is a folder
+//! `src/<protocol>/` whose `driver/` implements [`Driver`], spawned by `crate::protocols`.
 
 use std::time::Duration;
 

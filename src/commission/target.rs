@@ -72,7 +72,7 @@ impl Target {
     }
 }
 
-pub(super) fn port_held(port: &std::path::Path, by: &[super::holder::Holder]) -> CommissionError {
+pub(crate) fn port_held(port: &std::path::Path, by: &[super::holder::Holder]) -> CommissionError {
     let gateway = by.iter().any(|h| h.is_gateway());
     CommissionError::PortHeld {
         port: port.display().to_string(),

@@ -51,7 +51,7 @@ pub struct ChannelConfig {
     /// An M-Bus meter's record this channel names (its 0-based index in the answer).
     pub record: Option<usize>,
     /// `register = N`: the first address of this channel's block in a Modbus server output's
-    /// map, pinned (otherwise the map places it; see `publish::modbus::map`).
+    /// map, pinned (otherwise the map places it; see `modbus::server::map`).
     pub register: Option<u16>,
 }
 
@@ -74,7 +74,7 @@ impl Default for ChannelConfig {
 }
 
 /// Checks one channel table of a device of `profile` (when the model is known).
-pub(super) fn channel(
+pub(crate) fn channel(
     mut ct: Table<'_>,
     cname: &str,
     profile: Option<&Profile>,

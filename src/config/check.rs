@@ -63,7 +63,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     super::tariffs::check_grid(&gateway, &buses, errs);
 
     if outputs.serve_registers() {
-        super::outputs::RegisterMap::build(&buses, errs);
+        super::buses::RegisterMap::build(&buses, errs);
     }
 
     Some(Config {

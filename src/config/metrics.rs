@@ -23,7 +23,7 @@ pub const DEFAULT_LISTEN: &str = "127.0.0.1:9464";
 /// A token shorter than this is too easy to guess over the network.
 pub const MIN_TOKEN_CHARS: usize = 16;
 
-pub(super) fn check(table: Option<Table<'_>>, errs: &mut Errors) -> Option<Metrics> {
+pub(crate) fn check(table: Option<Table<'_>>, errs: &mut Errors) -> Option<Metrics> {
     let mut t = table?;
     let mut m = Metrics {
         listen: DEFAULT_LISTEN.parse().expect("valid default"),

@@ -6,17 +6,17 @@
 
 pub mod buses;
 pub mod channel;
-mod check;
-mod connection;
-mod error;
+pub(crate) mod check;
+pub(crate) mod connection;
+pub(crate) mod error;
 pub mod hash;
-mod metering;
+pub(crate) mod metering;
 pub mod metrics;
-mod model;
+pub(crate) mod model;
 mod mqtt;
-mod names;
+pub(crate) mod names;
 pub mod outputs;
-mod parity;
+pub(crate) mod parity;
 pub mod policy;
 pub mod protocols;
 pub mod publish;
@@ -25,7 +25,7 @@ mod socket;
 mod tariffs;
 pub mod tls;
 pub mod units;
-mod walk;
+pub(crate) mod walk;
 
 use std::collections::HashMap;
 use std::path::Path;

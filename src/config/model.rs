@@ -127,7 +127,7 @@ pub struct Device {
     /// Where it answers on its bus, in its protocol's terms.
     pub address: Address,
     /// `server_unit = N`: the unit id this device answers as on a Modbus server output (by
-    /// default its own address; see `publish::modbus::map`). Not part of its polling.
+    /// default its own address; see `modbus::server::map`). Not part of its polling.
     pub server_unit: Option<u8>,
 }
 

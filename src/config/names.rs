@@ -3,7 +3,7 @@
 use super::walk::{Errors, Table};
 
 /// A device name becomes a topic level: refused when it cannot be one.
-pub(super) fn device_name(t: &Table<'_>, path: &str, name: &str, errs: &mut Errors) {
+pub(crate) fn device_name(t: &Table<'_>, path: &str, name: &str, errs: &mut Errors) {
     if !crate::topics::is_topic_safe(name) || matches!(name, "status" | "bus" | "cmd" | "gateway") {
         errs.push(
             path,

@@ -13,7 +13,7 @@ use super::walk::{Errors, Table, join};
 pub const MAX_SOCKET_PATH: usize = 107;
 
 /// `mqtt.socket`, or `None` when unset or refused (the error is in `errs`).
-pub(super) fn mqtt_socket(t: &mut Table<'_>, errs: &mut Errors) -> Option<PathBuf> {
+pub(crate) fn mqtt_socket(t: &mut Table<'_>, errs: &mut Errors) -> Option<PathBuf> {
     // The value's own origin: an override from the environment is named as such.
     let origin = t.raw("socket").and_then(|v| v.origin()).map(str::to_string);
     let path = t.opt::<PathBuf>("socket", errs)?;

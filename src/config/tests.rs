@@ -3,7 +3,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use super::*;
-use protocols::modbus::Line;
+use crate::modbus::config::Line;
 
 const GOOD: &str = r#"
 [gateway]

@@ -12,7 +12,6 @@
 
 mod families;
 mod look;
-mod modbus;
 
 use std::collections::{BTreeSet, HashMap};
 use std::sync::Arc;
@@ -44,10 +43,18 @@ impl Metrics {
         Metrics { inner: None }
     }
 
-    /// A fresh registry with every family registered, the start time and the build info set.
-    pub fn new() -> Metrics {
+    /// [`Metrics::with_servers`] with the gateway's serving outputs, for tests.
+    #[cfg(test)]
+    pub(crate) fn new() -> Metrics {
+        Metrics::with_servers(crate::protocols::SERVER_FAMILIES)
+    }
+
+    /// A fresh registry with every family registered (the serving outputs' three, requests,
+    /// connections and connections closed, named by `server`), the start time and the build
+    /// info set.
+    pub fn with_servers(server: [(&'static str, &'static str); 3]) -> Metrics {
         let registry = Registry::new();
-        let families = Arc::new(Families::register(&registry, modbus::SERVER));
+        let families = Arc::new(Families::register(&registry, server));
         let start = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map(|d| d.as_secs_f64())
@@ -540,8 +547,8 @@ impl OutputMetrics {
         }
     }
 
-    /// A Modbus server output answered a request of `function` with `result`.
-    pub fn modbus_request(&self, function: u8, result: &str) {
+    /// A server output answered a request of `function` with `result`.
+    pub fn server_request(&self, function: u8, result: &str) {
         if let Some((f, name)) = &self.inner {
             let function = function.to_string();
             f.server_requests
@@ -550,8 +557,8 @@ impl OutputMetrics {
         }
     }
 
-    /// The client connections a Modbus server output holds open.
-    pub fn modbus_connections(&self, open: usize) {
+    /// The client connections a server output holds open.
+    pub fn server_connections(&self, open: usize) {
         if let Some((f, name)) = &self.inner {
             f.server_connections
                 .with_label_values(&[name.as_str()])
@@ -559,8 +566,8 @@ impl OutputMetrics {
         }
     }
 
-    /// A Modbus server output closed a client connection itself, for `reason`.
-    pub fn modbus_closed(&self, reason: &'static str) {
+    /// A server output closed a client connection itself, for `reason`.
+    pub fn server_closed(&self, reason: &'static str) {
         if let Some((f, name)) = &self.inner {
             f.server_closed
                 .with_label_values(&[name.as_str(), reason])

@@ -12,7 +12,6 @@ pub mod format;
 pub mod formats;
 pub mod homeassistant;
 pub mod json;
-pub mod modbus;
 pub mod mqtt;
 pub mod payload;
 pub mod poller;
@@ -24,18 +23,7 @@ pub mod spool;
 pub mod spool_place;
 pub mod voice;
 
-use crate::config::Config;
-use crate::health::Heart;
-use crate::metrics::OutputMetrics;
 pub use server::Server;
-
-/// Every serving output of `config`, each with the heart and metrics `parts` gives its name.
-pub fn servers(
-    config: &Config,
-    parts: impl Fn(&str) -> (Heart, OutputMetrics),
-) -> Vec<Box<dyn Server>> {
-    modbus::servers(config, parts)
-}
 
 #[cfg(test)]
 mod oversized_tests;

@@ -39,7 +39,7 @@ pub fn forbidden_changes(old: &Config, new: &Config, signed: Signed) -> Vec<Stri
     if old.remote != new.remote {
         out.push("[remote]".to_string());
     }
-    out.extend(crate::config::outputs::server_changes(old, new));
+    out.extend(crate::config::buses::server_changes(old, new));
     out.extend(connection_changes("mqtt", &old.mqtt, &new.mqtt));
     for o in &new.outputs.list {
         let path = format!("outputs.{}", o.name);

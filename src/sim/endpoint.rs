@@ -20,3 +20,12 @@ pub fn relink(target: &std::path::Path, link: &std::path::Path) -> std::io::Resu
     }
     std::os::unix::fs::symlink(target, link)
 }
+
+/// Marks a descriptor close-on-exec: a pseudo-terminal end inherited by a child process (the
+/// gateway started by a test) would keep the line up after the simulator drops it.
+pub fn private(port: serialport::TTYPort) -> serialport::TTYPort {
+    use std::os::fd::AsRawFd;
+    // SAFETY: F_SETFD on a descriptor `port` owns and keeps open; no memory is passed.
+    let _ = unsafe { libc::fcntl(port.as_raw_fd(), libc::F_SETFD, libc::FD_CLOEXEC) };
+    port
+}

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use super::{Endpoint, Plant, SimConfig};
+use super::{Endpoint, Plant};
 
 /// A device the gateway polls: bus, device name, unit, model, poll interval.
 pub type DeviceLine<'a> = (&'a str, &'a str, u8, &'a str, &'a str);
@@ -62,16 +62,4 @@ impl GatewayToml<'_> {
         }
         t
     }
-}
-
-/// Every device of a plant's config, each polled every `poll`.
-pub fn every_device<'a>(sim: &'a SimConfig, poll: &'a str) -> Vec<DeviceLine<'a>> {
-    sim.buses
-        .iter()
-        .flat_map(|(bus, b)| {
-            b.devices
-                .iter()
-                .map(move |(name, d)| (bus.as_str(), name.as_str(), d.unit, d.model.as_str(), poll))
-        })
-        .collect()
 }

@@ -7,11 +7,11 @@
 
 use std::path::{Path, PathBuf};
 
-use pulsegate::driver::mbus::frame::{self, Frame, Scan};
-use pulsegate::driver::mbus::quantity::Unit;
-use pulsegate::driver::mbus::telegram::decode_frame;
-use pulsegate::driver::mbus::value::Value;
-use pulsegate::driver::mbus::{DecodeError, Telegram, channel};
+use pulsegate::mbus::driver::frame::{self, Frame, Scan};
+use pulsegate::mbus::driver::quantity::Unit;
+use pulsegate::mbus::driver::telegram::decode_frame;
+use pulsegate::mbus::driver::value::Value;
+use pulsegate::mbus::driver::{DecodeError, Telegram, channel};
 
 fn corpus(dir: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -392,8 +392,8 @@ fn never_panics(bytes: &[u8]) {
         let _ = decode_frame(&frame);
     }
     if bytes.len() > 1 {
-        let _ = pulsegate::driver::mbus::decode(bytes[0], &bytes[1..]);
-        if let Ok(t) = pulsegate::driver::mbus::decode(0x72, bytes) {
+        let _ = pulsegate::mbus::driver::decode(bytes[0], &bytes[1..]);
+        if let Ok(t) = pulsegate::mbus::driver::decode(0x72, bytes) {
             let _ = channel::names(&t.records);
             for r in &t.records {
                 let _ = (channel::kind(r), r.value.to_decimal_string());

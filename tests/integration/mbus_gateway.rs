@@ -8,7 +8,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use pulsegate::sim::MeterLine;
+use pulsegate::mbus::sim::gateway::MeterLine;
 use pulsegate::sim::Plant;
 use pulsegate::sim::gateway::GatewayToml;
 
@@ -285,10 +285,10 @@ async fn a_meter_answering_garbage_or_nothing_goes_offline_and_the_others_keep_t
     }
     let seg = plant.segment("field").unwrap();
     seg.with_meter("noisy", |m| {
-        m.behaviour = pulsegate::sim::mbus::Behaviour::Garbage
+        m.behaviour = pulsegate::mbus::sim::Behaviour::Garbage
     });
     seg.with_meter("mute", |m| {
-        m.behaviour = pulsegate::sim::mbus::Behaviour::Silent
+        m.behaviour = pulsegate::mbus::sim::Behaviour::Silent
     });
     let broke = Instant::now();
     for d in ["noisy", "mute"] {
@@ -322,10 +322,10 @@ async fn a_meter_answering_garbage_or_nothing_goes_offline_and_the_others_keep_t
     );
     // Repaired, they come back.
     seg.with_meter("noisy", |m| {
-        m.behaviour = pulsegate::sim::mbus::Behaviour::Normal
+        m.behaviour = pulsegate::mbus::sim::Behaviour::Normal
     });
     seg.with_meter("mute", |m| {
-        m.behaviour = pulsegate::sim::mbus::Behaviour::Normal
+        m.behaviour = pulsegate::mbus::sim::Behaviour::Normal
     });
     let fixed = Instant::now();
     for d in ["noisy", "mute"] {

@@ -7,9 +7,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
-use pulsegate::driver::mbus::address::SecondaryMask;
-use pulsegate::driver::mbus::frame::{self, req_ud2, select, snd_nke};
-use pulsegate::driver::mbus::telegram::decode_frame;
+use pulsegate::mbus::driver::address::SecondaryMask;
+use pulsegate::mbus::driver::frame::{self, req_ud2, select, snd_nke};
+use pulsegate::mbus::driver::telegram::decode_frame;
 use serde_json::Value;
 
 use super::mbus_frames::{disagreement, hex, normalized};

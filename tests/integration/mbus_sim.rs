@@ -7,13 +7,13 @@
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use pulsegate::driver::mbus::address::SecondaryMask;
-use pulsegate::driver::mbus::channel::{self, Kind, Rollover};
-use pulsegate::driver::mbus::frame::{self, Fcb, Frame, Scan, req_ud2, select, snd_nke};
-use pulsegate::driver::mbus::value::Value;
-use pulsegate::driver::mbus::{Telegram, decode_frame};
-use pulsegate::sim::mbus::shell::{self, SharedSegment};
-use pulsegate::sim::mbus::{Gauge, Quantity, Register, Segment, SimMeter, Width};
+use pulsegate::mbus::driver::address::SecondaryMask;
+use pulsegate::mbus::driver::channel::{self, Kind, Rollover};
+use pulsegate::mbus::driver::frame::{self, Fcb, Frame, Scan, req_ud2, select, snd_nke};
+use pulsegate::mbus::driver::value::Value;
+use pulsegate::mbus::driver::{Telegram, decode_frame};
+use pulsegate::mbus::sim::shell::{self, SharedSegment};
+use pulsegate::mbus::sim::{Gauge, Quantity, Register, Segment, SimMeter, Width};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio_util::sync::CancellationToken;
 

@@ -493,7 +493,7 @@ pub async fn plant(toml: &str) -> Plant {
 pub fn wire_module(plant: &Plant, bus: &str, unit: u8, model: &str, modes: &[u16]) {
     let profiles = pulsegate::profile::Profiles::builtin();
     let profile = profiles.get(model).unwrap();
-    let module = pulsegate::sim::SimModule::new(profile, modes).unwrap();
+    let module = pulsegate::modbus::sim::SimModule::new(profile, modes).unwrap();
     plant
         .bus(bus)
         .unwrap()

@@ -14,12 +14,12 @@ use std::fmt;
 use std::str::FromStr;
 
 pub mod homeassistant;
-pub mod modbus;
 pub mod sparkplug;
 
 use config::ValueKind;
 
 use super::connection::Mqtt;
+use super::protocols::Servers;
 use super::walk::{Errors, Table, join};
 use homeassistant::HomeAssistant;
 use sparkplug::Sparkplug;
@@ -27,41 +27,33 @@ use sparkplug::Sparkplug;
 /// A device's own keys for the outputs (`server_unit = N`: the unit id it answers as on a
 /// server output), read beside its bus's keys whatever protocol the bus speaks.
 pub(crate) fn device_keys(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
-    modbus::server_unit(t, path, errs)
+    Servers::device_keys(t, path, errs)
 }
 
-/// A server output's register map: a contract, so unit ids and blocks that collide are errors.
-pub(crate) use modbus::map::RegisterMap;
-
-/// What of the server outputs an unsigned pushed config may not change, in words.
-pub use modbus::guard::changes as server_changes;
-
 impl Outputs {
-    /// Whether an output serves the devices' registers (and so needs a [`RegisterMap`]).
+    /// Whether an output serves the devices' registers (and so needs a register map).
     pub fn serve_registers(&self) -> bool {
-        !self.modbus.is_empty()
+        !self.servers.is_empty()
     }
 
     /// Each server output: its name, kind and where it listens.
     pub fn servers(&self) -> impl Iterator<Item = (&str, &'static str, String)> {
-        self.modbus
-            .iter()
-            .map(|s| (s.name.as_str(), modbus::KIND, s.listen.to_string()))
+        self.servers.each()
     }
 
     /// What `check --register-map` says when no output would serve the map it prints.
     pub fn register_map_note(&self) -> Option<String> {
-        self.modbus.is_empty().then(|| {
+        self.servers.is_empty().then(|| {
             format!(
                 "warning: no output of kind {:?}: the map is what one would serve",
-                modbus::KIND
+                Servers::kind()
             )
         })
     }
 
     /// Whether a server output takes commands (its map then has their registers).
     pub fn serve_commands(&self) -> bool {
-        self.modbus.iter().any(|s| s.commands)
+        self.servers.take_commands()
     }
 }
 
@@ -117,7 +109,7 @@ impl fmt::Display for OutputKind {
 
 /// A name that is not an output kind.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown output format {0:?}: one of {list}, or {modbus:?} (a Modbus TCP server)", list = OutputKind::list(), modbus = modbus::KIND)]
+#[error("unknown output format {0:?}: one of {list}, or {servers}", list = OutputKind::list(), servers = Servers::kinds())]
 pub struct UnknownKind(pub String);
 
 impl FromStr for OutputKind {
@@ -158,8 +150,8 @@ pub struct Outputs {
     pub sparkplug: Option<Sparkplug>,
     /// `[homeassistant]`: its prefix, for the outputs of kind `homeassistant`.
     pub homeassistant: HomeAssistant,
-    /// The outputs of kind `modbus`: servers for PLCs, not MQTT connections.
-    pub modbus: Vec<modbus::ModbusServer>,
+    /// The serving outputs (servers for PLCs, not MQTT connections), by their protocol.
+    pub servers: Servers,
 }
 
 /// The name the gateway's own connection takes (no output may take it).
@@ -206,7 +198,7 @@ pub(crate) fn read(
     let sparkplug = sparkplug::sparkplug(sp_table, gateway_id, errs);
     let entries = root.entries("outputs", errs);
     let origin = root.origin().map(str::to_string);
-    let mut servers_read = Vec::new();
+    let mut servers_read = Servers::default();
     let list = if entries.is_empty() {
         from_format(legacy.as_deref(), discovery, base, errs)
     } else {
@@ -220,11 +212,10 @@ pub(crate) fn read(
         }
         let (servers, connections): (Vec<_>, Vec<_>) = entries
             .into_iter()
-            .partition(|(_, value)| kind_of(value).as_deref() == Some(modbus::KIND));
-        servers_read = servers
-            .into_iter()
-            .filter_map(|(name, value)| server(&name, value, errs))
-            .collect();
+            .partition(|(_, value)| kind_of(value).is_some_and(|k| Servers::is_kind(&k)));
+        for (name, value) in servers {
+            server(&name, value, &mut servers_read, errs);
+        }
         connections
             .into_iter()
             .filter_map(|(name, value)| output(&name, value, base, errs))
@@ -245,7 +236,7 @@ pub(crate) fn read(
         voice: voice_home(&list, base),
         list,
         sparkplug,
-        modbus: servers_read,
+        servers: servers_read,
         homeassistant,
     }
 }
@@ -303,10 +294,12 @@ fn kind_of(value: &config::Value) -> Option<String> {
     }
 }
 
-/// One `[outputs.NAME]` table of kind `modbus`.
-fn server(name: &str, value: &config::Value, errs: &mut Errors) -> Option<modbus::ModbusServer> {
+/// One `[outputs.NAME]` table of a serving kind, read into `servers`.
+fn server(name: &str, value: &config::Value, servers: &mut Servers, errs: &mut Errors) {
     let path = format!("outputs.{name}");
-    let mut t = Table::of(value, &path, errs)?;
+    let Some(mut t) = Table::of(value, &path, errs) else {
+        return;
+    };
     if !is_output_name(name) {
         let why = format!(
             "{name:?} is not an output name: 1..{MAX_NAME} of a-z, 0-9, '_' and '-', not {VOICE_NAME:?}"
@@ -314,7 +307,7 @@ fn server(name: &str, value: &config::Value, errs: &mut Errors) -> Option<modbus
         errs.push(&path, t.origin(), why);
     }
     let _ = t.raw("kind");
-    modbus::read(name, t, errs)
+    servers.read(name, t, errs);
 }
 
 /// One `[outputs.NAME]` table.

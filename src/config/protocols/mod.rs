@@ -1,12 +1,14 @@
 //! The one list of protocols a bus may speak (`[buses.NAME] protocol`), and the types every
-//! part of the gateway sees of them: a bus's [`Link`] and a device's [`Address`]. Everything a
-//! protocol knows of its configuration (its tables, checks, line and address) is in its own
-//! folder beside this file; this file only picks among them (and `config/buses.rs` picks a
-//! bus's checks and its words by its protocol). A new protocol is a folder here, a variant in
-//! each enum below, and the arms the compiler then asks for.
+//! part of the gateway sees of them: a bus's [`Link`], a device's [`Address`] and the serving
+//! outputs a protocol brings ([`Servers`]). Everything a protocol knows of its configuration
+//! (its tables, checks, line and address) is in its own folder (`src/<protocol>/config/`);
+//! this file only picks among them (and `config/buses.rs` picks a bus's checks and its words by
+//! its protocol). A new protocol is a variant in each enum below, and the arms the compiler
+//! then asks for.
 
-pub mod mbus;
-pub mod modbus;
+use super::walk::{Errors, Table};
+use crate::mbus::config as mbus;
+use crate::modbus::config as modbus;
 
 /// The protocol a bus speaks; one list, parsed with `FromStr`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -195,6 +197,60 @@ impl std::fmt::Display for Address {
             Address::Modbus(u) => u.fmt(f),
             Address::Mbus(m) => m.fmt(f),
         }
+    }
+}
+
+/// The serving outputs the protocols bring, each a kind of `[outputs.NAME]` of its own (kind
+/// `"modbus"`: a Modbus TCP server for PLCs), read by its protocol's folder; servers, not MQTT
+/// connections.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Servers {
+    /// The outputs of kind `modbus`.
+    pub modbus: Vec<modbus::server::ModbusServer>,
+}
+
+impl Servers {
+    /// Whether `kind` names a serving output.
+    pub fn is_kind(kind: &str) -> bool {
+        kind == modbus::server::KIND
+    }
+
+    /// The serving kinds as an error lists them: `"modbus" (a Modbus TCP server)`.
+    pub fn kinds() -> String {
+        format!("{:?} (a Modbus TCP server)", modbus::server::KIND)
+    }
+
+    /// Reads one `[outputs.NAME]` table of a serving kind (its name checked, its `kind` read).
+    pub(crate) fn read(&mut self, name: &str, t: Table<'_>, errs: &mut Errors) {
+        self.modbus.extend(modbus::server::read(name, t, errs));
+    }
+
+    /// A device's own keys for the serving outputs (`server_unit = N`: the unit id it answers
+    /// as), read beside its bus's keys whatever protocol the bus speaks.
+    pub(crate) fn device_keys(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<u8> {
+        modbus::server::server_unit(t, path, errs)
+    }
+
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.modbus.is_empty()
+    }
+
+    /// Each serving output: its name, kind and where it listens.
+    pub fn each(&self) -> impl Iterator<Item = (&str, &'static str, String)> {
+        self.modbus
+            .iter()
+            .map(|s| (s.name.as_str(), modbus::server::KIND, s.listen.to_string()))
+    }
+
+    /// Whether one takes commands.
+    pub fn take_commands(&self) -> bool {
+        self.modbus.iter().any(|s| s.commands)
+    }
+
+    /// The first serving kind, for a note that none serves.
+    pub fn kind() -> &'static str {
+        modbus::server::KIND
     }
 }
 

@@ -1,0 +1,11 @@
+//! Wired M-Bus, everything the gateway knows of it in one folder, each part at the floor of
+//! the layer it implements: [`config`] its line, a meter's address and the checks of
+//! `[buses.NAME]`; [`driver`] the pure protocol layer (frames, telegrams, records) and on it
+//! the master ([`driver::master`], the driver under the bus core); [`commission`] scanning and
+//! reading meters; [`sim`] simulated meters and segments. `crate::protocols` (and
+//! `config/protocols/`, `config/buses.rs`) register it.
+
+pub mod commission;
+pub mod config;
+pub mod driver;
+pub mod sim;
