@@ -21,15 +21,22 @@ pub struct Kind {
     pub table: Option<OwnTable>,
     /// The topic prefix no command may point a response topic into, and why, given its
     /// settings (`None` when its table is absent or broken).
-    pub reserved: fn(Option<&dyn Settings>) -> Option<(String, &'static str)>,
+    pub reserved: fn(Option<&dyn Settings>) -> Reserved,
 }
+
+/// A topic prefix a kind reserves, and why.
+pub type Reserved = Option<(String, &'static str)>;
+
+/// The reader of a kind's own table.
+pub(crate) type Read =
+    fn(Option<Table<'_>>, &Context<'_>, &mut Errors) -> Option<Arc<dyn Settings>>;
 
 /// A kind's own top-level table (`[sparkplug]`, `[homeassistant]`) and the file that reads it.
 pub struct OwnTable {
     /// The table's name.
     pub name: &'static str,
     /// Reads it (absent: `None`); `None` back when absent or broken (the problems in `errs`).
-    pub(crate) read: fn(Option<Table<'_>>, &Context<'_>, &mut Errors) -> Option<Arc<dyn Settings>>,
+    pub(crate) read: Read,
     /// `Some(what)`: an output of this kind needs the table (`"with its group_id"`), and the
     /// table without such an output is an error too.
     pub needed: Option<&'static str>,
@@ -63,7 +70,7 @@ impl PartialEq for dyn Settings {
 }
 
 /// A kind that reserves no topic prefix.
-pub fn reserves_nothing(_: Option<&dyn Settings>) -> Option<(String, &'static str)> {
+pub fn reserves_nothing(_: Option<&dyn Settings>) -> Reserved {
     None
 }
 

@@ -140,7 +140,14 @@ impl Outputs {
 }
 
 /// Each kind's own table, read by its own file: whether it was there, and what it said.
-struct OwnTables(Vec<(&'static Kind, bool, Option<Arc<dyn Settings>>)>);
+struct OwnTables(Vec<Own>);
+
+/// A kind's own table, read.
+struct Own {
+    kind: &'static Kind,
+    present: bool,
+    settings: Option<Arc<dyn Settings>>,
+}
 
 impl OwnTables {
     fn read(root: &mut Table<'_>, kinds: &Kinds, gateway_id: &str, errs: &mut Errors) -> Self {
@@ -152,14 +159,19 @@ impl OwnTables {
             };
             let table = root.table(own.name, errs);
             let present = table.is_some();
-            out.push((kind, present, (own.read)(table, &cx, errs)));
+            let settings = (own.read)(table, &cx, errs);
+            out.push(Own {
+                kind,
+                present,
+                settings,
+            });
         }
         OwnTables(out)
     }
 
     /// A table a kind needs that no output asked for, or the other way round.
     fn check_needed(&self, list: &[OutputConfig], origin: Option<&str>, errs: &mut Errors) {
-        for (kind, present, _) in &self.0 {
+        for Own { kind, present, .. } in &self.0 {
             let Some(own) = &kind.table else { continue };
             let Some(what) = own.needed else { continue };
             let (name, table) = (kind.name, own.name);
@@ -177,8 +189,8 @@ impl OwnTables {
     fn settings_of(&self, kind: &Kind) -> Option<&dyn Settings> {
         self.0
             .iter()
-            .find(|(k, _, _)| k.name == kind.name)
-            .and_then(|(_, _, s)| s.as_deref())
+            .find(|own| own.kind.name == kind.name)
+            .and_then(|own| own.settings.as_deref())
     }
 }
 
@@ -230,7 +242,7 @@ pub(crate) fn read(
         .filter_map(|k| (k.reserved)(tables.settings_of(k)))
         .collect();
     let settings = tables.0.into_iter();
-    let settings = settings.filter_map(|(k, _, s)| Some((k.name, s?)));
+    let settings = settings.filter_map(|own| Some((own.kind.name, own.settings?)));
     Outputs {
         voice: voice_home(&list, base),
         list,
