@@ -56,8 +56,13 @@ impl Registry {
         Registry(STANDARD.to_vec())
     }
 
-    /// These kinds and `entry`.
+    /// These kinds and `entry`, whose name none of them has.
     pub fn with(mut self, entry: Entry) -> Registry {
+        let name = entry.kind.name;
+        assert!(
+            self.0.iter().all(|e| e.kind.name != name),
+            "two output kinds named {name:?}"
+        );
         self.0.push(entry);
         self
     }

@@ -13,7 +13,7 @@ use crate::config::{Config, ConfigErrors, OutputConfig};
 use crate::counter::Update;
 use crate::outbox::Message;
 use crate::publish::format::Format;
-use crate::publish::formats::{Entry, Registry};
+use crate::publish::formats::{Entry, Registry, STANDARD};
 use crate::publish::lifecycle::{Stage, plain};
 use crate::reading::{Output, Reading};
 
@@ -167,4 +167,15 @@ fn a_kind_left_out_of_the_registry_cannot_be_parsed_and_the_error_lists_the_regi
     let err = check(&registry(), "[outputs.x]\nkind = \"xml\"\n").unwrap_err();
     let err = err.to_string();
     assert!(err.contains("\"homeassistant\", \"toy\""), "{err}");
+}
+
+#[test]
+fn every_kind_has_a_name_of_its_own() {
+    let names: Vec<&str> = STANDARD.iter().map(|e| e.kind.name).collect();
+    let mut unique = names.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(unique.len(), names.len(), "{names:?}");
+    let twice = std::panic::catch_unwind(|| registry().with(STANDARD[0]));
+    assert!(twice.is_err(), "a kind registered twice is refused");
 }

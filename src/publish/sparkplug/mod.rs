@@ -5,7 +5,8 @@
 //! [`node`] is the state machine (births, deaths, `seq`, aliases, commands), [`metrics`] what a
 //! channel publishes, [`proto`] the payload, [`topic`] the topic names, [`command`] what the
 //! host sends, [`bdseq`] the birth/death number kept across restarts. This file only builds
-//! the node from the config and puts it behind the output stage's [`Format`].
+//! the node from the config and puts it behind the output stage's [`Format`] (its encoder) and
+//! [`Lifecycle`] (births at connect, the NDEATH as its will, its hold, commands).
 
 pub mod bdseq;
 pub mod command;
