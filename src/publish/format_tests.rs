@@ -13,7 +13,7 @@ use crate::topics::Topics;
 
 /// The JSON kind.
 fn json() -> OutputKind {
-    OutputKind(&crate::config::outputs::json::KIND)
+    OutputKind::of(&crate::config::outputs::json::KIND)
 }
 
 /// The output stage of `config`'s first output of `kind`.

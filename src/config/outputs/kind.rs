@@ -74,11 +74,16 @@ pub fn reserves_nothing(_: Option<&dyn Settings>) -> Reserved {
     None
 }
 
-/// What an output publishes: one of the registry's kinds. Compared by name.
+/// What an output publishes: one of the registry's kinds, had from [`Kinds::find`] (outside the
+/// config). Compared by name.
 #[derive(Clone, Copy)]
-pub struct OutputKind(pub &'static Kind);
+pub struct OutputKind(&'static Kind);
 
 impl OutputKind {
+    pub(crate) fn of(kind: &'static Kind) -> OutputKind {
+        OutputKind(kind)
+    }
+
     /// The name the config writes.
     pub fn name(self) -> &'static str {
         self.0.name

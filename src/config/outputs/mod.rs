@@ -261,7 +261,7 @@ fn from_format(
     base: &Mqtt,
     errs: &mut Errors,
 ) -> Vec<OutputConfig> {
-    let json = OutputKind(&json::KIND);
+    let json = OutputKind::of(&json::KIND);
     let kinds = kinds.unwrap_or(std::slice::from_ref(&json));
     let discovery = discovery.unwrap_or(false);
     if discovery && !kinds.contains(&json) {
@@ -276,7 +276,7 @@ fn from_format(
                 mqtt.client_id = format!("{}-{}", base.client_id, kind.name());
             }
             let kind = match kind {
-                k if k == json && discovery => OutputKind(&homeassistant::KIND),
+                k if k == json && discovery => OutputKind::of(&homeassistant::KIND),
                 k => k,
             };
             let name = if kind.is(&homeassistant::KIND) {
