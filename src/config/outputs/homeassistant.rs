@@ -23,12 +23,20 @@ pub static KIND: Kind = Kind {
 };
 
 /// `[homeassistant]`, checked.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, Eq)]
 pub struct HomeAssistant {
     /// Discovery prefix; Home Assistant announces itself on `<prefix>/status`.
     pub prefix: String,
     /// `discovery`: `mqtt.format`'s way of asking for an output of kind `homeassistant`.
     pub discovery: Option<bool>,
+}
+
+/// By the prefix: `discovery` shows in the outputs' list (a reload that only writes out
+/// `discovery = false` changes no output).
+impl PartialEq for HomeAssistant {
+    fn eq(&self, other: &HomeAssistant) -> bool {
+        self.prefix == other.prefix
+    }
 }
 
 impl Default for HomeAssistant {
