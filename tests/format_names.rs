@@ -175,3 +175,29 @@ fn the_check_sees_a_format_named_in_code_and_not_in_comments_or_tests() {
     assert!(!is_test_file("publish/mqtt.rs"));
     assert!(is_test_file("publish/mqtt_tests.rs"));
 }
+
+/// The encoder every format implements (`publish/format.rs`) knows no transport: no MQTT hook
+/// (subscriptions, wills, connections, holds) and no command router; those are a format's
+/// `Lifecycle` (`publish/lifecycle.rs`), which only the formats on an MQTT connection have.
+#[test]
+fn the_encoder_trait_knows_no_transport_and_no_router() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/publish/format.rs");
+    let text = std::fs::read_to_string(path).unwrap();
+    let forbidden = [
+        "dispatch",
+        "Incoming",
+        "Will",
+        "mqtt",
+        "subscri",
+        "connected",
+        "Reaction",
+    ];
+    for line in code_lines(&text) {
+        for word in forbidden {
+            assert!(
+                !line.contains(word),
+                "publish/format.rs names {word:?}: {line}"
+            );
+        }
+    }
+}
