@@ -78,7 +78,7 @@ struct Gateway {
 /// What the gateway's loop hears besides signals: its outputs' protocols' requests, pushed
 /// configs.
 struct Inbox {
-    controls: UnboundedReceiver<crate::publish::format::Control>,
+    controls: UnboundedReceiver<crate::publish::lifecycle::Control>,
     pushes: tokio::sync::mpsc::Receiver<crate::dispatch::Incoming>,
 }
 
@@ -101,7 +101,7 @@ pub async fn run_with_reloads(
     while next == Next::Run {
         tokio::select! {
             () = gateway.shutdown.cancelled() => break,
-            Some(crate::publish::format::Control::Reboot) = inbox.controls.recv() => {
+            Some(crate::publish::lifecycle::Control::Reboot) = inbox.controls.recv() => {
                 tracing::warn!("rebooting as asked: an orderly stop (state saved), then exit status {REBOOT_STATUS} for the service to start the gateway again");
                 ended = Ended::Reboot;
                 gateway.shutdown.cancel();

@@ -1,6 +1,6 @@
 //! A format is named once: outside its own files and its config file, at most three files of
-//! `src/` may name it (the kinds' enum in `config/outputs/mod.rs`, where each kind is built in
-//! `publish/formats.rs`, and the module list in `publish/mod.rs`). A format that leaks into
+//! `src/` may name it (the module lists in `config/outputs/mod.rs` and `publish/mod.rs`, and
+//! the output registry in `publish/formats.rs`). A format that leaks into
 //! the core (the bus, the router, the MQTT task, the app) fails here, with the files that name
 //! it. Comments and test code are not read.
 
@@ -34,7 +34,7 @@ const FORMATS: &[Format] = &[
     },
     Format {
         name: "json",
-        own: &["publish/json.rs"],
+        own: &["publish/json.rs", "config/outputs/json.rs"],
         names: names_the_json_format,
     },
 ];
@@ -174,4 +174,30 @@ fn the_check_sees_a_format_named_in_code_and_not_in_comments_or_tests() {
     assert!(!names_the_json_format("fn to_json(&self) {}"));
     assert!(!is_test_file("publish/mqtt.rs"));
     assert!(is_test_file("publish/mqtt_tests.rs"));
+}
+
+/// The encoder every format implements (`publish/format.rs`) knows no transport: no MQTT hook
+/// (subscriptions, wills, connections, holds) and no command router; those are a format's
+/// `Lifecycle` (`publish/lifecycle.rs`), which only the formats on an MQTT connection have.
+#[test]
+fn the_encoder_trait_knows_no_transport_and_no_router() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/publish/format.rs");
+    let text = std::fs::read_to_string(path).unwrap();
+    let forbidden = [
+        "dispatch",
+        "Incoming",
+        "Will",
+        "mqtt",
+        "subscri",
+        "connected",
+        "Reaction",
+    ];
+    for line in code_lines(&text) {
+        for word in forbidden {
+            assert!(
+                !line.contains(word),
+                "publish/format.rs names {word:?}: {line}"
+            );
+        }
+    }
 }

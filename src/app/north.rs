@@ -11,7 +11,7 @@ use tokio_util::sync::CancellationToken;
 use crate::config::Config;
 use crate::health::{Health, Loop};
 use crate::metrics::Metrics;
-use crate::publish::format::{Control, Format};
+use crate::publish::lifecycle::{Control, MqttFormat};
 use crate::reading::Output;
 
 /// What every output task is wired to.
@@ -189,7 +189,7 @@ fn prepare(config: &Config, w: &Wiring) -> Vec<Prepared> {
     }
     if config.outputs.voice == VoiceHome::Own {
         let voice = crate::publish::voice::Voice::new(&config.mqtt.topic_root, VOICE_NAME);
-        let formats: Vec<Box<dyn Format>> = vec![Box::new(voice)];
+        let formats: Vec<Box<dyn MqttFormat>> = vec![Box::new(voice)];
         let own = (VOICE_NAME, &config.mqtt);
         out.push(prepare_one(config, own, formats, true, home, w));
     }
@@ -199,7 +199,7 @@ fn prepare(config: &Config, w: &Wiring) -> Vec<Prepared> {
 fn prepare_one(
     config: &Config,
     (name, mqtt): (&str, &crate::config::Mqtt),
-    formats: Vec<Box<dyn Format>>,
+    formats: Vec<Box<dyn MqttFormat>>,
     voice: bool,
     home: &str,
     w: &Wiring,

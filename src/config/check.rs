@@ -8,26 +8,28 @@ use config::Value;
 
 use super::model::BusParts;
 use super::model::{Bus, Config, ConfigErrors, Gateway};
+use super::outputs::Kinds;
 use super::protocols::Protocol;
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
 use crate::profile::MAX_TIMEOUT;
 
-/// Checks a merged configuration tree that was read from `path`.
-pub fn from_tree(tree: &Value, path: &Path) -> Result<Config, ConfigErrors> {
+/// Checks a merged configuration tree that was read from `path`, with the output kinds of the
+/// registry.
+pub fn from_tree(tree: &Value, path: &Path, kinds: &Kinds) -> Result<Config, ConfigErrors> {
     let mut errs = Errors {
         default_origin: path.display().to_string(),
         ..Errors::default()
     };
-    let config = check(tree, path, &mut errs);
+    let config = check(tree, (path, kinds), &mut errs);
     match config {
         Some(c) if errs.list.is_empty() => Ok(c),
         _ => Err(ConfigErrors(errs.list)),
     }
 }
 
-fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
+fn check(tree: &Value, (path, kinds): (&Path, &Kinds), errs: &mut Errors) -> Option<Config> {
     let mut root = Table::of(tree, "", errs)?;
     let config_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
 
@@ -36,7 +38,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     let (mqtt, legacy) = match root.table("mqtt", errs) {
         Some(mut t) => {
             let mqtt = super::mqtt::mqtt(&mut t, &gateway.id, errs);
-            let legacy = super::outputs::formats(&mut t, errs);
+            let legacy = super::outputs::formats(&mut t, kinds, errs);
             t.finish(errs);
             (mqtt, legacy)
         }
@@ -55,7 +57,7 @@ fn check(tree: &Value, path: &Path, errs: &mut Errors) -> Option<Config> {
     };
 
     let buses = buses(&mut root, &profiles, errs);
-    let outputs = super::outputs::read(&mut root, legacy, &mqtt, &gateway.id, errs);
+    let outputs = super::outputs::read(&mut root, (legacy, kinds), &mqtt, &gateway.id, errs);
     let remote = super::remote::read(root.table("remote", errs), errs);
     root.finish(errs);
 

@@ -34,20 +34,20 @@ pub use channel::{ChannelConfig, Run};
 pub use check::{from_tree, host_name_raw, id_from_host};
 pub use hash::ConfigHash;
 pub use metrics::Metrics as MetricsEndpoint;
-pub use outputs::{OutputConfig, OutputKind, Outputs};
+pub use outputs::{Kinds, OutputConfig, OutputKind, Outputs};
 
 pub use model::*;
 
+/// `Config::load`, `Config::load_with_env` and `Config::from_toml` check with the gateway's own
+/// output kinds: they are defined beside the output registry (`publish/formats.rs`), which
+/// stands above the formats it builds, and call the two below with its kinds.
 impl Config {
-    /// Reads and checks `path`, with `PULSEGATE__…` overrides from the process environment.
-    pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
-        Self::load_with_env(path, None)
-    }
-
-    /// Like [`Config::load`], with the environment given (for tests).
-    pub fn load_with_env(
+    /// Reads and checks `path` with the output kinds `kinds`, and the environment given
+    /// (`None`: the process's `PULSEGATE__…` overrides).
+    pub fn load_with(
         path: &Path,
         env: Option<HashMap<String, String>>,
+        kinds: &Kinds,
     ) -> Result<Config, ConfigErrors> {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| {
@@ -57,14 +57,15 @@ impl Config {
                 message: format!("cannot read: {e}"),
             }])
         })?;
-        Self::from_toml(&text, path, env)
+        Self::from_toml_with(&text, path, env, kinds)
     }
 
-    /// Checks TOML text as if it had been read from `path`.
-    pub fn from_toml(
+    /// Checks TOML text as if it had been read from `path`, with the output kinds `kinds`.
+    pub fn from_toml_with(
         text: &str,
         path: &Path,
         env: Option<HashMap<String, String>>,
+        kinds: &Kinds,
     ) -> Result<Config, ConfigErrors> {
         let origin = path.display().to_string();
         let mut env_source = config::Environment::with_prefix("PULSEGATE")
@@ -85,7 +86,7 @@ impl Config {
                     message: e.to_string(),
                 }])
             })?;
-        from_tree(&tree.cache, path)
+        from_tree(&tree.cache, path, kinds)
     }
 
     /// Every device with its bus, in bus and name order.

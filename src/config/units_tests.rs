@@ -110,13 +110,20 @@ fn publish_keys_resolve_gateway_then_device_then_channel() {
 
 #[test]
 fn homeassistant_discovery_is_off_unless_asked_for() {
-    use crate::config::OutputKind;
+    use crate::config::outputs::homeassistant::{HomeAssistant, KIND};
+    let prefix = |c: &crate::config::Config| {
+        c.outputs
+            .settings::<HomeAssistant>()
+            .unwrap()
+            .prefix
+            .clone()
+    };
     let c = check("", &[]).unwrap();
-    assert!(!c.outputs.has(OutputKind::HomeAssistant));
-    assert_eq!(c.outputs.homeassistant.prefix, "homeassistant");
+    assert!(!c.outputs.has(&KIND));
+    assert_eq!(prefix(&c), "homeassistant");
     let c = check("[homeassistant]\ndiscovery = true\nprefix = \"ha\"\n", &[]).unwrap();
-    assert!(c.outputs.has(OutputKind::HomeAssistant));
-    assert_eq!(c.outputs.homeassistant.prefix, "ha");
+    assert!(c.outputs.has(&KIND));
+    assert_eq!(prefix(&c), "ha");
     let e = errors("[homeassistant]\nprefix = \"ha/#\"\nnope = 1\n");
     assert!(
         e.contains("homeassistant.prefix") && e.contains("homeassistant.nope"),

@@ -584,7 +584,7 @@ impl OutputMetrics {
         }
     }
 
-    /// The output's protocol events counted since start (see `Format::tallies`).
+    /// The output's protocol events counted since start (see `Lifecycle::tallies`).
     pub fn tallies(&self, tallies: &[(&'static str, u64)]) {
         let Some((f, name)) = &self.inner else { return };
         for (event, now) in tallies {

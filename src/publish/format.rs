@@ -1,68 +1,20 @@
-//! The output stage of one output: typed events from the buses and the command router in, MQTT
-//! messages out (topic, payload bytes, QoS, retain, properties, and what they carry). A format
-//! is one implementation of [`Format`]; an output's kind chooses which run
-//! ([`super::formats::build`]), in one [`Stage`] owned by that output's MQTT task. Pure.
+//! The encoder of an output: typed events from the buses and the command router in, messages
+//! out (topic, payload bytes, QoS, retain, properties, and what they carry). A format is one
+//! implementation of [`Format`]; an output's kind chooses which run (the registry,
+//! [`super::formats`]). Pure, and no notion of the transport: what a format does on an MQTT
+//! connection (its subscriptions, what it says at connect and leaves as its will, its hold) is
+//! the [`super::lifecycle::Lifecycle`] of the formats that need one.
 //!
-//! Adding one: a new file (or folder) with a type that implements [`Format`], a variant of
-//! `config::OutputKind`, and its arm in [`super::formats::build`]. A format is an encoder: it
-//! says what each message carries ([`Content`]) and has no say over its delivery (owed or
-//! chatter, decided in [`super::delivery`] and applied here).
-//!
-//! A format also owns its protocol's lifecycle on the wire, as Telegraf's outputs own
-//! `Connect`/`Write`/`Close`: what it publishes at every connection (Sparkplug's births), the
-//! will it leaves with the broker, what it publishes when the gateway stops, what its
-//! subscriptions mean (Home Assistant's birth message; commands of its own protocol, handed to
-//! the command router), timers of its own (`tick`), its hold (Sparkplug's primary host), and a
-//! last look at each stored message as it leaves (a protocol that numbers its messages on the
-//! wire). The MQTT task only calls these hooks; it knows no format.
+//! Adding one: a new file (or folder) with a type that implements [`Format`], its kind's part of
+//! the config in `config/outputs/` and one line in the registry ([`super::formats`]). A format
+//! is an encoder: it says what each message carries ([`Content`]) and has no say over its
+//! delivery (owed or chatter, decided in [`super::delivery`]).
 
-use bytes::Bytes;
-use tokio::time::Instant;
-
-use super::delivery::classified;
 use crate::config::Config;
-use crate::dispatch::Incoming;
 #[cfg(doc)]
 use crate::outbox::Content;
-use crate::outbox::{Message, Will};
+use crate::outbox::Message;
 use crate::reading::Output;
-
-/// What a format makes of a message on one of its subscriptions.
-#[derive(Debug, Default)]
-pub struct Reaction {
-    /// To publish.
-    pub messages: Vec<Message>,
-    /// For the command router, as if they had arrived on a command topic (with all its
-    /// checks and admission).
-    pub commands: Vec<Incoming>,
-    /// Published at once, ahead of the outbox's backlog, and not stored, like what
-    /// [`Format::connected`] returns (Sparkplug's births when its primary host comes online,
-    /// before what was held for it).
-    pub at_once: Vec<Message>,
-    /// Answers the format gave itself (a command of its protocol it refused before the router
-    /// saw it): `Output::CommandResult`s, counted and routed back like every answer.
-    pub answers: Vec<Output>,
-    /// What its protocol asked of the output or the gateway (Sparkplug's node controls).
-    pub control: Vec<Control>,
-}
-
-/// A request of an output's protocol to the output or the gateway.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Control {
-    /// Move this output to its next broker now.
-    NextServer,
-    /// Stop the gateway cleanly (state saved) with an exit status the service restarts on.
-    Reboot,
-}
-
-impl From<Vec<Message>> for Reaction {
-    fn from(messages: Vec<Message>) -> Reaction {
-        Reaction {
-            messages,
-            ..Reaction::default()
-        }
-    }
-}
 
 /// Turns events into the messages that publish them. `&mut self`: a format may remember what it
 /// published (discovery announces each entity once; Sparkplug B numbers its messages).
@@ -70,197 +22,9 @@ pub trait Format: Send + Sync {
     /// The messages for `event`; none when this format does not publish such an event.
     fn messages(&mut self, event: &Output) -> Vec<Message>;
 
-    /// Topic filters this format reads, subscribed at every connection.
-    fn subscriptions(&self) -> Vec<String> {
-        Vec::new()
-    }
-
-    /// What it publishes at start, before any event.
-    fn start(&mut self) -> Vec<Message> {
-        Vec::new()
-    }
-
-    /// A message arrived on one of the formats' subscriptions (any format's: take only yours).
-    fn received(&mut self, _topic: &str, _payload: &[u8]) -> Reaction {
-        Reaction::default()
-    }
-
-    /// The same for a retained message: what the broker kept, not what was just sent. By
-    /// default the same as [`Format::received`]; a format whose subscriptions carry commands
-    /// ignores retained ones (a stale retained clear must not fire at every connection).
-    fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
-        self.received(topic, payload)
-    }
-
     /// The gateway's config was reloaded (SIGHUP).
     fn reload(&mut self, _config: &Config) -> Vec<Message> {
         Vec::new()
-    }
-
-    /// Published at every CONNACK, before the outbox's backlog, and not stored (a new
-    /// connection makes them again).
-    fn connected(&mut self) -> Vec<Message> {
-        Vec::new()
-    }
-
-    /// The connection is gone: the next [`Format::connected`] starts a new session.
-    fn disconnected(&mut self) {}
-
-    /// The will to leave with the broker at the next connection (asked before each one).
-    fn will(&mut self) -> Option<Will> {
-        None
-    }
-
-    /// Published, not stored, as the gateway stops while connected (what the will would
-    /// have said, said cleanly).
-    fn stopping(&mut self) -> Vec<Message> {
-        Vec::new()
-    }
-
-    /// About once a second, on tokio's clock: work the format put off (coalescing).
-    fn tick(&mut self, _now: Instant) -> Vec<Message> {
-        Vec::new()
-    }
-
-    /// While a format holds, the outbox hands nothing stored to the client: it is kept (and
-    /// spooled) as during an outage. Sparkplug holds while its primary host is offline (the
-    /// spec has the node go quiet then). `Some` says why (for health and the status line).
-    fn held(&self) -> Option<String> {
-        None
-    }
-
-    /// A stored message of this format leaves for the broker now, in wire order: `Some`
-    /// bytes to send instead of the stored ones. `replay`: it was stored before this
-    /// connection (an outage's backlog). Any format's messages pass: change only yours.
-    fn outgoing(&mut self, _topic: &str, _payload: &Bytes, _replay: bool) -> Option<Bytes> {
-        None
-    }
-
-    /// The client did not take the message [`Format::outgoing`] last looked at (its queue was
-    /// full): it is offered again later.
-    fn unsent(&mut self) {}
-
-    /// Events of its protocol it counted since start, by name (Sparkplug: STATE messages
-    /// ignored, rebirths asked for and done), for the metrics.
-    fn tallies(&self) -> Vec<(&'static str, u64)> {
-        Vec::new()
-    }
-}
-
-/// The formats in use, run one after the other on every event.
-pub struct Stage {
-    formats: Vec<Box<dyn Format>>,
-}
-
-impl Stage {
-    pub fn new(formats: Vec<Box<dyn Format>>) -> Stage {
-        Stage { formats }
-    }
-
-    /// Every format's messages for `event`, in the formats' order, classified for delivery.
-    pub fn render(&mut self, event: &Output) -> Vec<Message> {
-        self.each(|f| f.messages(event))
-    }
-
-    /// Every format's subscriptions.
-    pub fn subscriptions(&self) -> Vec<String> {
-        self.formats
-            .iter()
-            .flat_map(|f| f.subscriptions())
-            .collect()
-    }
-
-    pub fn start(&mut self) -> Vec<Message> {
-        self.each(|f| f.start())
-    }
-
-    /// A message on one of the subscriptions, offered to every format.
-    pub fn received(&mut self, topic: &str, payload: &[u8]) -> Reaction {
-        self.react(|f| f.received(topic, payload))
-    }
-
-    /// A retained message on one of the subscriptions, offered to every format.
-    pub fn received_retained(&mut self, topic: &str, payload: &[u8]) -> Reaction {
-        self.react(|f| f.received_retained(topic, payload))
-    }
-
-    fn react(&mut self, mut f: impl FnMut(&mut dyn Format) -> Reaction) -> Reaction {
-        let mut out = Reaction::default();
-        for format in &mut self.formats {
-            let r = f(&mut **format);
-            out.messages.extend(classified(r.messages));
-            out.commands.extend(r.commands);
-            out.at_once.extend(r.at_once);
-            out.answers.extend(r.answers);
-            out.control.extend(r.control);
-        }
-        out
-    }
-
-    /// Some format holds the outbox ([`Format::held`]), and why.
-    pub fn held(&self) -> Option<String> {
-        self.formats.iter().find_map(|f| f.held())
-    }
-
-    pub fn reload(&mut self, config: &Config) -> Vec<Message> {
-        self.each(|f| f.reload(config))
-    }
-
-    /// Every format's messages for a new connection.
-    pub fn connected(&mut self) -> Vec<Message> {
-        self.each(|f| f.connected())
-    }
-
-    pub fn disconnected(&mut self) {
-        for format in &mut self.formats {
-            format.disconnected();
-        }
-    }
-
-    /// The first will a format sets (an output's kind has one format with a will, at most).
-    pub fn will(&mut self) -> Option<Will> {
-        self.formats.iter_mut().find_map(|f| f.will())
-    }
-
-    pub fn stopping(&mut self) -> Vec<Message> {
-        self.each(|f| f.stopping())
-    }
-
-    pub fn tick(&mut self, now: Instant) -> Vec<Message> {
-        self.each(|f| f.tick(now))
-    }
-
-    /// The bytes to send for a stored message, after every format has had its look.
-    pub fn outgoing(&mut self, topic: &str, payload: &Bytes, replay: bool) -> Option<Bytes> {
-        let mut changed: Option<Bytes> = None;
-        for format in &mut self.formats {
-            let current = changed.as_ref().unwrap_or(payload);
-            if let Some(b) = format.outgoing(topic, current, replay) {
-                changed = Some(b);
-            }
-        }
-        changed
-    }
-
-    /// Every format's messages from `f`, classified for delivery ([`super::delivery`]).
-    /// Every format's tallies.
-    pub fn tallies(&self) -> Vec<(&'static str, u64)> {
-        self.formats.iter().flat_map(|f| f.tallies()).collect()
-    }
-
-    /// The last message offered to [`Stage::outgoing`] was not taken.
-    pub fn unsent(&mut self) {
-        for format in &mut self.formats {
-            format.unsent();
-        }
-    }
-
-    fn each(&mut self, mut f: impl FnMut(&mut dyn Format) -> Vec<Message>) -> Vec<Message> {
-        let mut out = Vec::new();
-        for format in &mut self.formats {
-            out.extend(classified(f(&mut **format)));
-        }
-        out
     }
 }
 

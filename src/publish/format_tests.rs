@@ -6,8 +6,15 @@ use super::*;
 use crate::config::{OutputConfig, OutputKind};
 use crate::counter::Update;
 use crate::outbox::{MemoryStore, Outbox, Step, Store};
+use crate::publish::formats::Registry;
+use crate::publish::lifecycle::Stage;
 use crate::reading::Reading;
 use crate::topics::Topics;
+
+/// The JSON kind.
+fn json() -> OutputKind {
+    OutputKind::of(&crate::config::outputs::json::KIND)
+}
 
 /// The output stage of `config`'s first output of `kind`.
 fn build(config: &crate::config::Config, kind: OutputKind) -> Stage {
@@ -66,7 +73,7 @@ fn config() -> crate::config::Config {
 
 #[test]
 fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
-    let mut json = build(&config(), OutputKind::Json);
+    let mut json = build(&config(), json());
     let m = json.render(&Output::single(reading(42)));
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/press1/enc0");
@@ -79,7 +86,7 @@ fn json_readings_go_to_the_channel_topic_with_the_configured_qos_and_retain() {
 
 #[test]
 fn json_status_is_retained_and_bus_health_is_transient() {
-    let mut json = build(&config(), OutputKind::Json);
+    let mut json = build(&config(), json());
     let status = Output::DeviceStatus {
         device: "press1".into(),
         online: false,
@@ -118,7 +125,7 @@ fn json_status_is_retained_and_bus_health_is_transient() {
 
 #[test]
 fn a_command_result_carries_the_correlation_data_to_the_response_topic_only() {
-    let mut json = build(&config(), OutputKind::Json);
+    let mut json = build(&config(), json());
     let result = Output::CommandResult {
         reply: crate::command::Reply {
             topics: vec!["pg/e1/press1/cmd/result".into(), "app/replies".into()],
@@ -192,7 +199,7 @@ fn an_unknown_format_is_a_config_error_naming_the_choices() {
 #[test]
 fn every_output_kind_the_config_takes_is_built_and_publishes_a_reading() {
     let c = check("format = [\"json\", \"sparkplug\"]\n[sparkplug]\ngroup_id = \"g\"").unwrap();
-    for kind in OutputKind::ALL {
+    for kind in Registry::standard().kinds().all() {
         let mut built = build(&c, kind);
         let mut r = reading(1);
         (r.device, r.channel) = ("d".into(), "a0".into());
@@ -202,9 +209,14 @@ fn every_output_kind_the_config_takes_is_built_and_publishes_a_reading() {
 
 #[test]
 fn the_kinds_are_named_once_and_the_error_lists_them_all() {
-    for kind in OutputKind::ALL {
-        assert_eq!(kind.name().parse::<OutputKind>(), Ok(kind));
-        let err = "xml".parse::<OutputKind>().unwrap_err().to_string();
+    let kinds = Registry::standard().kinds();
+    for kind in kinds.all() {
+        assert_eq!(
+            crate::config::outputs::parse_kind(&kinds, kind.name()),
+            Ok(kind)
+        );
+        let err = crate::config::outputs::parse_kind(&kinds, "xml");
+        let err = err.unwrap_err().to_string();
         assert!(err.contains(&format!("{:?}", kind.name())), "{err}");
     }
 }
@@ -245,7 +257,7 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
             },
         ],
     };
-    let mut per_channel = build(&config(), OutputKind::Json);
+    let mut per_channel = build(&config(), json());
     let topics: Vec<String> = per_channel
         .render(&poll)
         .into_iter()
@@ -258,7 +270,7 @@ fn a_polls_readings_go_one_per_channel_or_as_one_device_message() {
     let env = Some(std::collections::HashMap::new());
     let device_config =
         crate::config::Config::from_toml(&text, std::path::Path::new("x.toml"), env).unwrap();
-    let mut per_device = build(&device_config, OutputKind::Json);
+    let mut per_device = build(&device_config, json());
     let m = per_device.render(&poll);
     assert_eq!(m.len(), 1);
     assert_eq!(m[0].topic, "pg/e1/d");

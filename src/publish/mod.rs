@@ -1,6 +1,7 @@
 //! Readings and availability → MQTT. Each output is a task of its own ([`mqtt`]: its
 //! connection, outbox, will and hold), fed by [`fanout`] from the buses; its formats are pure
-//! encoders ([`format`], built per kind in [`formats`]); how a message is delivered is decided
+//! encoders ([`format`]) with their MQTT parts ([`lifecycle`]), built per kind by the output
+//! registry ([`formats`]); how a message is delivered is decided
 //! in [`delivery`]; the gateway's own status and answers are its [`voice`].
 
 pub mod account;
@@ -12,6 +13,7 @@ pub mod format;
 pub mod formats;
 pub mod homeassistant;
 pub mod json;
+pub mod lifecycle;
 pub mod mqtt;
 pub mod payload;
 pub mod poller;
@@ -29,3 +31,5 @@ pub use server::Server;
 mod oversized_tests;
 #[cfg(test)]
 mod socket_tests;
+#[cfg(test)]
+mod toy_output_tests;

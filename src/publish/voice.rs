@@ -8,6 +8,7 @@
 use bytes::Bytes;
 
 use super::format::Format;
+use super::lifecycle::Lifecycle;
 use crate::outbox::{Content, Message, Will};
 use crate::reading::Output;
 use crate::topics::Topics;
@@ -76,7 +77,9 @@ impl Format for Voice {
             _ => Vec::new(),
         }
     }
+}
 
+impl Lifecycle for Voice {
     /// The gateway's status, retained: `online` at every connection.
     fn connected(&mut self) -> Vec<Message> {
         vec![self.status("online")]

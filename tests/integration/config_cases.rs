@@ -1079,9 +1079,14 @@ fn every_broken_sparkplug_table_is_refused_naming_its_key_and_file() {
     let base = mutate(&base, "sparkplug.group_id", "\"plant\"");
     let file = Path::new("/etc/pulsegate/pulsegate.toml");
     let good = pulsegate::config::Config::from_toml(&base, file, Some(Default::default()));
-    let kinds: Vec<_> = good.unwrap().outputs.list.iter().map(|o| o.kind).collect();
-    use pulsegate::config::OutputKind;
-    assert_eq!(kinds, [OutputKind::Json, OutputKind::Sparkplug]);
+    let kinds: Vec<_> = good
+        .unwrap()
+        .outputs
+        .list
+        .iter()
+        .map(|o| o.kind.name())
+        .collect();
+    assert_eq!(kinds, ["json", "sparkplug"]);
     refused(&base, SPARKPLUG_CASES);
 }
 

@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use pulsegate::outbox::{Message, Will};
 use pulsegate::publish::format::Format;
+use pulsegate::publish::lifecycle::Lifecycle;
 use pulsegate::reading::Output;
 
 use crate::support::*;
@@ -18,7 +19,9 @@ impl Format for Toy {
     fn messages(&mut self, _event: &Output) -> Vec<Message> {
         Vec::new()
     }
+}
 
+impl Lifecycle for Toy {
     fn connected(&mut self) -> Vec<Message> {
         vec![Message::new("toy/hello".into(), "hi", 1, false)]
     }

@@ -1,6 +1,8 @@
 //! `[outputs.NAME]`: where readings go. Each output is a northbound of its own (its own MQTT
-//! connection, will, store and hold); its `kind` names its format, once, in [`OutputKind`]. The
-//! keys of `[mqtt]` written in an output's table override `[mqtt]` for that output.
+//! connection, will, store and hold); its `kind` is one of the output registry's
+//! (`publish/formats.rs`), handed in as [`Kinds`]: each kind's file here holds its part
+//! ([`kind::Kind`]: its name, its own table and the file that reads it, the topics it reserves).
+//! The keys of `[mqtt]` written in an output's table override `[mqtt]` for that output.
 //!
 //! `mqtt.format` (one kind or a list) with `[homeassistant] discovery` still works: it is read
 //! here into the same outputs, on the `[mqtt]` broker.
@@ -10,10 +12,11 @@
 //! gateway's JSON topics on the `[mqtt]` broker under `mqtt.topic_root`, or, when none does,
 //! on a connection of its own ([`VoiceHome`]).
 
-use std::fmt;
-use std::str::FromStr;
+use std::sync::Arc;
 
 pub mod homeassistant;
+pub mod json;
+pub mod kind;
 pub mod sparkplug;
 
 use config::ValueKind;
@@ -22,7 +25,7 @@ use super::connection::Mqtt;
 use super::protocols::Servers;
 use super::walk::{Errors, Table, join};
 use homeassistant::HomeAssistant;
-use sparkplug::Sparkplug;
+pub use kind::{Kind, Kinds, OutputKind, Settings};
 
 /// A device's own keys for the outputs (`server_unit = N`: the unit id it answers as on a
 /// server output), read beside its bus's keys whatever protocol the bus speaks.
@@ -57,69 +60,16 @@ impl Outputs {
     }
 }
 
-/// What an output publishes: the one list of formats the config checks against.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum OutputKind {
-    /// The gateway's JSON topics (`<root>/<device>/<channel>`, statuses, intervals).
-    Json,
-    /// A Sparkplug B edge node (`[sparkplug]`).
-    Sparkplug,
-    /// The JSON topics with Home Assistant discovery configs (`[homeassistant]`).
-    HomeAssistant,
-}
-
-impl OutputKind {
-    /// Every kind, in the order the config's error message lists them.
-    pub const ALL: [OutputKind; 3] = [
-        OutputKind::Json,
-        OutputKind::Sparkplug,
-        OutputKind::HomeAssistant,
-    ];
-
-    /// The name the config writes.
-    pub fn name(self) -> &'static str {
-        match self {
-            OutputKind::Json => "json",
-            OutputKind::Sparkplug => "sparkplug",
-            OutputKind::HomeAssistant => "homeassistant",
-        }
-    }
-
-    /// Whether it publishes the gateway's JSON topics under its topic root (and so says the
-    /// gateway's status there, with that status as its will).
-    pub fn carries_gateway_topics(self) -> bool {
-        matches!(self, OutputKind::Json | OutputKind::HomeAssistant)
-    }
-
-    /// The kinds as the error message lists them: `"json", "sparkplug", "homeassistant"`.
-    pub fn list() -> String {
-        let names: Vec<String> = Self::ALL
-            .iter()
-            .map(|k| format!("{:?}", k.name()))
-            .collect();
-        names.join(", ")
-    }
-}
-
-impl fmt::Display for OutputKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// A name that is not an output kind.
+/// A name that is not an output kind: the kinds listed are the registry's.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown output format {0:?}: one of {list}, or {servers}", list = OutputKind::list(), servers = Servers::kinds())]
-pub struct UnknownKind(pub String);
+#[error("unknown output format {0:?}: one of {1}, or {servers}", servers = Servers::kinds())]
+pub struct UnknownKind(pub String, pub String);
 
-impl FromStr for OutputKind {
-    type Err = UnknownKind;
-    fn from_str(s: &str) -> Result<OutputKind, UnknownKind> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.name() == s)
-            .ok_or_else(|| UnknownKind(s.to_string()))
-    }
+/// The kind named `name` among `kinds`.
+pub fn parse_kind(kinds: &Kinds, name: &str) -> Result<OutputKind, UnknownKind> {
+    kinds
+        .find(name)
+        .ok_or_else(|| UnknownKind(name.to_string(), kinds.list()))
 }
 
 /// One output, checked: its kind and its connection (`[mqtt]` with its own keys over it).
@@ -140,16 +90,17 @@ pub enum VoiceHome {
     Own,
 }
 
-/// The outputs of a gateway, and the settings of the formats they use.
+/// The outputs of a gateway, and the settings of the kinds they use.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outputs {
     /// Sorted by name.
     pub list: Vec<OutputConfig>,
     pub voice: VoiceHome,
-    /// `[sparkplug]`: present exactly when an output is of kind `sparkplug`.
-    pub sparkplug: Option<Sparkplug>,
-    /// `[homeassistant]`: its prefix, for the outputs of kind `homeassistant`.
-    pub homeassistant: HomeAssistant,
+    /// Each kind's settings from its own table (`[sparkplug]`, `[homeassistant]`), by kind name;
+    /// found by their type with [`Outputs::settings`].
+    pub settings: Vec<(&'static str, Arc<dyn Settings>)>,
+    /// Topic prefixes the kinds reserve, and why ([`Outputs::reserved_prefixes`]).
+    pub reserved: Vec<(String, &'static str)>,
     /// The serving outputs (servers for PLCs, not MQTT connections), by their protocol.
     pub servers: Servers,
 }
@@ -162,40 +113,93 @@ const MAX_NAME: usize = 32;
 
 impl Outputs {
     /// Whether some output is of `kind`.
-    pub fn has(&self, kind: OutputKind) -> bool {
-        self.list.iter().any(|o| o.kind == kind)
+    pub fn has(&self, kind: &Kind) -> bool {
+        self.list.iter().any(|o| o.kind.is(kind))
+    }
+
+    /// A kind's settings of type `T`, when its table was read.
+    pub fn settings<T: Settings>(&self) -> Option<&T> {
+        self.settings
+            .iter()
+            .find_map(|(_, s)| (**s).as_any().downcast_ref::<T>())
     }
 
     /// Topic prefixes no command may point a response topic into, besides the gateway's own
-    /// root: the formats' namespaces on the brokers the gateway writes to.
+    /// root: the kinds' namespaces on the brokers the gateway writes to.
     pub fn reserved_prefixes(&self) -> Vec<(String, &'static str)> {
-        vec![
-            (
-                self.homeassistant.prefix.clone(),
-                "it is under the Home Assistant discovery prefix",
-            ),
-            (
-                sparkplug::NAMESPACE.to_string(),
-                "it is in the Sparkplug B namespace (births, data and deaths of nodes)",
-            ),
-        ]
+        self.reserved.clone()
     }
 }
 
-/// Reads `[outputs]` (or the older `mqtt.format`), `[sparkplug]` and `[homeassistant]` against
-/// the checked `[mqtt]`.
+/// Each kind's own table, read by its own file: whether it was there, and what it said.
+struct OwnTables(Vec<Own>);
+
+/// A kind's own table, read.
+struct Own {
+    kind: &'static Kind,
+    present: bool,
+    settings: Option<Arc<dyn Settings>>,
+}
+
+impl OwnTables {
+    fn read(root: &mut Table<'_>, kinds: &Kinds, gateway_id: &str, errs: &mut Errors) -> Self {
+        let cx = kind::Context { gateway_id };
+        let mut out = Vec::new();
+        for &kind in &kinds.0 {
+            let Some(own) = &kind.table else {
+                continue;
+            };
+            let table = root.table(own.name, errs);
+            let present = table.is_some();
+            let settings = (own.read)(table, &cx, errs);
+            out.push(Own {
+                kind,
+                present,
+                settings,
+            });
+        }
+        OwnTables(out)
+    }
+
+    /// A table a kind needs that no output asked for, or the other way round.
+    fn check_needed(&self, list: &[OutputConfig], origin: Option<&str>, errs: &mut Errors) {
+        for Own { kind, present, .. } in &self.0 {
+            let Some(own) = &kind.table else { continue };
+            let Some(what) = own.needed else { continue };
+            let (name, table) = (kind.name, own.name);
+            let used = list.iter().any(|o| o.kind.is(kind));
+            if used && !present {
+                let why = format!("an output of kind {name:?} needs [{table}] {what}");
+                errs.push(table, origin, why);
+            } else if *present && !used {
+                let why = format!("[{table}] is set but no output is of kind {name:?}");
+                errs.push(table, origin, why);
+            }
+        }
+    }
+
+    fn settings_of(&self, kind: &Kind) -> Option<&dyn Settings> {
+        self.0
+            .iter()
+            .find(|own| own.kind.name == kind.name)
+            .and_then(|own| own.settings.as_deref())
+    }
+}
+
+/// Reads `[outputs]` (or the older `mqtt.format`) and each kind's own table against the
+/// checked `[mqtt]`.
 pub(crate) fn read(
     root: &mut Table<'_>,
-    legacy: Option<Vec<OutputKind>>,
+    (legacy, kinds): (Option<Vec<OutputKind>>, &Kinds),
     base: &Mqtt,
     gateway_id: &str,
     errs: &mut Errors,
 ) -> Outputs {
-    let ha_table = root.table("homeassistant", errs);
-    let (homeassistant, discovery) = homeassistant::read(ha_table, errs);
-    let sp_table = root.table("sparkplug", errs);
-    let sparkplug_set = sp_table.is_some();
-    let sparkplug = sparkplug::sparkplug(sp_table, gateway_id, errs);
+    let tables = OwnTables::read(root, kinds, gateway_id, errs);
+    let discovery = tables
+        .settings_of(&homeassistant::KIND)
+        .and_then(|s| s.as_any().downcast_ref::<HomeAssistant>())
+        .and_then(|h| h.discovery);
     let entries = root.entries("outputs", errs);
     let origin = root.origin().map(str::to_string);
     let mut servers_read = Servers::default();
@@ -218,26 +222,24 @@ pub(crate) fn read(
         }
         connections
             .into_iter()
-            .filter_map(|(name, value)| output(&name, value, base, errs))
+            .filter_map(|(name, value)| output(&name, value, (base, kinds), errs))
             .collect()
     };
-    let has_sparkplug = list
-        .iter()
-        .any(|o: &OutputConfig| o.kind == OutputKind::Sparkplug);
-    if has_sparkplug && !sparkplug_set {
-        let why = "an output of kind \"sparkplug\" needs [sparkplug] with its group_id";
-        errs.push("sparkplug", origin.as_deref(), why);
-    } else if sparkplug_set && !has_sparkplug {
-        let why = "[sparkplug] is set but no output is of kind \"sparkplug\"";
-        errs.push("sparkplug", origin.as_deref(), why);
-    }
+    tables.check_needed(&list, origin.as_deref(), errs);
     clashes(&list, base, errs);
+    let reserved = kinds
+        .0
+        .iter()
+        .filter_map(|k| (k.reserved)(tables.settings_of(k)))
+        .collect();
+    let settings = tables.0.into_iter();
+    let settings = settings.filter_map(|own| Some((own.kind.name, own.settings?)));
     Outputs {
         voice: voice_home(&list, base),
         list,
-        sparkplug,
+        settings: settings.collect(),
+        reserved,
         servers: servers_read,
-        homeassistant,
     }
 }
 
@@ -250,9 +252,10 @@ fn from_format(
     base: &Mqtt,
     errs: &mut Errors,
 ) -> Vec<OutputConfig> {
-    let kinds = kinds.unwrap_or(&[OutputKind::Json]);
+    let json = OutputKind::of(&json::KIND);
+    let kinds = kinds.unwrap_or(std::slice::from_ref(&json));
     let discovery = discovery.unwrap_or(false);
-    if discovery && !kinds.contains(&OutputKind::Json) {
+    if discovery && !kinds.contains(&json) {
         let why = "Home Assistant discovery describes the JSON topics: add \"json\" to mqtt.format";
         errs.push("homeassistant.discovery", None, why);
     }
@@ -260,14 +263,14 @@ fn from_format(
         .iter()
         .map(|&kind| {
             let mut mqtt = base.clone();
-            if kind != OutputKind::Json {
+            if kind != json {
                 mqtt.client_id = format!("{}-{}", base.client_id, kind.name());
             }
             let kind = match kind {
-                OutputKind::Json if discovery => OutputKind::HomeAssistant,
+                k if k == json && discovery => OutputKind::of(&homeassistant::KIND),
                 k => k,
             };
-            let name = if kind == OutputKind::HomeAssistant {
+            let name = if kind.is(&homeassistant::KIND) {
                 "json"
             } else {
                 kind.name()
@@ -314,7 +317,7 @@ fn server(name: &str, value: &config::Value, servers: &mut Servers, errs: &mut E
 fn output(
     name: &str,
     value: &config::Value,
-    base: &Mqtt,
+    (base, kinds): (&Mqtt, &Kinds),
     errs: &mut Errors,
 ) -> Option<OutputConfig> {
     let path = format!("outputs.{name}");
@@ -325,10 +328,7 @@ fn output(
         );
         errs.push(&path, t.origin(), why);
     }
-    let kind = match t
-        .req::<String>("kind", errs)
-        .map(|k| k.parse::<OutputKind>())
-    {
+    let kind = match t.req::<String>("kind", errs).map(|k| parse_kind(kinds, &k)) {
         Some(Ok(kind)) => Some(kind),
         Some(Err(e)) => {
             errs.push(&join(&path, "kind"), t.origin(), e.to_string());
@@ -409,7 +409,11 @@ fn voice_home(list: &[OutputConfig], base: &Mqtt) -> VoiceHome {
 
 /// Reads `mqtt.format`: one kind or a list of kinds, none twice; `None` when absent (or broken:
 /// the error is in `errs`).
-pub(crate) fn formats(t: &mut Table<'_>, errs: &mut Errors) -> Option<Vec<OutputKind>> {
+pub(crate) fn formats(
+    t: &mut Table<'_>,
+    known: &Kinds,
+    errs: &mut Errors,
+) -> Option<Vec<OutputKind>> {
     let path = join(&t.path, "format");
     let value = t.raw("format")?;
     let list: Option<Vec<String>> = match &value.kind {
@@ -434,9 +438,9 @@ pub(crate) fn formats(t: &mut Table<'_>, errs: &mut Errors) -> Option<Vec<Output
     }
     let mut kinds = Vec::new();
     for name in &list {
-        match name.parse::<OutputKind>() {
+        match parse_kind(known, name) {
             Err(e) => errs.push(&path, t.origin(), e.to_string()),
-            Ok(OutputKind::HomeAssistant) => {
+            Ok(k) if k.is(&homeassistant::KIND) => {
                 let why = "homeassistant is not a payload format: set [homeassistant] discovery = true, or use [outputs]";
                 errs.push(&path, t.origin(), why);
             }

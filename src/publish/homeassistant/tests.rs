@@ -7,11 +7,11 @@ use serde_json::Value;
 
 use super::Discovery;
 use crate::config::Config;
-use crate::publish::format::Stage;
+use crate::publish::lifecycle::Stage;
 
 /// The formats of the config's first output (discovery on: the JSON one, of kind
 /// `homeassistant`).
-fn chosen(config: &Config) -> Vec<Box<dyn crate::publish::format::Format>> {
+fn chosen(config: &Config) -> Vec<Box<dyn crate::publish::lifecycle::MqttFormat>> {
     crate::publish::formats::build(config, &config.outputs.list[0])
 }
 

@@ -4,7 +4,7 @@
 
 use super::Publisher;
 use crate::dispatch::Incoming;
-use crate::publish::format::Control;
+use crate::publish::lifecycle::Control;
 use crate::reading::Output;
 
 impl Publisher<'_> {

@@ -41,7 +41,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::batch::{Batch, Verdict};
 use super::dialer::Dialer;
-use super::format::{Control, Format, Stage};
+use super::lifecycle::{Control, MqttFormat, Stage};
 use super::poller::{Polled, Poller, Routes};
 use super::session::{Event, Failure};
 use super::spool::Spool;
@@ -72,7 +72,7 @@ pub struct Task {
     pub boot: crate::boot::Boot,
     pub metrics: crate::metrics::OutputMetrics,
     /// The output stage's formats ([`super::formats::build`]).
-    pub formats: Vec<Box<dyn Format>>,
+    pub formats: Vec<Box<dyn MqttFormat>>,
     /// The connection carries the gateway's voice: its boot marker and, with
     /// `mqtt.commands`, its command topics.
     pub voice: bool,

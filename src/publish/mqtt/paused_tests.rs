@@ -9,7 +9,7 @@ use tokio::time::{Instant, advance};
 use super::*;
 use crate::command::CommandError;
 use crate::outcome::{CommandOutcome, Outcome};
-use crate::publish::format::Stage;
+use crate::publish::lifecycle::Stage;
 
 fn refused(n: usize) -> Output {
     Output::CommandResult {

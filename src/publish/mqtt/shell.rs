@@ -5,7 +5,7 @@ use tokio::time::Instant;
 
 use super::link::Connection;
 use crate::outbox::{Message, Outbox, Step};
-use crate::publish::format::Stage;
+use crate::publish::lifecycle::Stage;
 use crate::publish::session::{Client, EventLoop, Options, REQUESTS, WINDOW};
 use crate::publish::spool::Spool;
 use crate::topics::Topics;

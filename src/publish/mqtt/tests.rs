@@ -113,7 +113,7 @@ fn task(name: &str) -> Task {
 }
 
 /// The formats of the config's first output.
-pub(super) fn formats_of(config: &Config) -> Vec<Box<dyn Format>> {
+pub(super) fn formats_of(config: &Config) -> Vec<Box<dyn crate::publish::lifecycle::MqttFormat>> {
     super::super::formats::build(config, &config.outputs.list[0])
 }
 

@@ -5,7 +5,8 @@
 //! [`node`] is the state machine (births, deaths, `seq`, aliases, commands), [`metrics`] what a
 //! channel publishes, [`proto`] the payload, [`topic`] the topic names, [`command`] what the
 //! host sends, [`bdseq`] the birth/death number kept across restarts. This file only builds
-//! the node from the config and puts it behind the output stage's [`Format`].
+//! the node from the config and puts it behind the output stage's [`Format`] (its encoder) and
+//! [`Lifecycle`] (births at connect, the NDEATH as its will, its hold, commands).
 
 pub mod bdseq;
 pub mod command;
@@ -21,8 +22,10 @@ use std::time::SystemTime;
 use crate::config::{Config, OutputConfig};
 use bytes::Bytes;
 
+use crate::config::outputs::sparkplug::Sparkplug as Settings;
 use crate::outbox::{Message, Will};
-use crate::publish::format::{Format, Reaction};
+use crate::publish::format::Format;
+use crate::publish::lifecycle::{Lifecycle, Reaction};
 use crate::reading::{Output, unix_ms};
 use metrics::ChannelShape;
 use node::{Node, Setup};
@@ -62,7 +65,7 @@ fn now_ms() -> u64 {
 /// The node's setup from a checked config. `check` refuses an output of kind `sparkplug`
 /// without `[sparkplug]`; a config built another way gets the gateway id as group and node.
 fn setup(config: &Config, output: &OutputConfig) -> Setup {
-    let (group, node, host) = match &config.outputs.sparkplug {
+    let (group, node, host) = match config.outputs.settings::<Settings>() {
         Some(s) => (
             s.group_id.clone(),
             s.edge_node_id.clone(),
@@ -125,6 +128,23 @@ impl Format for Sparkplug {
         self.node.event(event, now_ms())
     }
 
+    /// Devices or channels changed: the node is born again with them (same session and bdSeq).
+    fn reload(&mut self, config: &Config) -> Vec<Message> {
+        let fresh = setup(config, &self.output);
+        let hash_moved = self.node.set_config_hash(fresh.config_hash);
+        if fresh.devices == self.devices {
+            return if hash_moved {
+                self.node.rebirth(now_ms())
+            } else {
+                Vec::new()
+            };
+        }
+        self.devices = fresh.devices.clone();
+        self.node.reshape(fresh.devices, now_ms())
+    }
+}
+
+impl Lifecycle for Sparkplug {
     fn subscriptions(&self) -> Vec<String> {
         self.node.subscriptions(self.commands)
     }
@@ -141,21 +161,6 @@ impl Format for Sparkplug {
             return Reaction::default();
         }
         self.received(topic, payload)
-    }
-
-    /// Devices or channels changed: the node is born again with them (same session and bdSeq).
-    fn reload(&mut self, config: &Config) -> Vec<Message> {
-        let fresh = setup(config, &self.output);
-        let hash_moved = self.node.set_config_hash(fresh.config_hash);
-        if fresh.devices == self.devices {
-            return if hash_moved {
-                self.node.rebirth(now_ms())
-            } else {
-                Vec::new()
-            };
-        }
-        self.devices = fresh.devices.clone();
-        self.node.reshape(fresh.devices, now_ms())
     }
 
     /// The births, straight to the wire before the backlog.

@@ -20,7 +20,7 @@ use super::topic::{Kind, Topics};
 use crate::command::{CommandError, Reply, Via, Written};
 use crate::outbox::{Content, Message};
 use crate::outcome::{CommandOutcome, Outcome};
-use crate::publish::format::{Control, Reaction};
+use crate::publish::lifecycle::{Control, Reaction};
 use crate::reading::{Output, Reading};
 
 /// The NBIRTH/NDEATH metric that pairs a death with its birth.

@@ -23,12 +23,12 @@ fn node_of(c: &Config) -> Sparkplug {
 }
 
 fn sparkplug_output(c: &Config) -> &OutputConfig {
-    let kind = crate::config::OutputKind::Sparkplug;
-    c.outputs.list.iter().find(|o| o.kind == kind).unwrap()
+    let kind = &crate::config::outputs::sparkplug::KIND;
+    c.outputs.list.iter().find(|o| o.kind.is(kind)).unwrap()
 }
 
 /// Every format of that output.
-fn outputs_formats(c: &Config) -> Vec<Box<dyn crate::publish::format::Format>> {
+fn outputs_formats(c: &Config) -> Vec<Box<dyn crate::publish::lifecycle::MqttFormat>> {
     crate::publish::formats::build(c, sparkplug_output(c))
 }
 
@@ -56,7 +56,7 @@ fn every_enabled_channel_is_one_shape_with_its_units() {
 #[test]
 fn the_edge_node_id_defaults_to_the_gateway_id() {
     let c = config("");
-    let s = c.outputs.sparkplug.as_ref().unwrap();
+    let s = c.outputs.settings::<Settings>().unwrap();
     assert_eq!(
         (s.group_id.as_str(), s.edge_node_id.as_str()),
         ("plant", "e1")
@@ -89,12 +89,12 @@ fn a_retained_dcmd_is_stale_and_ignored_a_fresh_one_is_a_command() {
 #[test]
 fn with_both_formats_each_output_leaves_its_own_will() {
     let c = config("");
-    let mut stage = crate::publish::format::Stage::new(outputs_formats(&c));
+    let mut stage = crate::publish::lifecycle::Stage::new(outputs_formats(&c));
     let will = stage.will().unwrap();
     assert_eq!(will.topic, "spBv1.0/plant/NDEATH/e1");
     assert!(!will.retain);
     let json = c.outputs.list.iter().find(|o| o.name == "json").unwrap();
-    let mut stage = crate::publish::format::Stage::new(crate::publish::formats::build(&c, json));
+    let mut stage = crate::publish::lifecycle::Stage::new(crate::publish::formats::build(&c, json));
     let will = stage.will().unwrap();
     assert_eq!(
         (will.topic.as_str(), &will.payload[..]),
