@@ -188,8 +188,7 @@ async fn a_crash_after_a_broker_stall_loses_no_pulse_for_a_consumer() {
         ),
     );
     let gw = Gateway::start(&config);
-    sub.expect_any(topic, Duration::from_secs(10)).await;
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    sub.wait_more_than(topic, 5, Duration::from_secs(10)).await;
     let pid = broker.pid().to_string();
     let signal = |sig: &str| {
         std::process::Command::new("kill")
@@ -199,7 +198,7 @@ async fn a_crash_after_a_broker_stall_loses_no_pulse_for_a_consumer() {
     };
     signal("-STOP");
     // Saves every 500 ms: several pass while the broker takes nothing.
-    tokio::time::sleep(Duration::from_secs(4)).await;
+    saves_pass(&dir.join("bus-line1.json"), 4).await;
     gw.kill();
     signal("-CONT");
     let gw = Gateway::start(&config);
@@ -241,7 +240,7 @@ async fn a_crash_after_a_broker_stall_loses_no_pulse_for_a_sparkplug_host() {
             .unwrap()
     };
     signal("-STOP");
-    tokio::time::sleep(Duration::from_secs(4)).await;
+    saves_pass(&dir.join("bus-line1.json"), 4).await;
     gw.kill();
     signal("-CONT");
     let gw = Gateway::start(&config);
