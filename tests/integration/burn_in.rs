@@ -46,7 +46,7 @@ async fn sparkplug_historical_readings_after_an_outage() {
         .await;
 }
 
-/// 2% of the bytes corrupted, both ways, at 9600 baud until 300 bytes were corrupted and every
+/// 2% of the bytes corrupted, both ways, at 9600 baud until 60 bytes were corrupted and every
 /// device answered ten times through it (about 15 s; `PULSEGATE_NOISE_SECS` holds it longer):
 /// CRC errors and undecodable frames are garbled answers, not line faults, and no device goes
 /// offline.
@@ -123,7 +123,7 @@ channels.a0 = { rate = 20.0 }
             .collect()
     };
     let enough = || {
-        corrupted() >= 300 && per_device().iter().all(|&n| n >= 10) && noisy.elapsed() >= at_least
+        corrupted() >= 60 && per_device().iter().all(|&n| n >= 10) && noisy.elapsed() >= at_least
     };
     until(
         Duration::from_secs(120),
@@ -139,7 +139,7 @@ channels.a0 = { rate = 20.0 }
     println!(
         "noise: {corrupted} bytes corrupted in {secs:.1} s; {garbled} garbled-answer log lines"
     );
-    assert!(corrupted > 100, "the line was noisy: {corrupted}");
+    assert!(corrupted >= 60, "the line was noisy: {corrupted}");
     assert!(
         !sub.all()
             .iter()
@@ -224,7 +224,7 @@ async fn stats_where(
 }
 
 /// 3% dropped and 1% corrupted bytes (seeded, even noise) at 19200 baud until the reads were
-/// shortened and every channel published six readings through it (about 10 s): a module whose
+/// shortened and every channel published four readings through it (about 20 s): a module whose
 /// poll reads a 64-register block (the ZH-YX1600) gets its reads shortened and keeps publishing
 /// every channel, whole (no wrong count, totals exact); when the noise stops, the reads grow back
 /// to the full block and the line use to its clean figure.
@@ -294,7 +294,7 @@ async fn a_noisy_line_shortens_reads_publishes_every_channel_exactly_and_grows_t
             })
             .collect()
     };
-    let published = || during(Instant::now()).iter().all(|(_, n)| *n >= 6);
+    let published = || during(Instant::now()).iter().all(|(_, n)| *n >= 4);
     let held = || published() && noisy.elapsed() >= soak();
     until(
         Duration::from_secs(90),
@@ -322,7 +322,7 @@ async fn a_noisy_line_shortens_reads_publishes_every_channel_exactly_and_grows_t
     println!("noise: readings per channel {during:?}");
     for (topic, n) in &during {
         assert!(
-            *n >= 6,
+            *n >= 4,
             "{topic}: {n} readings in {:?} of noise",
             quiet - noisy
         );
