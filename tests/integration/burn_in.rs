@@ -46,6 +46,41 @@ async fn sparkplug_historical_readings_after_an_outage() {
         .await;
 }
 
+// The longest of the other modules' tests (20-35 s on a quiet machine), run from here so that
+// they start with the rest of the long runs instead of queueing behind the short ones of their
+// own module (bodies and their docs in the named modules).
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn commission_scan_all_bauds_finds_five_mixed_modules() {
+    crate::commission::scan_all_bauds_finds_five_mixed_modules_and_its_config_publishes_all_five()
+        .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hostile_twenty_sigkills_at_random_moments() {
+    crate::hostile::twenty_sigkills_at_random_moments_never_reuse_a_seq().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metering_many_devices_due_at_one_boundary() {
+    crate::metering::many_devices_due_at_one_boundary_are_read_at_once_and_other_devices_keep_their_rate().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn outputs_ten_thousand_dcmds_in_a_burst() {
+    crate::outputs::ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn readings_first_a_flood_of_home_assistant_births() {
+    crate::readings_first::a_flood_of_home_assistant_births_costs_no_reading_and_no_disk().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn signed_every_record_verifies_with_openssl() {
+    crate::signed::every_record_verifies_with_openssl_against_the_published_key_and_verify_finds_tampering().await;
+}
+
 /// 2% of the bytes corrupted, both ways, at 9600 baud until 60 bytes were corrupted and every
 /// device answered ten times through it (about 15 s; `PULSEGATE_NOISE_SECS` holds it longer):
 /// CRC errors and undecodable frames are garbled answers, not line faults, and no device goes

@@ -574,8 +574,8 @@ pub async fn stop_and_collect(
 /// SIGKILL at a random moment, 20 times: no seq is published twice with different content,
 /// and the deltas a consumer keeps (superseded ones dropped by `after_seq`) add up to the
 /// pulses generated, as does `total`.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
     let broker = Broker::start();
     let plant = plant(KILLED_ENCODER).await;
     let dir = temp_dir("hostile-kill");

@@ -513,8 +513,9 @@ const METERED: u8 = 16;
 /// take their time on the wire) side by side: every record is complete (each boundary read
 /// within the lag a 10 s period allows), and the unmetered device on each bus keeps its
 /// 500 ms rate through the bursts. Prints the measured `read_lag_ms` (docs/metering.md).
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn many_devices_due_at_one_boundary_are_read_at_once_and_other_devices_keep_their_rate() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn many_devices_due_at_one_boundary_are_read_at_once_and_other_devices_keep_their_rate()
+ {
     let bauds = [("line1", "a", 9600), ("line2", "b", 115200)];
     let mut sim = String::new();
     let mut lines = Vec::new();

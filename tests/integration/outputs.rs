@@ -334,8 +334,8 @@ async fn a_sparkplug_only_gateway_answers_set_reading_and_a_dcmd() {
 /// Ten thousand DCMDs in a burst: every one is executed or refused and counted, none dropped
 /// silently (an answer the outbox could not keep is counted as dropped chatter), and the
 /// readings stay exact throughout.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted() {
     let broker = Broker::start();
     let mut host = Host::start(broker.port, false);
     let plant = plant(PLANT).await;

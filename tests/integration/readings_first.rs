@@ -95,8 +95,8 @@ fn disk_writes(pid: i32) -> u64 {
 /// Home Assistant's `online` 600 times at 40 a second on a site of some 250 configs, with a
 /// 1 MB spool: no reading is lost (once every `online` re-announced everything into the same
 /// outbox and the bound pushed readings out), and the spool's disk sees almost nothing.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_flood_of_home_assistant_births_costs_no_reading_and_no_disk() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn a_flood_of_home_assistant_births_costs_no_reading_and_no_disk() {
     let broker = Broker::start();
     let extra = format!("[homeassistant]\ndiscovery = true\n{}", ghost_bus(190));
     let (_plant, gw, sub) = rig("rf-ha-flood", &broker, &extra).await;
