@@ -51,12 +51,6 @@ async fn sparkplug_historical_readings_after_an_outage() {
 // own module (bodies and their docs in the named modules).
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn commission_scan_all_bauds_finds_five_mixed_modules() {
-    crate::commission::scan_all_bauds_finds_five_mixed_modules_and_its_config_publishes_all_five()
-        .await;
-}
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hostile_twenty_sigkills_at_random_moments() {
     crate::hostile::twenty_sigkills_at_random_moments_never_reuse_a_seq().await;
 }

@@ -68,8 +68,8 @@ baud = 9600
 channels.enc0 = { count = 777 }
 "#;
 
-/// Run from `burn_in` (it starts with the other long runs).
-pub(crate) async fn scan_all_bauds_finds_five_mixed_modules_and_its_config_publishes_all_five() {
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn scan_all_bauds_finds_five_mixed_modules_and_its_config_publishes_all_five() {
     let plant = plant(MIXED_LINE).await;
     let port = port_of(&plant, "line");
     // Units 1-50 and 195-205 at all seven rates, with a short answer time to keep the test
