@@ -287,10 +287,10 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
     let fake = Faked::at(&r.dir, "2026-12-04T22:58:44Z");
     let mut gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
-    // Offpeak, then peak from 23:59; a stop at 23:59:15 over the boundaries to 23:59:40: the
-    // gateway's clock moves on by half a minute while it is stopped (libfaketime's offset set
-    // anew for the restart), as a stop of that length would, and the wall waits for none of it.
-    fake.until("2026-12-04T22:59:15Z").await;
+    // Offpeak, then peak from 23:59; a stop at 23:59:05 over the boundaries to 23:59:40: the
+    // gateway's clock moves on by 39 s while it is stopped (libfaketime's offset set anew for
+    // the restart), as a stop of that length would, and the wall waits for none of it.
+    fake.until("2026-12-04T22:59:05Z").await;
     let (status, _) = gw.terminate();
     assert!(status.success());
     let fake = Faked::at(&r.dir, "2026-12-04T22:59:44Z");
