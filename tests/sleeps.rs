@@ -1,5 +1,5 @@
 //! Literal sleeps in `tests/` are counted and may only shrink: issue 39 asks for at most 100 s
-//! ([`GOAL_MS`]); until the suite gets there, [`RATCHET_MS`] is what it stands at, lowered with
+//! ([`GOAL_MS`]), and the count stays there; [`RATCHET_MS`] is what it stands at, lowered with
 //! every change that removes sleeps, so a new one has to pay for itself. A test that waits in
 //! real time needs a reason, and what can run on tokio's paused clock does.
 //!
@@ -24,10 +24,13 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// Issue 39's bar, not yet reached.
+/// Issue 39's bar, reached (98.4 s, from 357 s): the count never goes back above it.
 const GOAL_MS: u64 = 100_000;
-/// Where the count stands (360 s when this was written, from 518 s): it may only go down.
-const RATCHET_MS: u64 = 362_000;
+/// Where the count stands (98.4 s when this was written, from 518 s and then 357 s): it may
+/// only go down.
+const RATCHET_MS: u64 = 99_000;
+// The ratchet holds the goal: a count under the ratchet is under issue 39's bar.
+const _: () = assert!(RATCHET_MS <= GOAL_MS, "the ratchet is past issue 39's bar");
 
 fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     for entry in std::fs::read_dir(dir).expect("readable tests") {

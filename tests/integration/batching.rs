@@ -121,7 +121,7 @@ async fn a_crash_with_readings_held_loses_no_counted_pulse() {
     let text = text.replacen("[mqtt]\n", "[mqtt]\nbatch = \"5s\"\n", 1);
     let config = write_config(&dir, &text);
     let gw = Gateway::start(&config);
-    tokio::time::sleep(Duration::from_millis(2500)).await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
     gw.kill();
     let gw = Gateway::start(&config);
     let (all, generated) = stop_and_collect(&plant, &sub, gw, topic).await;

@@ -152,21 +152,23 @@ fn registers_match_records(sub: &Subscriber, records: &[Value], base: &str) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_friday_morning_across_the_peak_rule_books_each_record_to_its_tariff_and_register() {
+    // Five-second records (the shortest that leave the gateway room to start before the
+    // first boundary it reads): the rule's start is crossed in under 20 s of wall clock.
     let r = setup(
         "friday",
         40.0,
-        "intervals = [\"10s\"]\n",
+        "intervals = [\"5s\"]\n",
         "obis = \"1-0:1.8.0\"\n",
     )
     .await;
     let text = std::fs::read_to_string(&r.config).unwrap() + TARIFFS;
     std::fs::write(&r.config, text).unwrap();
-    // Friday 4 December 2026, 06:59:32 CET.
-    let fake = Faked::at(&r.dir, "2026-12-04T05:59:32Z");
+    // Friday 4 December 2026, 06:59:51 CET.
+    let fake = Faked::at(&r.dir, "2026-12-04T05:59:51Z");
     let gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
-    let topic = format!("{base}/interval/10s");
-    record_from(&r.sub, &topic, "2026-12-04T06:00:10Z", 90).await;
+    let topic = format!("{base}/interval/5s");
+    record_from(&r.sub, &topic, "2026-12-04T06:00:05Z", 90).await;
     drop(gw);
     let records = readings(&r.sub, &topic);
     assert!(records.len() >= 3, "{records:#?}");
@@ -208,30 +210,30 @@ async fn the_berlin_spring_forward_night_keeps_records_tiling_utc_and_the_tariff
     let tariffs = "[tariffs]\ndefault = \"offpeak\"\n\
         [[tariffs.rule]]\ntariff = \"night\"\ndays = [\"sun\"]\nfrom = \"00:00\"\nto = \"03:00\"\n\
         [[tariffs.rule]]\ntariff = \"peak\"\ndays = [\"sun\"]\nfrom = \"03:00\"\nto = \"00:00\"\n";
-    // Ten-second records: the jump is crossed in under a minute of wall clock.
-    let r = setup("spring", 30.0, "intervals = [\"10s\"]\n", "").await;
+    // Five-second records: the jump is crossed in under 20 s of wall clock.
+    let r = setup("spring", 30.0, "intervals = [\"5s\"]\n", "").await;
     let text = std::fs::read_to_string(&r.config).unwrap() + tariffs;
     std::fs::write(&r.config, text).unwrap();
-    // Sunday 29 March 2026, 01:59:32 CET; at 02:00 CET (01:00Z) the clock jumps to 03:00 CEST.
-    let fake = Faked::at(&r.dir, "2026-03-29T00:59:32Z");
+    // Sunday 29 March 2026, 01:59:51 CET; at 02:00 CET (01:00Z) the clock jumps to 03:00 CEST.
+    let fake = Faked::at(&r.dir, "2026-03-29T00:59:51Z");
     let gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
-    let topic = format!("{base}/interval/10s");
+    let topic = format!("{base}/interval/5s");
     let after = record_from(&r.sub, &topic, "2026-03-29T01:00:00Z", 90).await;
     drop(gw);
     let before = readings(&r.sub, &topic)
         .into_iter()
         .find(|x| x["end"] == after["start"])
         .expect("the record before the jump");
-    assert_eq!(before["start"], "2026-03-29T00:59:50Z", "01:59:50 CET");
+    assert_eq!(before["start"], "2026-03-29T00:59:55Z", "01:59:55 CET");
     assert_eq!(before["tariff"], "night", "{before}");
     assert_eq!(
-        after["end"], "2026-03-29T01:00:10Z",
-        "03:00:10 CEST: 10 s in UTC"
+        after["end"], "2026-03-29T01:00:05Z",
+        "03:00:05 CEST: 5 s in UTC"
     );
     assert_eq!(after["tariff"], "peak", "{after}");
     for rec in [&before, &after] {
-        assert_eq!(iso_ms(&rec["end"]) - iso_ms(&rec["start"]), 10_000);
+        assert_eq!(iso_ms(&rec["end"]) - iso_ms(&rec["start"]), 5_000);
         assert_eq!(rec["status"], "complete");
     }
     assert_eq!(after["total_start"], before["total_end"], "they tile");
@@ -280,15 +282,18 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
     .await;
     let text = std::fs::read_to_string(&r.config).unwrap() + tariffs;
     std::fs::write(&r.config, text).unwrap();
-    // Friday 4 December 2026, 23:58:44 CET; local midnight is 23:00Z.
+    // Friday 4 December 2026, 23:58:44 CET (the first record, from 23:58:50, complete);
+    // local midnight is 23:00Z.
     let fake = Faked::at(&r.dir, "2026-12-04T22:58:44Z");
     let mut gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
-    // A stop over the 23:59:30 boundary.
-    fake.until("2026-12-04T22:59:25Z").await;
+    // Offpeak, then peak from 23:59; a stop at 23:59:05 over the boundaries to 23:59:40: the
+    // gateway's clock moves on by 39 s while it is stopped (libfaketime's offset set anew for
+    // the restart), as a stop of that length would, and the wall waits for none of it.
+    fake.until("2026-12-04T22:59:05Z").await;
     let (status, _) = gw.terminate();
     assert!(status.success());
-    fake.until("2026-12-04T22:59:34Z").await;
+    let fake = Faked::at(&r.dir, "2026-12-04T22:59:44Z");
     gw = fake.start(&r.config);
     let billing = r
         .sub
@@ -340,7 +345,11 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
         .filter(|x| x["tariff"] == "peak" && iso_ms(&x["end"]) <= ms_of("2026-12-04T23:00:00Z"))
         .map(|x| x["delta"].as_i64().unwrap())
         .sum();
-    assert_eq!(billing["by_tariff"]["peak"].as_i64().unwrap(), peak);
+    assert_eq!(
+        billing["by_tariff"]["peak"].as_i64().unwrap(),
+        peak,
+        "{billing}\n{records:#?}"
+    );
     assert!(
         records.iter().any(|x| x["status"] == "merged"),
         "the stop made a merged record"

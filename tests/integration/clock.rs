@@ -108,12 +108,16 @@ async fn a_wall_clock_stepped_back_and_forward_an_hour_mid_run_moves_the_total_a
     let gateway = start_faked(&s.config, &s.rc);
     reading_after(&s.sub, topic, Instant::now()).await;
     set_rate(&s.plant, 1, "a0", 2000.0);
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    s.sub
+        .wait_for(topic, Duration::from_secs(10), |m| {
+            m.json()["total"].as_i64() > Some(2000)
+        })
+        .await
+        .expect("counting");
 
     // An hour back.
     std::fs::write(&s.rc, "-3600\n").unwrap();
     let stepped = Instant::now();
-    tokio::time::sleep(Duration::from_secs(2)).await;
     let behind = reading_after(&s.sub, topic, stepped + Duration::from_millis(500)).await;
     let lag = std::time::SystemTime::now()
         .duration_since(ts_of(&behind))
@@ -125,7 +129,9 @@ async fn a_wall_clock_stepped_back_and_forward_an_hour_mid_run_moves_the_total_a
 
     // And an hour forward again.
     std::fs::write(&s.rc, "+0\n").unwrap();
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    let forward = Instant::now();
+    reading_after(&s.sub, topic, forward + Duration::from_millis(500)).await;
+    reading_after(&s.sub, topic, forward + Duration::from_millis(1000)).await;
     set_rate(&s.plant, 1, "a0", 0.0);
     let last = reading_after(&s.sub, topic, Instant::now() + Duration::from_millis(500)).await;
     assert_eq!(
@@ -158,7 +164,12 @@ async fn two_days_away_a_power_cycled_slow_channel_books_its_count_since_power_u
     reading_after(&s.sub, fast, Instant::now()).await;
     set_rate(&s.plant, 1, "a0", 100.0);
     set_rate(&s.plant, 2, "a0", 40_000.0);
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    s.sub
+        .wait_for(fast, Duration::from_secs(10), |m| {
+            m.json()["count"].as_i64() > Some(60_000)
+        })
+        .await
+        .expect("the fast channel counting");
     set_rate(&s.plant, 1, "a0", 0.0);
     set_rate(&s.plant, 2, "a0", 0.0);
     let settled = Instant::now() + Duration::from_millis(400);

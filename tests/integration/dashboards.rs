@@ -274,35 +274,54 @@ async fn every_channel_is_discovered_with_valid_configs_cleared_when_removed_and
             .is_some(),
         "a config of a channel the module's work mode does not have is cleared"
     );
-    tokio::time::sleep(Duration::from_secs(3)).await;
-
-    // Every channel that publishes readings has a config, and every config is valid.
-    let configs = latest(&ha);
+    // Every channel that publishes readings has a config, and every config is valid: waited
+    // for until the five channels of the meter and the doors' inputs have published four
+    // readings each.
     let units = BTreeMap::from([("meter", 1), ("doors", 2)]);
-    let mut channels = 0;
-    for m in readings.all() {
-        let parts: Vec<&str> = m.topic.split('/').collect();
-        let [_, _, device, channel] = parts[..] else {
-            continue;
-        };
-        if channel == "status" || m.json().get("total").is_none() {
-            continue;
+    let wanted = || {
+        let mut wanted = BTreeMap::new();
+        for m in readings.all() {
+            let parts: Vec<&str> = m.topic.split('/').collect();
+            let [_, _, device, channel] = parts[..] else {
+                continue;
+            };
+            if channel == "status" || m.json().get("total").is_none() {
+                continue;
+            }
+            let entity = if channel.starts_with("enc") {
+                "position"
+            } else {
+                "total"
+            };
+            let config = format!(
+                "homeassistant/sensor/test/line1_u{}_{channel}_{entity}/config",
+                units[device]
+            );
+            *wanted.entry(config).or_insert(0) += 1;
         }
-        channels += 1;
-        let entity = if channel.starts_with("enc") {
-            "position"
-        } else {
-            "total"
-        };
-        let topic = format!(
-            "homeassistant/sensor/test/line1_u{}_{channel}_{entity}/config",
-            units[device]
-        );
+        wanted
+    };
+    let doors = |w: &BTreeMap<String, usize>| w.keys().any(|t| t.contains("_u2_"));
+    let announced = || {
+        let (w, configs) = (wanted(), latest(&ha));
+        w.len() >= 6 && doors(&w) && w.iter().all(|(t, n)| *n > 3 && configs.contains_key(t))
+    };
+    until(
+        Duration::from_secs(15),
+        "a config for every channel",
+        announced,
+        || format!("{:?}", wanted()),
+    )
+    .await;
+    let configs = latest(&ha);
+    let wanted = wanted();
+    for topic in wanted.keys() {
         let payload = configs
-            .get(&topic)
+            .get(topic)
             .unwrap_or_else(|| panic!("no config {topic}"));
         assert!(!payload.is_empty(), "{topic} is empty");
     }
+    let channels = wanted.len();
     assert!(
         channels >= 5,
         "readings of a0, b0, enc1..3 and the doors' inputs expected"

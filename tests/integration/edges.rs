@@ -41,12 +41,12 @@ async fn a_device_with_zero_min_interval_publishes_every_poll_under_a_paced_gate
     let (fast, paced) = ("pulsegate/test/fast/enc0", "pulsegate/test/paced/enc0");
     sub.expect_any(fast, Duration::from_secs(10)).await;
     sub.clear();
-    tokio::time::sleep(Duration::from_secs(4)).await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
     let (f, p) = (sub.on(fast).len(), sub.on(paced).len());
-    // 20 polls in 4 s: every one published; the paced device at most one a second.
-    assert!(f >= 15, "the 0s device publishes every poll: {f} in 4 s");
+    // 15 polls in 3 s: every one published; the paced device at most one a second.
+    assert!(f >= 11, "the 0s device publishes every poll: {f} in 3 s");
     assert!(
-        (2..=5).contains(&p),
+        (2..=4).contains(&p),
         "the inherited 1s still paces the other: {p}"
     );
 }

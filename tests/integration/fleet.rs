@@ -136,8 +136,9 @@ async fn a_dead_broker_is_left_for_the_next_and_no_pulse_is_lost() {
         a.port, b.port
     );
     let gw = start_gateway(&plant, a.port, &dir, &DEVICES, &extra);
-    sub_a.expect_any(topic, Duration::from_secs(10)).await;
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    sub_a
+        .wait_more_than(topic, 3, Duration::from_secs(10))
+        .await;
     a.stop();
     let gone = Instant::now();
     sub_b.expect_any(topic, Duration::from_secs(15)).await;

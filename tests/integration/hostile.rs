@@ -82,12 +82,13 @@ async fn a_wildcard_response_topic_a_long_id_and_a_large_payload_do_not_silence_
     assert_eq!(plant.with_module("line1", 1, |m, _| m.writes).unwrap(), 0);
 
     let since = Instant::now();
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    assert!(
-        count_on(&sub, reading, since) >= 10,
-        "readings keep flowing:\n{}",
-        gw.log_text()
-    );
+    until(
+        Duration::from_secs(10),
+        "readings keep flowing",
+        || count_on(&sub, reading, since) >= 10,
+        || gw.log_text(),
+    )
+    .await;
     let log = gw.log_text();
     assert!(!log.contains("MQTT broker unreachable"), "{log}");
     assert!(
@@ -539,15 +540,22 @@ pub fn consume(readings: &[serde_json::Value]) -> i64 {
 /// A YL67 whose `a0` counts 1000 pulses a second: the plant of the SIGKILL tests.
 pub const KILLED_ENCODER: &str = "[buses.line1.devices.m]\nunit = 1\nmodel = \"yl67\"\nmodes = [1, 1, 1, 1]\nchannels.a0 = { count = 0, rate = 1000.0 }\n";
 
-/// After a second of the last run `gw`: stops the pulses, waits for a reading after that and
-/// stops `gw` cleanly. The readings of `topic` in arrival order, and the pulses generated.
+/// After three readings of the last run `gw`: stops the pulses, waits for a reading after that
+/// and stops `gw` cleanly. The readings of `topic` in arrival order, and the pulses generated.
 pub async fn stop_and_collect(
     plant: &Plant,
     sub: &Subscriber,
     gw: Gateway,
     topic: &str,
 ) -> (Vec<serde_json::Value>, i64) {
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    let since = Instant::now();
+    until(
+        Duration::from_secs(15),
+        "readings of the last run",
+        || count_on(sub, topic, since) >= 3,
+        || gw.log_text(),
+    )
+    .await;
     plant
         .with_module("line1", 1, |m, now| assert!(m.set_rate(now, "a0", 0.0)))
         .unwrap();
@@ -566,8 +574,8 @@ pub async fn stop_and_collect(
 /// SIGKILL at a random moment, 20 times: no seq is published twice with different content,
 /// and the deltas a consumer keeps (superseded ones dropped by `after_seq`) add up to the
 /// pulses generated, as does `total`.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
     let broker = Broker::start();
     let plant = plant(KILLED_ENCODER).await;
     let dir = temp_dir("hostile-kill");
@@ -594,7 +602,7 @@ async fn twenty_sigkills_at_random_moments_never_reuse_a_seq() {
         let gw = Gateway::start(&config);
         // From 500 ms: a run killed before its first readings left (they wait up to
         // `mqtt.batch`, 250 ms) has nothing to supersede.
-        tokio::time::sleep(Duration::from_millis(500 + next() % 1500)).await;
+        tokio::time::sleep(Duration::from_millis(500 + next() % 1000)).await;
         gw.kill();
     }
     let gw = Gateway::start(&config);
@@ -638,7 +646,11 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
     let http = free_port();
     let metrics = format!("[metrics]\nlisten = \"127.0.0.1:{http}\"\n");
     let gw = start_gateway(&plant, broker.port, &dir, &devices, &metrics);
-    tokio::time::sleep(Duration::from_secs(3)).await;
+    let refused = || gw.log_text().contains("bus not started");
+    until(Duration::from_secs(10), "the bus refused", refused, || {
+        gw.log_text()
+    })
+    .await;
     let log = gw.log_text();
     assert!(
         log.contains("is not valid state") && log.contains("moved aside to"),
@@ -678,12 +690,11 @@ async fn a_corrupt_state_file_is_kept_and_the_bus_refuses_to_guess() {
 
     // Still refused at the next start, until the moved-aside file is dealt with.
     let gw = start_gateway(&plant, broker.port, &dir, &devices, "");
-    tokio::time::sleep(Duration::from_secs(2)).await;
-    assert!(
-        gw.log_text().contains("was moved aside to"),
-        "{}",
+    let refused = || gw.log_text().contains("was moved aside to");
+    until(Duration::from_secs(10), "refused again", refused, || {
         gw.log_text()
-    );
+    })
+    .await;
     assert!(sub.on("pulsegate/test/d/enc0").is_empty());
     drop(gw);
     std::fs::remove_file(&moved[0]).unwrap();
@@ -970,18 +981,24 @@ async fn messages_larger_than_the_broker_takes_are_dropped_not_retried_forever()
     let gw = Gateway::start(&write_config(&dir, &text));
     sub.expect_any("pulsegate/test/d/enc0", Duration::from_secs(5))
         .await;
-    tokio::time::sleep(Duration::from_secs(3)).await;
+    // The bus stats (every second) are larger than 300 bytes: dropped, and said.
+    let dropped = || {
+        let log = gw.log_text();
+        log.contains("it can never be sent") && log.contains("maximum packet size of 300")
+    };
+    until(Duration::from_secs(15), "the drop said", dropped, || {
+        gw.log_text()
+    })
+    .await;
     let since = Instant::now();
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    until(
+        Duration::from_secs(10),
+        "readings keep flowing",
+        || count_on(&sub, "pulsegate/test/d/enc0", since) >= 10,
+        || gw.log_text(),
+    )
+    .await;
     let log = gw.log_text();
-    assert!(
-        log.contains("it can never be sent") && log.contains("maximum packet size of 300"),
-        "{log}"
-    );
-    assert!(
-        count_on(&sub, "pulsegate/test/d/enc0", since) >= 10,
-        "readings keep flowing:\n{log}"
-    );
     assert!(
         !log.contains("MQTT broker unreachable"),
         "no reconnect loop:\n{log}"

@@ -168,7 +168,12 @@ async fn meters_are_counted_exactly_through_a_roll_over_and_a_replacement() {
         .expect("the replaced meter is a reset");
     assert_eq!(reset.json()["delta"], 0, "no delta across a replacement");
     set_rate(&plant, "field", "water", 20.0);
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    let from = reset.json()["total"].as_i64().unwrap();
+    sub.wait_for(water, Duration::from_secs(10), |m| {
+        m.json()["total"].as_i64() > Some(from)
+    })
+    .await
+    .expect("the new meter counts on");
 
     // Everything stops; the last readings' totals are the simulator's own counts.
     for (seg, meter) in [
@@ -303,7 +308,7 @@ async fn a_meter_answering_garbage_or_nothing_goes_offline_and_the_others_keep_t
     }
     // While the two are away (probed with backoff), the good meter keeps its 300 ms rate.
     let watch = Instant::now();
-    tokio::time::sleep(Duration::from_secs(6)).await;
+    tokio::time::sleep(Duration::from_secs(4)).await;
     let good: Vec<Instant> = sub
         .on("pulsegate/test/good/volume")
         .iter()
@@ -311,8 +316,8 @@ async fn a_meter_answering_garbage_or_nothing_goes_offline_and_the_others_keep_t
         .filter(|at| *at > watch)
         .collect();
     assert!(
-        good.len() >= 15,
-        "the good meter slowed down: {} readings in 6 s",
+        good.len() >= 10,
+        "the good meter slowed down: {} readings in 4 s",
         good.len()
     );
     let longest = good.windows(2).map(|w| w[1] - w[0]).max().unwrap();
@@ -654,15 +659,20 @@ async fn a_meter_that_answers_shows_its_last_answer_and_latency() {
     })
     .await
     .expect("online");
-    tokio::time::sleep(Duration::from_secs(1)).await;
-    let (code, body) = crate::metrics::http_get(http, "/api/v1/status");
-    assert_eq!(code, 200, "{body}");
-    let status: serde_json::Value = serde_json::from_str(&body).unwrap();
-    let good = status["devices"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|d| d["name"] == "good")
-        .unwrap_or_else(|| panic!("{status}"));
-    assert!(good["last_answer_ms"].is_u64(), "{good}");
+    // The status says the meter's last answer, within a few polls.
+    let good = || {
+        let (code, body) = crate::metrics::http_get(http, "/api/v1/status");
+        assert_eq!(code, 200, "{body}");
+        let status: serde_json::Value = serde_json::from_str(&body).unwrap();
+        let devices = status["devices"].as_array().unwrap();
+        let good = devices.iter().find(|d| d["name"] == "good");
+        good.unwrap_or_else(|| panic!("{status}")).clone()
+    };
+    until(
+        Duration::from_secs(10),
+        "the meter's last answer",
+        || good()["last_answer_ms"].is_u64(),
+        || good().to_string(),
+    )
+    .await;
 }

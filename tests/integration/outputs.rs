@@ -141,13 +141,13 @@ async fn each_broker_gets_its_own_output_and_its_own_will() {
     no_errors(&host.lines());
 }
 
-/// The SCADA broker is away for 20 s (the reconnect attempts back off to 10 s by then): JSON
-/// readings keep flowing on the other broker with no gap and no pause; when it returns, the
-/// Sparkplug output sends what it kept, flagged historical, and its totals run on without a
-/// pulse missing. Run from `burn_in` (it starts with the other long runs); a minute's outage of
-/// an output runs on paused time in `src/publish/mqtt/paused_tests.rs`.
-pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_and_sparkplug_no_pulse()
- {
+/// The SCADA broker is away while forty JSON readings of `wj/a0` arrive (about 10 s, ten
+/// reconnect attempts a second apart): JSON readings keep flowing on the other broker with no
+/// gap and no pause; when it returns, the Sparkplug output sends what it kept, flagged
+/// historical, and its totals run on without a pulse missing. Run from `burn_in` (it starts with
+/// the other long runs); a minute's outage of an output runs on paused time in
+/// `src/publish/mqtt/paused_tests.rs`.
+pub(crate) async fn the_scada_broker_away_costs_json_nothing_and_sparkplug_no_pulse() {
     let local = Broker::start();
     let scada_port = free_port();
     let scada_dir = temp_dir("outputs-scada-broker");
@@ -157,25 +157,31 @@ pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_an
     let dir = temp_dir("outputs-outage");
     let topic = "pulsegate/test/wj/a0";
     let sub = Subscriber::start(local.port, topic).await;
-    let _gw = Gateway::start(&two_brokers(&plant, local.port, scada_port, &dir, ""));
+    let gw = Gateway::start(&two_brokers(&plant, local.port, scada_port, &dir, ""));
     host.wait(Duration::from_secs(15), "data", |l| {
         of_type(l, "DDATA").count() >= 10
     })
     .await;
     scada.terminate();
     let away = Instant::now();
-    tokio::time::sleep(Duration::from_secs(20)).await;
-    let during: Vec<Instant> = sub
-        .on(topic)
-        .iter()
-        .map(|m| m.at)
-        .filter(|t| *t > away)
-        .collect();
+    let during = || -> Vec<Instant> {
+        let on = sub.on(topic);
+        on.iter().map(|m| m.at).filter(|t| *t > away).collect()
+    };
+    until(
+        Duration::from_secs(60),
+        "JSON readings during the outage",
+        || during().len() >= 40,
+        || gw.log_text(),
+    )
+    .await;
+    let during = during();
+    let outage = away.elapsed();
     // Polled every 100 ms (batched up to 250 ms): a pause of a second would be the outage's.
     let longest = during.windows(2).map(|w| w[1] - w[0]).max().unwrap();
     assert!(
-        during.len() > 70,
-        "{} JSON readings in the 20 s",
+        during.len() as f64 > 3.5 * outage.as_secs_f64(),
+        "{} JSON readings in {outage:?}",
         during.len()
     );
     assert!(longest < Duration::from_secs(1), "JSON paused {longest:?}");
@@ -188,7 +194,7 @@ pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_an
                 .filter(|d| d["device"] == "wj")
                 .filter(|d| metric(d, "a0/Total").is_some_and(|m| m["is_historical"] == true))
                 .count();
-            historical > 35
+            historical > 15
                 && of_type(l, "DDATA").filter(|d| d["device"] == "wj").count() > historical + 5
         },
     )
@@ -198,7 +204,7 @@ pub(crate) async fn twenty_seconds_without_the_scada_broker_cost_json_nothing_an
     assert_seq_unbroken(&lines);
     let totals = assert_sparkplug_exact(&lines, "wj", "a0");
     assert!(
-        totals.len() > 35,
+        totals.len() > 15,
         "{} totals after the outage",
         totals.len()
     );
@@ -328,8 +334,8 @@ async fn a_sparkplug_only_gateway_answers_set_reading_and_a_dcmd() {
 /// Ten thousand DCMDs in a burst: every one is executed or refused and counted, none dropped
 /// silently (an answer the outbox could not keep is counted as dropped chatter), and the
 /// readings stay exact throughout.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted() {
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn ten_thousand_dcmds_in_a_burst_are_each_answered_or_counted() {
     let broker = Broker::start();
     let mut host = Host::start(broker.port, false);
     let plant = plant(PLANT).await;

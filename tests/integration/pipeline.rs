@@ -179,7 +179,7 @@ model = "zh-yx1600"
     );
 
     sub.clear();
-    let window = Duration::from_secs(4);
+    let window = Duration::from_secs(3);
     tokio::time::sleep(window).await;
     let expected = window.as_secs_f64() / 0.2;
     for topic in ["pulsegate/test/a/enc0", "pulsegate/test/c/di1"] {

@@ -71,9 +71,12 @@ fn line(m: &Message) -> String {
     format!("{} {}", m.topic, m.payload)
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn every_record_verifies_with_openssl_against_the_published_key_and_verify_finds_tampering() {
-    let r = setup("signed", 25.0, "intervals = [\"10s\"]\n", "").await;
+/// Run from `burn_in` (it starts with the other long runs).
+pub(crate) async fn every_record_verifies_with_openssl_against_the_published_key_and_verify_finds_tampering()
+ {
+    // Five-second records, the fake clock started 19 s before midnight: four records, the
+    // billing record and one more in about 25 s of wall clock.
+    let r = setup("signed", 25.0, "intervals = [\"5s\"]\n", "").await;
     let key = r.dir.join("signing.pem");
     let public = r.dir.join("public.pem");
     let k = key.to_str().unwrap();
@@ -97,12 +100,12 @@ async fn every_record_verifies_with_openssl_against_the_published_key_and_verify
     let billing = format!(
         "[tariffs]\ndefault = \"offpeak\"\n[[tariffs.rule]]\ntariff = \"peak\"\n\
          days = [\"fri\"]\nfrom = \"23:59\"\nto = \"00:00\"\n\
-         [billing]\nperiod = \"daily\"\ndemand = \"10s\"\nsigning_key = \"{k}\"\n"
+         [billing]\nperiod = \"daily\"\ndemand = \"5s\"\nsigning_key = \"{k}\"\n"
     );
     let text = std::fs::read_to_string(&r.config).unwrap() + &billing;
     std::fs::write(&r.config, text).unwrap();
-    // Friday 4 December 2026, 23:59:25 CET; local midnight is 23:00Z.
-    let fake = Faked::at(&r.dir, "2026-12-04T22:59:25Z");
+    // Friday 4 December 2026, 23:59:41 CET; local midnight is 23:00Z.
+    let fake = Faked::at(&r.dir, "2026-12-04T22:59:41Z");
     let gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
     let bill_topic = format!("{base}/billing");
@@ -110,8 +113,8 @@ async fn every_record_verifies_with_openssl_against_the_published_key_and_verify
         .wait_for(&bill_topic, Duration::from_secs(60), |_| true)
         .await
         .expect("a billing record at midnight");
-    let rec_topic = format!("{base}/interval/10s");
-    record_from(&r.sub, &rec_topic, "2026-12-04T23:00:10Z", 20).await;
+    let rec_topic = format!("{base}/interval/5s");
+    record_from(&r.sub, &rec_topic, "2026-12-04T23:00:00Z", 20).await;
     drop(gw);
 
     let marker = r.sub.on("pulsegate/test/gateway");
@@ -184,7 +187,7 @@ async fn every_record_verifies_with_openssl_against_the_published_key_and_verify
     std::fs::write(&file, bad.join("\n")).unwrap();
     let (ok, out) = verify(&file);
     assert!(!ok, "{out}");
-    assert!(out.contains("tampered  m1/a0 interval 10s"), "{out}");
-    assert!(out.contains("missing   m1/a0 interval 10s"), "{out}");
+    assert!(out.contains("tampered  m1/a0 interval 5s"), "{out}");
+    assert!(out.contains("missing   m1/a0 interval 5s"), "{out}");
     let _ = &r.broker;
 }

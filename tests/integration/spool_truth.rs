@@ -104,12 +104,25 @@ async fn a_full_disk_is_never_reported_as_kept_and_the_count_stays_exact() {
     let devices = [("line1", "m", 1, "yl67", "100ms")];
     let config = write_config(&dir, &gateway_toml(&plant, port, &state, &devices, ""));
     let gw = Gateway::start(&config);
-    sub.expect_any(topic, Duration::from_secs(10)).await;
-    tokio::time::sleep(Duration::from_secs(1)).await;
+    sub.wait_more_than(topic, 5, Duration::from_secs(10)).await;
 
     let filler = disk.fill();
     broker.terminate();
-    tokio::time::sleep(Duration::from_secs(8)).await;
+    // The spool's first write fails (said in an ERROR line); a few seconds more of failing
+    // writes, polled ten times a second, to hold its errors to their budget.
+    let failing = || {
+        let log = gw.log_text();
+        log.lines()
+            .any(|l| l.contains("ERROR") && l.contains("spool"))
+    };
+    until(
+        Duration::from_secs(20),
+        "a failed spool write",
+        failing,
+        || gw.log_text(),
+    )
+    .await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
     let log_path = gw.log.clone();
     let (status, _) = gw.terminate();
     assert!(status.success());
@@ -127,7 +140,7 @@ async fn a_full_disk_is_never_reported_as_kept_and_the_count_stays_exact() {
     let spool_errors = errors.iter().filter(|l| l.contains("spool")).count();
     assert!(
         spool_errors <= 6,
-        "{spool_errors} spool errors in 8 s:\n{}",
+        "{spool_errors} spool errors in a few seconds:\n{}",
         errors.join("\n")
     );
     assert!(errors.len() <= 10, "{}", errors.join("\n"));
@@ -235,15 +248,20 @@ async fn foreign_files_in_the_spool_directories_survive() {
         &[("line1", "meter", 1, "yl67", "200ms")],
         "",
     );
-    tokio::time::sleep(Duration::from_secs(3)).await; // no broker: readings are spooled
-    assert!(
+    // No broker: readings are spooled, through the linked directory.
+    let segments = || {
         files(&elsewhere)
-            .iter()
-            .any(|p| pulsegate::publish::spool::is_segment_name(&name_of(p))),
-        "spooled through the linked directory: {:?}\n{}",
-        files(&elsewhere),
-        gw.log_text()
-    );
+            .into_iter()
+            .filter(|p| pulsegate::publish::spool::is_segment_name(&name_of(p)))
+            .count()
+    };
+    until(
+        Duration::from_secs(10),
+        "spooled through the link",
+        || segments() > 0,
+        || format!("{:?}\n{}", files(&elsewhere), gw.log_text()),
+    )
+    .await;
     let _broker = Broker::start_on(port);
     let sub = Subscriber::start(port, "pulsegate/#").await;
     assert!(
@@ -253,7 +271,14 @@ async fn foreign_files_in_the_spool_directories_survive() {
         "nothing on {topic}:\n{}",
         gw.log_text()
     );
-    tokio::time::sleep(Duration::from_secs(2)).await;
+    // Sent: the spool removes its segments, and only them.
+    until(
+        Duration::from_secs(15),
+        "the segments removed",
+        || segments() == 0,
+        || format!("{:?}\n{}", files(&elsewhere), gw.log_text()),
+    )
+    .await;
     drop(gw);
     for f in &foreign {
         assert!(f.exists(), "{} survives", f.display());
@@ -354,7 +379,23 @@ async fn a_spooled_sparkplug_payload_takes_at_most_one_and_a_half_times_its_size
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     broker.stop();
-    tokio::time::sleep(Duration::from_secs(3)).await;
+    let spooled = || {
+        let segments = files(&dir.join("spool"));
+        let segments = segments
+            .iter()
+            .filter(|p| pulsegate::publish::spool::is_segment_name(&name_of(p)));
+        segments
+            .map(|p| std::fs::read_to_string(p).unwrap_or_default())
+            .map(|text| text.lines().filter(|l| l.contains("/DDATA/")).count())
+            .sum::<usize>()
+    };
+    until(
+        Duration::from_secs(20),
+        "a dozen DDATA spooled",
+        || spooled() >= 12,
+        || gw.log_text(),
+    )
+    .await;
     let log_path = gw.log.clone();
     gw.terminate();
     let log = std::fs::read_to_string(log_path).unwrap();

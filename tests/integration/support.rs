@@ -657,3 +657,45 @@ pub fn client_certificate(dir: &Path, cn: &str, days: u32, name: &str) {
         ],
     );
 }
+
+/// Waits until `done` holds, looking every 50 ms, and panics with `what` (and `why()`, e.g. the
+/// gateway's log) when it does not within `within`: the condition wait that replaces a fixed
+/// sleep (a loaded machine gets its time, a fast one goes on at once).
+pub async fn until(
+    within: Duration,
+    what: &str,
+    mut done: impl FnMut() -> bool,
+    why: impl Fn() -> String,
+) {
+    let deadline = Instant::now() + within;
+    while !done() {
+        assert!(
+            Instant::now() < deadline,
+            "{what}: not within {within:?}\n{}",
+            why()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+/// Waits until the file at `path` was written `n` times more (its modification time moved `n`
+/// times, e.g. a bus's state saved every `state_flush`), at most 30 s.
+pub async fn saves_pass(path: &Path, n: usize) {
+    let modified = || std::fs::metadata(path).and_then(|m| m.modified()).ok();
+    let mut last = modified();
+    let mut seen = 0;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while seen < n {
+        assert!(
+            Instant::now() < deadline,
+            "{} saved {seen} of {n} times",
+            path.display()
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        let now = modified();
+        if now != last {
+            seen += 1;
+            last = now;
+        }
+    }
+}
