@@ -74,11 +74,15 @@ impl Account {
         if books.calendar.is_none() && books.billing.is_none() {
             return;
         }
-        let tariff_now = books.calendar.map(|c| c.at(books.clock, read.at_ms));
         if books.billing.is_some() {
             let open = self.open.get_or_insert_with(|| OpenPeriod::first(read));
             if shortest.fresh {
-                open.book_pre_interval(read, tariff_now);
+                // The read that opens the first interval is its start boundary's read: like
+                // the read that ends any record, its pulses were counted before the boundary,
+                // so they take the tariff in force just before it, as that record would.
+                let when = shortest.opened.map_or(read.at_ms, |b| b - 1);
+                let tariff = books.calendar.map(|c| c.at(books.clock, when));
+                open.book_pre_interval(read, tariff);
             }
         }
         for (period, record) in closed.iter_mut() {

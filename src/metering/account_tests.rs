@@ -266,3 +266,76 @@ fn the_account_survives_a_save_and_a_restart_in_the_middle_of_a_period() {
     assert_eq!(b.delta, b.total_end - 3);
     assert_eq!(b.by_tariff.values().sum::<i64>(), b.delta);
 }
+
+/// Peak on Fridays in the last minute of the day (23:59-00:00), off-peak otherwise.
+fn last_minute_peak() -> Calendar {
+    Calendar::new(
+        "offpeak",
+        &[],
+        &[RawRule {
+            tariff: "peak".into(),
+            days: vec!["fri".into()],
+            from: "23:59".into(),
+            to: "00:00".into(),
+        }],
+    )
+    .unwrap()
+}
+
+/// The billing records the run closed, in order.
+fn billing_records(ch: &Channel) -> Vec<&BillingRecord> {
+    ch.records
+        .iter()
+        .flat_map(|(_, r)| &r.booking.as_ref().unwrap().billing)
+        .collect()
+}
+
+#[test]
+fn a_start_just_before_a_switch_books_the_boundary_reads_pulses_to_the_tariff_before_it() {
+    // Friday 4 December 2026 (UTC): the gateway starts at 23:58:55.5, five seconds before
+    // peak begins at a 10 s boundary, and reads every second, one pulse more each read. Its
+    // read at 23:59:00.5 is the boundary read that opens the first record: its pulses, as
+    // those of any record's end read, were counted before the boundary, in off-peak.
+    let mut ch = Channel::new("UTC", &["10s"], daily("10s"));
+    ch.calendar = last_minute_peak();
+    let start = at("2026-12-04T23:58:55.500Z");
+    ch.run(start, 1_000, 66, |t| (t - start) / 1_000);
+    let billing = billing_records(&ch);
+    assert_eq!(billing.len(), 1, "midnight closed the partial day");
+    let b = billing[0];
+    assert_eq!(b.status, PeriodStatus::Partial);
+    assert_eq!(b.end_ms, at("2026-12-05T00:00:00Z"));
+    let records: Vec<&Record> = ch
+        .records
+        .iter()
+        .map(|(_, r)| r)
+        .filter(|r| r.end_ms <= b.end_ms)
+        .collect();
+    assert_eq!(records[0].start_ms, at("2026-12-04T23:59:00Z"));
+    // Every register is the running sum of its tariff's records.
+    assert_eq!(ch.tariff_sums("10s"), ch.account.registers);
+    // The period's peak is exactly its peak records; off-peak is the pulses no record holds,
+    // those read before the first record's start boundary.
+    let peak: i64 = records.iter().map(|r| r.delta).sum();
+    assert_eq!(ch.account.registers["peak"], peak, "the minute is all peak");
+    assert_eq!(b.by_tariff["peak"], peak, "{b:?}");
+    assert_eq!(
+        b.by_tariff["offpeak"],
+        records[0].total_start - b.total_start
+    );
+    assert_eq!(b.by_tariff.values().sum::<i64>(), b.delta);
+}
+
+#[test]
+fn a_partial_period_closed_by_the_first_boundary_read_is_booked_to_the_tariff_before_it() {
+    // Started at 23:59:55.5 on a Friday, inside peak; the first boundary read is Saturday's
+    // midnight, off-peak when it was read. It closes the partial day, which is all peak.
+    let mut ch = Channel::new("UTC", &["10s"], daily("10s"));
+    ch.calendar = last_minute_peak();
+    ch.run(at("2026-12-04T23:59:55.500Z"), 1_000, 6, |_| 7);
+    let pending = &ch.account.pending;
+    assert_eq!(pending.len(), 1, "closed with no record: it waits for one");
+    assert_eq!(pending[0].end_ms, at("2026-12-05T00:00:00Z"));
+    assert_eq!(pending[0].delta, 5 * 7);
+    assert_eq!(pending[0].by_tariff, BTreeMap::from([("peak".into(), 35)]));
+}

@@ -5,7 +5,9 @@
 //! (local midnight, of the day or of the month's `day`): every pulse of a record is in exactly
 //! one period, as it is in exactly one tariff. A period begun by a start runs from the first
 //! reading, and its pulses before the first interval boundary are booked under the tariff in
-//! force when they were read, so `by_tariff` always sums to `delta`.
+//! force when they were read (those of that boundary's read, like a record's end read, under
+//! the tariff before it), so `by_tariff` always sums to `delta` and each tariff's share beyond
+//! them is exactly its records.
 
 use std::collections::BTreeMap;
 
@@ -118,7 +120,8 @@ impl OpenPeriod {
     }
 
     /// Books the pulses of a read that no record holds (before the first interval boundary)
-    /// under the tariff in force when it was read.
+    /// under `tariff`: the one in force when it was read, or, for the read of that boundary,
+    /// just before it (see `super::account`).
     pub fn book_pre_interval(&mut self, read: Read, tariff: Option<&str>) {
         self.book(read.total, tariff);
     }

@@ -282,9 +282,10 @@ async fn a_daily_period_with_a_stop_and_a_start_inside_closes_at_midnight_whole_
     .await;
     let text = std::fs::read_to_string(&r.config).unwrap() + tariffs;
     std::fs::write(&r.config, text).unwrap();
-    // Friday 4 December 2026, 23:58:44 CET (the first record, from 23:58:50, complete);
-    // local midnight is 23:00Z.
-    let fake = Faked::at(&r.dir, "2026-12-04T22:58:44Z");
+    // Friday 4 December 2026, 23:58:56 CET, four seconds before peak: the read of 23:59:00
+    // that opens the first record counted its pulses in off-peak, and the partial period
+    // books them there, so its peak is exactly its peak records. Local midnight is 23:00Z.
+    let fake = Faked::at(&r.dir, "2026-12-04T22:58:56Z");
     let mut gw = fake.start(&r.config);
     let base = "pulsegate/test/m1/a0";
     // Offpeak, then peak from 23:59; a stop at 23:59:05 over the boundaries to 23:59:40: the
