@@ -10,8 +10,15 @@ declared its aliases). Reads commands from stdin, one JSON line each:
   {"state_raw": "<host>", "payload": "..."} (any STATE payload, retained)
   {"...": ..., "count": N}                  (an ncmd or dcmd sent N times, back to back)
 Usage: sparkplug_host.py <port> [persistent]   (persistent: a session the broker keeps)
+
+A message the broker sends again (MQTT's DUP flag) that this host already took is printed as a
+REDELIVERED line, not decoded again: QoS 1 is at least once, and a broker restarted with the
+host's session resends what it had sent but not seen acknowledged before it stopped (the host
+took it, its PUBACK came too late). Decoded twice, the node's seq would seem to go back (16, then
+14 again) although the node sent each message once and in order.
 """
 
+import collections
 import json
 import sys
 import threading
@@ -23,6 +30,8 @@ from pysparkplug._protobuf import Payload as PBPayload
 
 births = {}  # (group, node, device or None) -> Birth
 out_lock = threading.Lock()
+# The last messages taken, as (packet id, topic, payload): what a resend (DUP) repeats.
+taken = collections.deque(maxlen=4096)
 
 
 def emit(obj):
@@ -97,7 +106,20 @@ def raw_value(m):
     return None
 
 
+def redelivered(msg):
+    """The broker sends again (DUP) a message this host already took: the same packet id, topic
+    and payload. A DUP message not taken before is a first delivery and is decoded."""
+    key = (msg.mid, msg.topic, bytes(msg.payload))
+    if msg.dup and key in taken:
+        return True
+    taken.append(key)
+    return False
+
+
 def on_message(client, userdata, msg):
+    if redelivered(msg):
+        emit({"topic": msg.topic, "type": "REDELIVERED", "mid": msg.mid})
+        return
     try:
         emit(decode(msg.topic, msg.payload))
     except Exception as e:  # a payload this host cannot read is a finding, not a crash

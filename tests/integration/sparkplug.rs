@@ -94,6 +94,14 @@ impl Host {
         }
     }
 
+    /// Sends the host's process `sig` (`STOP`: it takes and acknowledges nothing until `CONT`).
+    pub(crate) fn signal(&self, sig: &str) {
+        let pid = self.child.id().to_string();
+        let _ = Command::new("kill")
+            .args([&format!("-{sig}"), &pid])
+            .status();
+    }
+
     pub(crate) fn send(&mut self, command: Value) {
         writeln!(self.stdin, "{command}").unwrap();
         self.stdin.flush().unwrap();
@@ -429,6 +437,84 @@ async fn with_a_primary_host_the_node_waits_for_its_state_and_follows_it() {
     })
     .await;
     no_errors(&host.lines());
+}
+
+/// A Sparkplug message of the node `test` in group `plant` (one metric), as a node sends it.
+fn node_message(kind: &str, seq: u64) -> Vec<u8> {
+    use pulsegate::publish::sparkplug::proto::{Metric, Payload, Value, datatype};
+    let name = if kind == "NBIRTH" { "bdSeq" } else { "x" };
+    let metric = Metric::new(name, None, datatype::INT64, Some(Value::Long(seq)));
+    let payload = Payload {
+        timestamp: Some(1_700_000_000_000 + seq),
+        metrics: vec![metric],
+        seq: Some(seq),
+        ..Payload::default()
+    };
+    payload.encode()
+}
+
+/// A broker restarted with the host's session sends again, flagged DUP, what it had sent the
+/// host but not seen acknowledged (MQTT's at-least-once): the host takes each message once, so
+/// the node's `seq` runs on unbroken. Decoded twice it would seem to go back (4, then 3): what
+/// made `burn_in::outputs_the_scada_broker_away` fail on a loaded machine, where the host's
+/// acknowledgements were still on their way when the broker stopped. Here the host is stopped
+/// (SIGSTOP) while three messages reach it, so none of them is acknowledged before the broker
+/// goes; the one sent after the restart comes after the broker's resends.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn what_a_restarted_broker_sends_again_the_host_takes_once() {
+    let dir = temp_dir("sparkplug-resent");
+    let port = free_port();
+    let mut broker = Broker::start_persistent(port, &dir);
+    let host = Host::start(port, true);
+    let node = Subscriber::start(port, "spBv1.0/plant/#").await;
+    let send = |kind: &'static str, seq: u64| {
+        let topic = format!("spBv1.0/plant/{kind}/test");
+        let client = node.client.clone();
+        async move {
+            let qos = rumqttc::v5::mqttbytes::QoS::AtLeastOnce;
+            let payload = node_message(kind, seq);
+            client.publish(topic, qos, false, payload).await.unwrap();
+        }
+    };
+    send("NBIRTH", 0).await;
+    for seq in 1..=2 {
+        send("NDATA", seq).await;
+    }
+    host.wait(Duration::from_secs(10), "taken", |l| {
+        of_type(l, "NDATA").count() == 2
+    })
+    .await;
+    host.signal("STOP");
+    for seq in 3..=5 {
+        send("NDATA", seq).await;
+    }
+    // The broker routed them to the host too (in the same step) once they are back here.
+    until(
+        Duration::from_secs(10),
+        "the broker has them",
+        || node.all().len() == 6,
+        String::new,
+    )
+    .await;
+    broker.terminate();
+    host.signal("CONT");
+    let _broker = Broker::start_persistent(port, &dir);
+    // Sent after the restart: it reaches the host after what the broker sends again.
+    send("NDATA", 6).await;
+    host.wait(
+        Duration::from_secs(20),
+        "the message after the restart",
+        |l| of_type(l, "NDATA").any(|d| d["seq"] == 6),
+    )
+    .await;
+    let lines = host.lines();
+    no_errors(&lines);
+    assert_seq_unbroken(&lines);
+    assert_eq!(of_type(&lines, "NDATA").count(), 6, "{lines:?}");
+    assert!(
+        of_type(&lines, "REDELIVERED").count() >= 1,
+        "the broker sent again what the stopped host had not acknowledged: {lines:?}"
+    );
 }
 
 /// The one long outage: the broker away until the node has spooled a hundred messages (about
