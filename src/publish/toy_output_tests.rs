@@ -5,12 +5,10 @@
 //! builder, and publishes a reading; nothing else in `src/` knows it.
 
 use std::sync::Arc;
-use std::time::{Duration, SystemTime};
 
 use crate::config::outputs::kind::{Context, Kind, OwnTable, Settings};
 use crate::config::walk::{Errors, Table};
 use crate::config::{Config, ConfigErrors, OutputConfig};
-use crate::counter::Update;
 use crate::outbox::Message;
 use crate::publish::format::Format;
 use crate::publish::formats::{Entry, Registry, STANDARD};
@@ -93,27 +91,14 @@ fn check(registry: &Registry, outputs: &str) -> Result<Config, ConfigErrors> {
     registry.config(&text, path, Some(Default::default()))
 }
 
+/// A counter reading of `d/a0` whose running total is `total` (the shared test reading, so
+/// the toy's test owns no copy of the struct).
 fn reading(total: i64) -> Reading {
-    Reading {
-        device: "d".into(),
-        channel: "a0".into(),
-        ts: SystemTime::UNIX_EPOCH + Duration::from_secs(1_795_300_723),
-        count: total,
-        freq_hz: None,
-        rpm: None,
-        update: Update {
-            delta: 1,
-            total,
-            seq: 1,
-            rate_hz: None,
-            event: None,
-        },
-        after_seq: None,
-        meter: None,
-        kind: crate::profile::ChannelKind::Counter,
-        units: None,
-        measured: None,
-    }
+    let mut r = Reading::sample("d", "a0", 1);
+    r.update.total = total;
+    r.count = total;
+    r.kind = crate::profile::ChannelKind::Counter;
+    r
 }
 
 const TOY_OUTPUT: &str = "[outputs.plc]\nkind = \"toy\"\n[toy]\nprefix = \"plant\"\n";
