@@ -133,7 +133,7 @@ async fn run_buses(config: &Config, warmup: Duration, window: Duration) -> (Vec<
     let mut keep = Vec::new();
     let health = pulsegate::health::Health::default();
     for bus in &config.buses {
-        let pulsegate::config::Link::Modbus(line) = &bus.link else {
+        let Some(line) = bus.link.line::<pulsegate::modbus::config::Line>() else {
             unreachable!("the bench's buses are Modbus buses");
         };
         let (ctx, crx) = tokio::sync::mpsc::unbounded_channel();

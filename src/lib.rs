@@ -53,4 +53,6 @@ pub mod state;
 pub mod status;
 pub mod systemd;
 pub mod topics;
+#[cfg(test)]
+mod toy_protocol_tests;
 pub mod verify;

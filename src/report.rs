@@ -1,5 +1,5 @@
 //! The compiled poll plan in words, for `pulsegate check` and `pulsegate plan`: each bus in its
-//! protocol's words (`config::buses::in_words`), then the outputs. Pure.
+//! protocol's words (`Protocol::in_words`), then the outputs. Pure.
 
 use std::fmt::Write;
 
@@ -9,7 +9,7 @@ use crate::config::Config;
 pub fn poll_plan(config: &Config) -> String {
     let mut out = String::new();
     for bus in &config.buses {
-        out += &crate::config::buses::in_words(bus);
+        out += &bus.link.protocol().in_words(bus);
     }
     out + &outputs(config)
 }

@@ -3,7 +3,6 @@
 
 use std::path::PathBuf;
 
-use clap::builder::TypedValueParser as _;
 use tokio_util::sync::CancellationToken;
 
 use crate::commission::error::CommissionError;
@@ -53,12 +52,6 @@ impl UnitArgs {
     }
 }
 
-/// `--protocol`: one of the protocols' names, listed in `--help` as clap lists an enum's.
-fn protocol_arg() -> impl clap::builder::TypedValueParser<Value = Protocol> {
-    clap::builder::PossibleValuesParser::new(Protocol::ALL.map(Protocol::name))
-        .map(|name| name.parse::<Protocol>().expect("a listed protocol"))
-}
-
 /// One module on the line, of a known (or identified) model.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ModuleArgs {
@@ -78,8 +71,8 @@ pub enum Commission {
         #[command(flatten)]
         line: LineArgs,
         /// modbus | mbus.
-        #[arg(long, default_value_t = Protocol::DEFAULT, value_parser = protocol_arg())]
-        protocol: Protocol,
+        #[arg(long, default_value_t = Protocol::DEFAULT.name().to_string())]
+        protocol: String,
         /// M-Bus: the wildcard search by secondary address (finds meters that share a primary
         /// address, 0 as shipped), instead of asking primary addresses.
         #[arg(long)]
@@ -109,8 +102,8 @@ pub enum Commission {
         #[command(flatten)]
         module: ModuleArgs,
         /// modbus | mbus.
-        #[arg(long, default_value_t = Protocol::DEFAULT, value_parser = protocol_arg())]
-        protocol: Protocol,
+        #[arg(long, default_value_t = Protocol::DEFAULT.name().to_string())]
+        protocol: String,
         /// M-Bus: the meter's primary address (0-250).
         #[arg(long, conflicts_with = "id")]
         address: Option<u8>,

@@ -9,27 +9,37 @@ use config::Value;
 use super::model::BusParts;
 use super::model::{Bus, Config, ConfigErrors, Gateway};
 use super::outputs::Kinds;
-use super::protocols::Protocol;
+use super::protocols::{Checking, Protocol, Protocols};
 use super::walk::{Errors, Table, join};
 use crate::profile::Profiles;
 
 use crate::profile::MAX_TIMEOUT;
 
-/// Checks a merged configuration tree that was read from `path`, with the output kinds of the
-/// registry.
-pub fn from_tree(tree: &Value, path: &Path, kinds: &Kinds) -> Result<Config, ConfigErrors> {
+/// What a config is checked against: the registries' output kinds (`publish/formats.rs`) and
+/// protocols (`crate::protocols`), handed in from above, so that one left out of its registry
+/// can neither be parsed nor run.
+#[derive(Clone)]
+pub struct Known {
+    pub kinds: Kinds,
+    pub protocols: Protocols,
+}
+
+/// Checks a merged configuration tree that was read from `path`, against the registries' output
+/// kinds and protocols.
+pub fn from_tree(tree: &Value, path: &Path, known: &Known) -> Result<Config, ConfigErrors> {
     let mut errs = Errors {
         default_origin: path.display().to_string(),
         ..Errors::default()
     };
-    let config = check(tree, (path, kinds), &mut errs);
+    let config = check(tree, (path, known), &mut errs);
     match config {
         Some(c) if errs.list.is_empty() => Ok(c),
         _ => Err(ConfigErrors(errs.list)),
     }
 }
 
-fn check(tree: &Value, (path, kinds): (&Path, &Kinds), errs: &mut Errors) -> Option<Config> {
+fn check(tree: &Value, (path, known): (&Path, &Known), errs: &mut Errors) -> Option<Config> {
+    let kinds = &known.kinds;
     let mut root = Table::of(tree, "", errs)?;
     let config_dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
 
@@ -56,7 +66,12 @@ fn check(tree: &Value, (path, kinds): (&Path, &Kinds), errs: &mut Errors) -> Opt
         }
     };
 
-    let buses = buses(&mut root, &profiles, errs);
+    let checking = Checking {
+        protocol: Protocol::DEFAULT,
+        profiles: &profiles,
+        protocols: &known.protocols,
+    };
+    let buses = buses(&mut root, &checking, errs);
     let outputs = super::outputs::read(&mut root, (legacy, kinds), &mqtt, &gateway.id, errs);
     let remote = super::remote::read(root.table("remote", errs), errs);
     root.finish(errs);
@@ -80,14 +95,14 @@ fn check(tree: &Value, (path, kinds): (&Path, &Kinds), errs: &mut Errors) -> Opt
 }
 
 /// Every `[buses.NAME]`; none is an error.
-fn buses(root: &mut Table<'_>, profiles: &Profiles, errs: &mut Errors) -> Vec<Bus> {
+fn buses(root: &mut Table<'_>, checking: &Checking<'_>, errs: &mut Errors) -> Vec<Bus> {
     let entries = root.entries("buses", errs);
     if entries.is_empty() {
         errs.push("buses", root.origin(), "no bus configured");
     }
     entries
         .into_iter()
-        .filter_map(|(name, value)| bus(&name, value, profiles, errs))
+        .filter_map(|(name, value)| bus(&name, value, checking, errs))
         .collect()
 }
 
@@ -204,7 +219,23 @@ fn refuse_unusable_host(g: &Gateway, errs: &mut Errors) {
     }
 }
 
-fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Option<Bus> {
+/// `protocol`: one of the registry's, or the default.
+fn protocol(
+    t: &mut Table<'_>,
+    path: &str,
+    protocols: &Protocols,
+    errs: &mut Errors,
+) -> Option<Protocol> {
+    let Some(name) = t.opt::<String>("protocol", errs) else {
+        return Some(Protocol::DEFAULT);
+    };
+    protocols
+        .find(&name)
+        .map_err(|why| errs.push(&join(path, "protocol"), t.origin(), why))
+        .ok()
+}
+
+fn bus(name: &str, value: &Value, checking: &Checking<'_>, errs: &mut Errors) -> Option<Bus> {
     let path = format!("buses.{name}");
     let mut t = Table::of(value, &path, errs)?;
     if !crate::topics::is_topic_safe(name) {
@@ -214,22 +245,21 @@ fn bus(name: &str, value: &Value, profiles: &Profiles, errs: &mut Errors) -> Opt
             "bus name must be letters, digits, '-' or '_'",
         );
     }
-    let protocol = match t.opt::<String>("protocol", errs) {
-        None => Protocol::DEFAULT,
-        Some(p) => match p.parse::<Protocol>() {
-            Ok(p) => p,
-            Err(why) => {
-                errs.push(&join(&path, "protocol"), t.origin(), why);
-                return None;
-            }
-        },
-    };
+    let protocol = protocol(&mut t, &path, checking.protocols, errs)?;
     let BusParts {
         link,
         guard,
         slow_poll,
         devices,
-    } = super::buses::parts(protocol, &mut t, &path, profiles, errs);
+    } = protocol.bus(
+        &mut t,
+        &path,
+        &Checking {
+            protocol,
+            ..*checking
+        },
+        errs,
+    );
     let timeout = t.duration_within("timeout", Duration::from_millis(1), MAX_TIMEOUT, errs);
     let offline_after = t.int::<u32>("offline_after", errs).unwrap_or(3);
     if offline_after == 0 {

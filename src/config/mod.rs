@@ -4,6 +4,7 @@
 //! Buses and devices are maps keyed by name (not arrays) so that an environment variable such as
 //! `PULSEGATE__BUSES__LINE1__DEVICES__PRESS1__POLL=2s` can address one of them.
 
+pub mod bus;
 pub mod buses;
 pub mod channel;
 pub(crate) mod check;
@@ -31,23 +32,24 @@ use std::collections::HashMap;
 use std::path::Path;
 
 pub use channel::{ChannelConfig, Run};
-pub use check::{from_tree, host_name_raw, id_from_host};
+pub use check::{Known, from_tree, host_name_raw, id_from_host};
 pub use hash::ConfigHash;
 pub use metrics::Metrics as MetricsEndpoint;
 pub use outputs::{Kinds, OutputConfig, OutputKind, Outputs};
+pub use protocols::Protocols;
 
 pub use model::*;
 
 /// `Config::load`, `Config::load_with_env` and `Config::from_toml` check with the gateway's own
-/// output kinds: they are defined beside the output registry (`publish/formats.rs`), which
-/// stands above the formats it builds, and call the two below with its kinds.
+/// registries: they are defined beside the protocol registry (`crate::protocols`), which stands
+/// above everything it registers, and call the two below.
 impl Config {
-    /// Reads and checks `path` with the output kinds `kinds`, and the environment given
-    /// (`None`: the process's `PULSEGATE__…` overrides).
+    /// Reads and checks `path` against `known`, with the environment given (`None`: the
+    /// process's `PULSEGATE__…` overrides).
     pub fn load_with(
         path: &Path,
         env: Option<HashMap<String, String>>,
-        kinds: &Kinds,
+        known: &Known,
     ) -> Result<Config, ConfigErrors> {
         let origin = path.display().to_string();
         let text = std::fs::read_to_string(path).map_err(|e| {
@@ -57,15 +59,15 @@ impl Config {
                 message: format!("cannot read: {e}"),
             }])
         })?;
-        Self::from_toml_with(&text, path, env, kinds)
+        Self::from_toml_with(&text, path, env, known)
     }
 
-    /// Checks TOML text as if it had been read from `path`, with the output kinds `kinds`.
+    /// Checks TOML text as if it had been read from `path`, against `known`.
     pub fn from_toml_with(
         text: &str,
         path: &Path,
         env: Option<HashMap<String, String>>,
-        kinds: &Kinds,
+        known: &Known,
     ) -> Result<Config, ConfigErrors> {
         let origin = path.display().to_string();
         let mut env_source = config::Environment::with_prefix("PULSEGATE")
@@ -86,7 +88,7 @@ impl Config {
                     message: e.to_string(),
                 }])
             })?;
-        from_tree(&tree.cache, path, kinds)
+        from_tree(&tree.cache, path, known)
     }
 
     /// Every device with its bus, in bus and name order.

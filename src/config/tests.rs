@@ -57,15 +57,15 @@ fn a_good_config_is_checked_into_typed_values() {
     let hall = &c.buses[0];
     assert_eq!(
         hall.link,
-        Link::Modbus(Line::Tcp {
+        Link::new(Line::Tcp {
             host: "10.0.0.7".into(),
             port: 20108
         })
     );
     let line1 = &c.buses[1];
     assert!(matches!(
-        line1.link,
-        Link::Modbus(Line::Rtu {
+        line1.link.line(),
+        Some(Line::Rtu {
             baud: 19200,
             parity: Parity::Even,
             stop_bits: 1,
@@ -212,7 +212,7 @@ fn a_tcp_bus_of_zh_yx1600_modules_needs_no_port_the_datasheet_gives_20108() {
     .unwrap();
     assert_eq!(
         c.buses[0].link,
-        Link::Modbus(Line::Tcp {
+        Link::new(Line::Tcp {
             host: "10.0.0.7".into(),
             port: 20108
         })
@@ -222,8 +222,8 @@ fn a_tcp_bus_of_zh_yx1600_modules_needs_no_port_the_datasheet_gives_20108() {
     )
     .unwrap();
     assert!(matches!(
-        c.buses[0].link,
-        Link::Modbus(Line::Tcp { port: 502, .. })
+        c.buses[0].link.line(),
+        Some(Line::Tcp { port: 502, .. })
     ));
     let e = errors(
         "[buses.gw]\nhost = \"10.0.0.8\"\n[buses.gw.devices.press]\nunit = 1\nmodel = \"yl67\"\n\

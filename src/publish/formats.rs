@@ -7,13 +7,10 @@
 //! every format (the trait they implement is in [`super::format`], their MQTT parts in
 //! [`super::lifecycle`]).
 
-use std::collections::HashMap;
-use std::path::Path;
-
 use super::lifecycle::{MqttFormat, plain};
 use super::voice::Voice;
 use crate::config::outputs::{Kind, homeassistant, json, sparkplug};
-use crate::config::{Config, ConfigErrors, Kinds, OutputConfig};
+use crate::config::{Config, Kinds, OutputConfig};
 
 /// The formats an output of a kind runs, in the order their messages go out.
 pub type Build = fn(&Config, &OutputConfig) -> Vec<Box<dyn MqttFormat>>;
@@ -72,16 +69,6 @@ impl Registry {
         Kinds(self.0.iter().map(|e| e.kind).collect())
     }
 
-    /// Checks TOML text (as read from `path`) against these kinds.
-    pub fn config(
-        &self,
-        text: &str,
-        path: &Path,
-        env: Option<HashMap<String, String>>,
-    ) -> Result<Config, ConfigErrors> {
-        Config::from_toml_with(text, path, env, &self.kinds())
-    }
-
     /// The formats of `output`, in the order their messages go out, and the gateway's voice
     /// first on every connection that carries its JSON topics (its will is theirs).
     pub fn build(&self, config: &Config, output: &OutputConfig) -> Vec<Box<dyn MqttFormat>> {
@@ -104,29 +91,4 @@ impl Registry {
 /// The formats of `output` by the gateway's registry.
 pub fn build(config: &Config, output: &OutputConfig) -> Vec<Box<dyn MqttFormat>> {
     Registry::standard().build(config, output)
-}
-
-/// The config checked with the gateway's output kinds.
-impl Config {
-    /// Reads and checks `path`, with `PULSEGATE__…` overrides from the process environment.
-    pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
-        Self::load_with(path, None, &Registry::standard().kinds())
-    }
-
-    /// Like [`Config::load`], with the environment given (for tests).
-    pub fn load_with_env(
-        path: &Path,
-        env: Option<HashMap<String, String>>,
-    ) -> Result<Config, ConfigErrors> {
-        Self::load_with(path, env, &Registry::standard().kinds())
-    }
-
-    /// Checks TOML text as if it had been read from `path`.
-    pub fn from_toml(
-        text: &str,
-        path: &Path,
-        env: Option<HashMap<String, String>>,
-    ) -> Result<Config, ConfigErrors> {
-        Registry::standard().config(text, path, env)
-    }
 }

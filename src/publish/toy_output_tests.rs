@@ -88,7 +88,11 @@ const BUS: &str = "[buses.l]\nhost = \"127.0.0.1\"\nport = 502\n[buses.l.devices
 fn check(registry: &Registry, outputs: &str) -> Result<Config, ConfigErrors> {
     let text = format!("[gateway]\nid = \"e1\"\n{outputs}\n{BUS}");
     let path = std::path::Path::new("toy.toml");
-    registry.config(&text, path, Some(Default::default()))
+    let known = crate::config::Known {
+        kinds: registry.kinds(),
+        protocols: crate::protocols::Registry::standard().protocols(),
+    };
+    Config::from_toml_with(&text, path, Some(Default::default()), &known)
 }
 
 /// A counter reading of `d/a0` whose running total is `total` (the shared test reading, so

@@ -11,16 +11,16 @@ use std::time::Duration;
 use config::Value;
 
 use super::{BAUDS, DEFAULT_METER_POLL, Line, MAX_PRIMARY, METER_MODEL, MeterAddress};
+use crate::config::bus::{BusParts, Device, Link, Protocol};
 use crate::config::channel::ChannelConfig;
-use crate::config::model::{BusParts, Device};
 use crate::config::parity::Parity;
-use crate::config::protocols::{Address, Link, Protocol};
+use crate::config::protocols::address::Address;
 use crate::config::walk::{Errors, Table, join};
 use crate::profile::MAX_TIMEOUT;
 
 /// An M-Bus bus's link and meters.
 pub(crate) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BusParts {
-    let link = link(t, path, errs).map(Link::Mbus);
+    let link = link(t, path, errs).map(Link::new);
     let mut devices = Vec::new();
     let mut places: BTreeMap<String, String> = BTreeMap::new();
     let entries = t.entries("devices", errs);
@@ -31,7 +31,7 @@ pub(crate) fn bus(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> BusParts 
         let Some(d) = meter(path, &name, value, errs) else {
             continue;
         };
-        let Address::Mbus(address) = &d.address else {
+        let Some(address) = d.address.of::<MeterAddress>() else {
             continue;
         };
         let (key, what) = match address {
@@ -155,7 +155,7 @@ fn meter(bus_path: &str, name: &str, value: &Value, errs: &mut Errors) -> Option
         publish,
         payload,
         intervals,
-        address: Address::Mbus(address),
+        address: Address::new(address),
         server_unit,
     })
 }

@@ -2,21 +2,13 @@
 //! socket), a meter's address, and the checks of `[buses.NAME] protocol = "mbus"` (`check.rs`).
 
 pub(crate) mod check;
+pub mod protocol;
 pub(crate) mod report;
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::config::parity::Parity;
-
-/// The name a config writes (`protocol = "mbus"`).
-pub const NAME: &str = "mbus";
-
-/// The protocol as a person writes it.
-pub const TITLE: &str = "M-Bus";
-
-/// What an M-Bus bus reaches.
-pub const DEVICES: &str = "M-Bus meters";
 
 /// The `model` of every M-Bus meter in the state file's keys.
 pub const METER_MODEL: &str = "mbus";

@@ -90,7 +90,7 @@ pub(crate) fn poller(
 ) -> DeviceRt<ModbusDevice> {
     let bus = Bus {
         name: "commission".into(),
-        link: crate::config::Link::Modbus(target.link_config(baud)),
+        link: crate::config::Link::new(target.link_config(baud)),
         timeout: None,
         guard: Duration::ZERO,
         offline_after: 1,
@@ -125,7 +125,7 @@ pub(crate) fn poller(
         payload: None,
         intervals: None,
         enabled: true,
-        address: crate::config::Address::Modbus(crate::modbus::config::Unit(unit)),
+        address: crate::config::Address::new(crate::modbus::config::Unit(unit)),
         server_unit: None,
     };
     let wire = Wire::for_line(link.timing().as_ref());

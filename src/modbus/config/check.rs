@@ -9,9 +9,9 @@ use std::time::Duration;
 use config::Value;
 
 use super::{BAUDS, Line, TCP_PORT, Unit};
-use crate::config::model::{BusParts, Device};
+use crate::config::bus::{BusParts, Checking, Device, Link};
 use crate::config::parity::Parity;
-use crate::config::protocols::{Address, Link, Protocol};
+use crate::config::protocols::address::Address;
 use crate::config::walk::{Errors, Table, join};
 use crate::profile::{MAX_TIMEOUT, Profiles};
 
@@ -20,10 +20,10 @@ use crate::profile::{MAX_TIMEOUT, Profiles};
 pub(crate) fn bus(
     t: &mut Table<'_>,
     path: &str,
-    profiles: &Profiles,
+    checking: &Checking<'_>,
     errs: &mut Errors,
 ) -> BusParts {
-    let link = bus_link(t, path, errs);
+    let link = bus_link(t, path, checking, errs);
     let t_origin = t.origin().map(str::to_string);
     let guard = t
         .duration_within("guard", Duration::ZERO, Duration::from_secs(1), errs)
@@ -31,7 +31,7 @@ pub(crate) fn bus(
     let slow_poll = t
         .duration("slow_poll", errs)
         .unwrap_or(Duration::from_secs(60));
-    let devices = bus_devices(t, path, profiles, errs);
+    let devices = bus_devices(t, path, checking.profiles, errs);
     if matches!(link, Some(Line::Tcp { .. })) {
         for d in devices.iter().filter(|d| d.baud.is_some()) {
             errs.push(
@@ -48,7 +48,7 @@ pub(crate) fn bus(
         *port = default_tcp_port(path, &devices, t_origin.as_deref(), errs);
     }
     BusParts {
-        link: link.map(Link::Modbus),
+        link: link.map(Link::new),
         guard,
         slow_poll,
         devices,
@@ -56,7 +56,12 @@ pub(crate) fn bus(
 }
 
 /// The bus's link: `host` (Modbus TCP) or `port` (a serial device, Modbus RTU) and its settings.
-fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Line> {
+fn bus_link(
+    t: &mut Table<'_>,
+    path: &str,
+    checking: &Checking<'_>,
+    errs: &mut Errors,
+) -> Option<Line> {
     let has_port = t.has("port");
     let has_host = t.has("host");
     if has_host {
@@ -106,7 +111,7 @@ fn bus_link(t: &mut Table<'_>, path: &str, errs: &mut Errors) -> Option<Line> {
     } else {
         let why = format!(
             "needs `port` (a serial device, Modbus RTU) or `host` (Modbus TCP), or {}",
-            Protocol::Modbus.others()
+            checking.protocols.others(checking.protocol)
         );
         errs.push(path, t.origin(), why);
         None
@@ -196,7 +201,7 @@ fn device(
         publish,
         payload,
         intervals,
-        address: Address::Modbus(Unit(unit?)),
+        address: Address::new(Unit(unit?)),
         server_unit,
     })
 }

@@ -3,6 +3,7 @@
 
 pub(crate) mod check;
 pub mod plan;
+pub mod protocol;
 pub(crate) mod report;
 pub mod server;
 
@@ -10,15 +11,6 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use crate::config::parity::Parity;
-
-/// The name a config writes (`protocol = "modbus"`, the default).
-pub const NAME: &str = "modbus";
-
-/// The protocol as a person writes it.
-pub const TITLE: &str = "Modbus";
-
-/// What a Modbus bus reaches.
-pub const DEVICES: &str = "Modbus modules";
 
 /// Baud rates the seed modules can be set to (their baud-code tables).
 pub const BAUDS: [u32; 7] = [2400, 4800, 9600, 19200, 38400, 57600, 115200];

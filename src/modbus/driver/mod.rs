@@ -52,6 +52,19 @@ pub struct Modbus {
     requests: Option<Receiver<ScanRequest>>,
 }
 
+/// Runs `task` over a Modbus driver on `bus`'s line until `shutdown`; `None` when the bus's
+/// link is not a Modbus line.
+pub fn spawn(
+    task: crate::bus::BusTask,
+    bus: &Bus,
+    scans: Receiver<ScanRequest>,
+    shutdown: tokio_util::sync::CancellationToken,
+) -> Option<tokio::task::JoinHandle<()>> {
+    let line = bus.link.line::<crate::modbus::config::Line>()?;
+    let driver = Modbus::for_bus(bus, line).with_scans(Some(scans));
+    Some(tokio::spawn(task.run(driver, shutdown)))
+}
+
 impl Modbus {
     /// The link of a configured bus on `line` (devices with a baud rate of their own get it).
     pub fn for_bus(bus: &Bus, line: &crate::modbus::config::Line) -> Modbus {

@@ -132,7 +132,7 @@ impl MeterDevice {
     pub fn new(config: &Device) -> MeterDevice {
         let address = config
             .address
-            .as_mbus()
+            .of::<crate::mbus::config::MeterAddress>()
             .map_or(Address::Primary(config.unit), Address::of);
         MeterDevice {
             timeout: config.timeout,

@@ -34,6 +34,19 @@ pub struct Mbus {
     survey: Option<crate::scan::Survey>,
 }
 
+/// Runs `task` over an M-Bus master on `bus`'s line until `shutdown`; `None` when the bus's
+/// link is not an M-Bus line.
+pub fn spawn(
+    task: crate::bus::BusTask,
+    bus: &Bus,
+    scans: Receiver<ScanRequest>,
+    shutdown: tokio_util::sync::CancellationToken,
+) -> Option<tokio::task::JoinHandle<()>> {
+    let line = bus.link.line::<crate::mbus::config::Line>()?;
+    let driver = Mbus::for_bus(bus, line).with_scans(Some(scans));
+    Some(tokio::spawn(task.run(driver, shutdown)))
+}
+
 impl Mbus {
     /// The line of a configured M-Bus bus (its `timeout` where it gives one).
     pub fn for_bus(bus: &Bus, line: &crate::mbus::config::Line) -> Mbus {
