@@ -4,7 +4,8 @@
 //! Modbus server output's keys and register map); [`driver`] the RTU/TCP driver under the bus
 //! core; [`server`] the Modbus TCP server output for PLCs (its task and its metric families);
 //! [`commission`] the commissioning commands on a Modbus line; [`sim`] the simulated modules.
-//! `crate::protocols` (and `config/protocols/`, `config/buses.rs`) register it.
+//! `crate::protocols` registers it (one line of `STANDARD`: [`config::protocol::PROTOCOL`] and
+//! [`driver::spawn`]); `config/protocols/` and `config/buses.rs` name its serving output.
 
 pub mod commission;
 pub mod config;
