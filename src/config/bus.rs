@@ -209,8 +209,10 @@ impl PartialEq for Link {
 }
 
 impl fmt::Debug for Link {
+    /// `modbus(Tcp { .. })`: with its protocol's name, as the config hash reads it (two
+    /// protocols' lines may print alike).
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        self.0.fmt(f)
+        write!(f, "{}({:?})", self.protocol().name(), self.0)
     }
 }
 

@@ -60,6 +60,11 @@ fn a_link_and_an_address_are_their_protocols_own_types() {
         port: 502,
     });
     assert_ne!(link, other, "the same host and port in two protocols");
+    assert_ne!(
+        format!("{link:?}"),
+        format!("{other:?}"),
+        "the config hash reads a link's Debug"
+    );
     assert_eq!(link, Link::new(line));
     assert_ne!(
         Address::new(Unit(5)),
